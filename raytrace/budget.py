@@ -1,0 +1,51 @@
+"""Work and wall-time budget of one computation, checked inside the loops.
+
+A timeout wrapped around a worker thread does not stop the thread; the tracer
+calls :meth:`Budget.charge` once per bounce / batch instead, so a request that
+runs out of time or work stops itself with :class:`BudgetExceededError`.
+The service may also :meth:`cancel` it (e.g. the client went away).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+from raytrace.errors import BudgetExceededError
+
+
+@dataclass
+class Budget:
+    """``deadline_s``: wall time allowed from creation [s]; ``max_ray_segments``:
+    cap on ray segments traced (one segment = one ray cast). ``None`` = unlimited."""
+
+    deadline_s: float | None = None
+    max_ray_segments: int | None = None
+    started: float = field(default_factory=time.monotonic)
+    ray_segments: int = 0
+    _cancelled: threading.Event = field(default_factory=threading.Event, repr=False)
+
+    def cancel(self) -> None:
+        self._cancelled.set()
+
+    def elapsed_s(self) -> float:
+        return time.monotonic() - self.started
+
+    def charge(self, ray_segments: int = 0) -> None:
+        """Account for work done and raise if a limit is passed."""
+        self.ray_segments += int(ray_segments)
+        if self._cancelled.is_set():
+            raise BudgetExceededError("the computation was cancelled", kind="cancelled")
+        if self.max_ray_segments is not None and self.ray_segments > self.max_ray_segments:
+            raise BudgetExceededError(
+                f"work budget exceeded: {self.ray_segments} ray segments traced, cap "
+                f"{self.max_ray_segments}; lower rays, max_interactions or receivers",
+                kind="work",
+            )
+        if self.deadline_s is not None and self.elapsed_s() > self.deadline_s:
+            raise BudgetExceededError(
+                f"deadline exceeded: {self.elapsed_s():.2f} s > {self.deadline_s:.2f} s; "
+                "lower rays, max_interactions or receivers",
+                kind="deadline",
+            )

@@ -1,0 +1,130 @@
+"""Tracer outputs: interactions, segments, paths, per-receiver profiles.
+
+The channel between the transmitter and one receiver is
+``h(t) = sum_k a_k delta(t - tau_k)`` (``shared/design/api.md``): ``a_k`` is the
+complex path gain, ``|a_k|^2`` the power transfer between the two antennas, so
+that a free-space line of sight at distance d has ``|a| = lambda0 / (4 pi d)``
+(Friis, isotropic antennas) and, inside a homogeneous lossless medium of
+refractive index n, ``|a| = lambda0 / (4 pi n d)``. Delays are absolute.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+InteractionKind = Literal["reflection", "refraction", "total_internal_reflection"]
+
+
+@dataclass(frozen=True)
+class Antenna:
+    """An antenna: position, polarization (unit vector) and pattern.
+
+    An isotropic antenna radiates unit field along the projection of its
+    polarization onto the plane normal to the ray; a ``dipole`` also weights
+    by sin(theta) from its axis (= the polarization). A receiver's response is
+    the projection of the arriving field onto its polarization.
+    """
+
+    position_m: np.ndarray
+    name: str = ""
+    polarization: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    pattern: Literal["isotropic", "dipole"] = "isotropic"
+
+
+@dataclass(frozen=True)
+class Interaction:
+    """One event along a path.
+
+    ``from_medium`` is the medium the wave arrives in; ``to_medium`` is the
+    medium on the far side of the surface (entered on refraction, not entered
+    on reflection / total internal reflection).
+    """
+
+    kind: InteractionKind
+    point_m: np.ndarray
+    from_medium: str
+    to_medium: str
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A straight piece of a path inside one medium."""
+
+    medium: str
+    length_m: float
+
+
+@dataclass(frozen=True)
+class Path:
+    """One propagation path from the transmitter to a receiver."""
+
+    delay_s: float
+    gain: complex
+    length_m: float
+    interactions: tuple[Interaction, ...]
+    segments: tuple[Segment, ...]
+    band_gains: np.ndarray | None = None  # complex, one per band frequency
+
+    @property
+    def gain_db(self) -> float:
+        """20 log10 |a| (-inf for a zero gain; the service clamps it)."""
+        with np.errstate(divide="ignore"):
+            return float(20.0 * np.log10(abs(self.gain)))
+
+
+@dataclass(frozen=True)
+class ReceiverProfile:
+    """Every path found to one receiver, sorted by delay, with summary statistics."""
+
+    receiver: str
+    position_m: np.ndarray
+    medium: str
+    geometric_distance_m: float
+    paths: tuple[Path, ...]
+
+    @property
+    def first_path_delay_s(self) -> float | None:
+        return self.paths[0].delay_s if self.paths else None
+
+    @property
+    def path_gain_db(self) -> float:
+        """10 log10 sum_k |a_k|^2: total power transfer (incoherent sum)."""
+        power = sum(abs(p.gain) ** 2 for p in self.paths)
+        with np.errstate(divide="ignore"):
+            return float(10.0 * np.log10(power)) if power > 0 else float("-inf")
+
+    @property
+    def rms_delay_spread_s(self) -> float:
+        """Power-weighted RMS delay spread sqrt(E[tau^2] - E[tau]^2) (0 for one path)."""
+        if not self.paths:
+            return 0.0
+        tau = np.array([p.delay_s for p in self.paths])
+        w = np.array([abs(p.gain) ** 2 for p in self.paths])
+        if w.sum() <= 0:
+            return 0.0
+        mean = np.sum(w * tau) / w.sum()
+        return float(np.sqrt(max(np.sum(w * (tau - mean) ** 2) / w.sum(), 0.0)))
+
+
+@dataclass(frozen=True)
+class TraceStats:
+    rays_launched: int
+    ray_segments_traced: int
+    paths_found: int
+    elapsed_s: float
+
+
+@dataclass(frozen=True)
+class ChannelResult:
+    """What one channel computation returns."""
+
+    phantom: str
+    frequency_hz: float
+    transmitter_position_m: np.ndarray
+    transmitter_medium: str
+    profiles: tuple[ReceiverProfile, ...]
+    stats: TraceStats
+    band_frequencies_hz: np.ndarray | None = None

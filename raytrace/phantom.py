@@ -1,0 +1,389 @@
+"""Phantom model: named, nested, closed organ meshes with their media.
+
+A phantom is a set of organs. Each organ is one closed, watertight, outward
+oriented triangle mesh with a :class:`Material`. Organs nest (skin contains
+fat contains the muscle wall contains the abdominal cavity, which contains the
+organs) but their surfaces never intersect. The medium at a point is the
+innermost organ containing it; outside every organ is air
+(``shared/design/tracer.md``, "Scene model").
+
+The containment tree is built once, at construction: organ *i*'s parent is
+the smallest organ containing a vertex of *i*. A ray crossing a triangle of
+organ X then knows both sides without any further point-in-mesh test:
+against X's outward normal it enters X from ``parent[X]``; along it, it
+leaves X into ``parent[X]``.
+
+Medium indices: ``-1`` is air (outside everything), ``i >= 0`` is organ *i*
+(inside *i* and outside all of *i*'s children).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Literal, Mapping, Sequence
+
+import numpy as np
+import trimesh
+
+from raytrace.errors import AmbiguousPositionError, InvalidGeometryError, PhantomValidationError
+
+AIR_INDEX = -1
+AIR_NAME = "air"
+
+#: Points closer than this to an organ surface have an ambiguous medium [m].
+SURFACE_TOLERANCE_M = 1e-6
+
+# Fixed, "irrational" probe directions for the medium lookup: never parallel
+# to a coordinate plane, so axis-aligned meshes are not hit edge-on.
+_PROBE_DIRECTIONS = np.array(
+    [
+        [0.5773502691896258, 0.5773502691896258, 0.5773502691896258],
+        [-0.2672612419124244, 0.5345224838248488, -0.8017837257372732],
+        [0.8164965809277261, -0.4082482904638631, -0.4082482904638631],
+    ]
+)
+_PROBE_DIRECTIONS = _PROBE_DIRECTIONS + np.array([1e-3, -2e-3, 3e-3])
+_PROBE_DIRECTIONS /= np.linalg.norm(_PROBE_DIRECTIONS, axis=1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class Material:
+    """The dielectric filling of an organ: a Gabriel 1996 tissue by name, or
+    an explicit frequency-independent relative permittivity and conductivity.
+    """
+
+    tissue: str | None = None
+    relative_permittivity: float | None = None
+    conductivity_s_per_m: float | None = None
+
+    def __post_init__(self) -> None:
+        explicit = self.relative_permittivity is not None
+        if (self.tissue is None) == (not explicit):
+            raise PhantomValidationError(
+                "give either a tissue name or relative_permittivity (+ conductivity_s_per_m)",
+                field="material",
+            )
+        if explicit:
+            eps = float(self.relative_permittivity)
+            sigma = float(self.conductivity_s_per_m or 0.0)
+            if not (np.isfinite(eps) and eps >= 1.0):
+                raise PhantomValidationError(
+                    f"relative_permittivity must be finite and >= 1, got {eps}",
+                    field="relative_permittivity",
+                )
+            if not (np.isfinite(sigma) and sigma >= 0.0):
+                raise PhantomValidationError(
+                    f"conductivity_s_per_m must be finite and >= 0, got {sigma}",
+                    field="conductivity_s_per_m",
+                )
+            object.__setattr__(self, "conductivity_s_per_m", sigma)
+        else:
+            from raytrace.tissues import TISSUE_NAMES
+            from raytrace.errors import UnknownTissueError
+
+            if self.tissue not in TISSUE_NAMES:
+                raise UnknownTissueError(
+                    f"unknown tissue {self.tissue!r}; known: {', '.join(TISSUE_NAMES)}",
+                    field="tissue",
+                )
+
+    @property
+    def label(self) -> str:
+        """The tissue name, or ``eps_r=..,sigma=..`` for an explicit medium."""
+        if self.tissue is not None:
+            return self.tissue
+        return f"eps_r={self.relative_permittivity:g},sigma={self.conductivity_s_per_m:g}S/m"
+
+    def complex_relative_permittivity(self, frequency_hz: float | np.ndarray) -> np.ndarray:
+        """eps' - j sigma / (w eps0) (time convention exp(+j w t); Gabriel 1996 Eq. 3
+        for tissues, the definition for an explicit medium)."""
+        if self.tissue is not None:
+            from raytrace.tissues import complex_relative_permittivity
+
+            return np.asarray(complex_relative_permittivity(self.tissue, frequency_hz))
+        from raytrace.em import complex_relative_permittivity
+
+        return np.asarray(
+            complex_relative_permittivity(
+                self.relative_permittivity, self.conductivity_s_per_m, frequency_hz
+            )
+        )
+
+
+AIR = Material(relative_permittivity=1.0, conductivity_s_per_m=0.0)
+
+
+@dataclass(frozen=True)
+class Organ:
+    """One closed organ surface and what fills it."""
+
+    name: str
+    material: Material
+    mesh: trimesh.Trimesh
+
+
+@dataclass(frozen=True)
+class Site:
+    """A named position: a capsule site in the GI tract or a sensor site on the skin."""
+
+    name: str
+    kind: Literal["capsule", "sensor"]
+    position_m: np.ndarray
+    medium: str = ""
+
+
+@dataclass
+class Phantom:
+    """Organs, their containment tree, one combined mesh, and named sites.
+
+    Build with :meth:`Phantom.build`, which validates and derives everything;
+    treat instances as immutable afterwards.
+    """
+
+    name: str
+    organs: tuple[Organ, ...]
+    parent: np.ndarray  # (n_organs,) int: containing organ, -1 for air
+    sites: dict[str, Site]
+    vertices: np.ndarray  # (V, 3) float64 [m]
+    faces: np.ndarray  # (F, 3) int64 indices into vertices
+    face_organ: np.ndarray  # (F,) int32 organ of each triangle
+    face_normals: np.ndarray  # (F, 3) outward unit facet normals
+    vertex_normals: np.ndarray  # (V, 3) smooth normals, per organ (never blended across organs)
+    description: str = ""
+    metadata: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def build(
+        cls,
+        name: str,
+        organs: Sequence[Organ],
+        sites: Mapping[str, tuple[str, Sequence[float]]] | None = None,
+        *,
+        description: str = "",
+        max_triangles: int | None = None,
+    ) -> "Phantom":
+        """Validate organs, build the containment tree and the combined mesh.
+
+        ``sites`` maps a site name to ``(kind, position_m)``. Raises
+        :class:`PhantomValidationError` naming the organ and the defect; nothing
+        is returned half-built.
+        """
+        organs = tuple(organs)
+        if not organs:
+            raise PhantomValidationError("a phantom needs at least one organ", field="organs")
+        names = [o.name for o in organs]
+        if len(set(names)) != len(names):
+            raise PhantomValidationError("organ names must be unique", field="organs")
+        total = sum(len(o.mesh.faces) for o in organs)
+        if max_triangles is not None and total > max_triangles:
+            raise PhantomValidationError(
+                f"{total} triangles exceed the cap of {max_triangles}", field="mesh"
+            )
+        for organ in organs:
+            _validate_organ_mesh(organ)
+        parent = _containment_tree(organs)
+
+        offsets = np.cumsum([0] + [len(o.mesh.vertices) for o in organs])
+        vertices = np.concatenate([np.asarray(o.mesh.vertices, float) for o in organs])
+        faces = np.concatenate(
+            [np.asarray(o.mesh.faces, np.int64) + offsets[i] for i, o in enumerate(organs)]
+        )
+        face_organ = np.concatenate(
+            [np.full(len(o.mesh.faces), i, np.int32) for i, o in enumerate(organs)]
+        )
+        face_normals = np.concatenate([np.asarray(o.mesh.face_normals, float) for o in organs])
+        vertex_normals = np.concatenate(
+            [np.asarray(o.mesh.vertex_normals, float) for o in organs]
+        )
+        phantom = cls(
+            name=name,
+            organs=organs,
+            parent=parent,
+            sites={},
+            vertices=vertices,
+            faces=faces,
+            face_organ=face_organ,
+            face_normals=face_normals,
+            vertex_normals=vertex_normals,
+            description=description,
+        )
+        for site_name, (kind, position) in (sites or {}).items():
+            if kind not in ("capsule", "sensor"):
+                raise PhantomValidationError(
+                    f"site kind must be 'capsule' or 'sensor', got {kind!r}",
+                    field=f"sites.{site_name}",
+                )
+            pos = np.asarray(position, float).reshape(3)
+            try:
+                index = phantom.medium_index(pos[None, :], field=f"sites.{site_name}")[0]
+            except InvalidGeometryError as exc:
+                raise PhantomValidationError(exc.reason, field=exc.field) from exc
+            phantom.sites[site_name] = Site(site_name, kind, pos, phantom.medium_name(index))
+        return phantom
+
+    # ------------------------------------------------------------- accessors
+    @property
+    def triangle_count(self) -> int:
+        return int(len(self.faces))
+
+    @property
+    def bounds_m(self) -> np.ndarray:
+        """(2, 3) axis-aligned bounds of all organs [m]."""
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    @cached_property
+    def mesh(self) -> trimesh.Trimesh:
+        """All organs as one mesh (no merging, no processing): triangle i is ``faces[i]``."""
+        return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
+
+    @cached_property
+    def intersector(self):
+        """Embree (embreex) ray intersector over every triangle, built once per phantom."""
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+        return RayMeshIntersector(self.mesh)
+
+    def organ_index(self, name: str) -> int:
+        for i, organ in enumerate(self.organs):
+            if organ.name == name:
+                return i
+        raise PhantomValidationError(f"no organ named {name!r}", field="organ")
+
+    def medium_name(self, index: int) -> str:
+        """Organ name for an organ index, ``"air"`` for -1."""
+        return AIR_NAME if index == AIR_INDEX else self.organs[index].name
+
+    def medium_names(self, indices: np.ndarray) -> list[str]:
+        return [self.medium_name(int(i)) for i in np.asarray(indices).ravel()]
+
+    def material(self, index: int) -> Material:
+        """The material filling a medium index (air for -1)."""
+        return AIR if index == AIR_INDEX else self.organs[index].material
+
+    def child_side(self, face_index: np.ndarray) -> np.ndarray:
+        """Medium index on the inner side of each triangle (its organ)."""
+        return self.face_organ[face_index]
+
+    def parent_side(self, face_index: np.ndarray) -> np.ndarray:
+        """Medium index on the outer side of each triangle (its organ's parent)."""
+        return self.parent[self.face_organ[face_index]]
+
+    # --------------------------------------------------------- medium lookup
+    def medium_index(self, points_m: np.ndarray, *, field: str = "position_m") -> np.ndarray:
+        """Medium index (organ, or -1 for air) of each point, vectorised.
+
+        One first-hit ray per point and probe direction: hitting organ X's
+        triangle against its outward normal means the point is outside X (in
+        ``parent[X]``), along it means inside X. Two probe directions are cast;
+        where they disagree (a ray grazing an edge) a third one decides.
+
+        Raises :class:`InvalidGeometryError` for non-finite points and
+        :class:`AmbiguousPositionError` for a point within
+        :data:`SURFACE_TOLERANCE_M` of a surface.
+        """
+        points = np.asarray(points_m, dtype=float).reshape(-1, 3)
+        bad = ~np.isfinite(points).all(axis=1)
+        if bad.any():
+            raise InvalidGeometryError(
+                f"coordinates must be finite numbers, got {points[np.argmax(bad)].tolist()}",
+                field=field,
+            )
+        votes = []
+        for k, direction in enumerate(_PROBE_DIRECTIONS):
+            if k == 2:
+                undecided = votes[0] != votes[1]
+                if not undecided.any():
+                    break
+            medium, distance = self._probe(points, direction)
+            near = distance < SURFACE_TOLERANCE_M
+            # Also probe backwards: a point just past a surface is as ambiguous.
+            _, back = self._probe(points, -direction)
+            near |= back < SURFACE_TOLERANCE_M
+            if near.any():
+                p = points[np.argmax(near)]
+                raise AmbiguousPositionError(
+                    f"point {p.tolist()} lies on an organ surface (within "
+                    f"{SURFACE_TOLERANCE_M} m): its medium is ambiguous; move it off the surface",
+                    field=field,
+                )
+            votes.append(medium)
+        if len(votes) == 3:
+            return np.where(votes[0] == votes[1], votes[0], votes[2])
+        return votes[0]
+
+    def _probe(self, points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = len(points)
+        dirs = np.broadcast_to(direction, (n, 3))
+        tri, ray, loc = self.intersector.intersects_id(
+            points, dirs, multiple_hits=False, return_locations=True
+        )
+        medium = np.full(n, AIR_INDEX, dtype=np.int64)
+        distance = np.full(n, np.inf)
+        if len(tri):
+            leaving = np.einsum("ij,j->i", self.face_normals[tri], direction) > 0.0
+            medium[ray] = np.where(leaving, self.face_organ[tri], self.parent[self.face_organ[tri]])
+            distance[ray] = np.linalg.norm(loc - points[ray], axis=1)
+        return medium, distance
+
+
+# ------------------------------------------------------------------ helpers
+def _validate_organ_mesh(organ: Organ) -> None:
+    mesh = organ.mesh
+    where = f"organs.{organ.name}"
+    if len(mesh.faces) < 4:
+        raise PhantomValidationError("mesh has fewer than 4 triangles", field=where)
+    if not np.isfinite(np.asarray(mesh.vertices)).all():
+        raise PhantomValidationError("mesh has non-finite vertex coordinates", field=where)
+    if np.any(mesh.area_faces <= 0.0):
+        raise PhantomValidationError("mesh has degenerate (zero-area) triangles", field=where)
+    if not mesh.is_watertight:
+        raise PhantomValidationError("mesh is not watertight (closed)", field=where)
+    if not mesh.is_winding_consistent:
+        raise PhantomValidationError("mesh triangles are not consistently oriented", field=where)
+    if mesh.volume <= 0.0:
+        raise PhantomValidationError(
+            "mesh is oriented inwards (negative volume); normals must point outwards",
+            field=where,
+        )
+
+
+def _containment_tree(organs: tuple[Organ, ...]) -> np.ndarray:
+    """Parent organ of every organ (-1 for air), and a check that no two
+    surfaces intersect: every vertex of organ i must lie on the same side of
+    organ j (all inside or all outside), and containment must nest."""
+    n = len(organs)
+    volumes = np.array([o.mesh.volume for o in organs])
+    boxes = np.array([o.mesh.bounds for o in organs])
+    inside = np.zeros((n, n), dtype=bool)  # inside[i, j]: organ i lies inside organ j
+    for j, outer in enumerate(organs):
+        for i, inner in enumerate(organs):
+            if i == j:
+                continue
+            lo, hi = boxes[j]
+            vi = np.asarray(inner.mesh.vertices)
+            in_box = np.all((vi >= lo) & (vi <= hi), axis=1)
+            if not in_box.any():
+                continue
+            flags = np.zeros(len(vi), dtype=bool)
+            flags[in_box] = outer.mesh.contains(vi[in_box])
+            if flags.all():
+                inside[i, j] = True
+            elif flags.any():
+                raise PhantomValidationError(
+                    f"surface of organ {inner.name!r} intersects organ {outer.name!r} "
+                    f"({int(flags.sum())} of {len(vi)} vertices inside it)",
+                    field=f"organs.{inner.name}",
+                )
+    parent = np.full(n, AIR_INDEX, dtype=np.int64)
+    for i in range(n):
+        containers = np.flatnonzero(inside[i])
+        if len(containers):
+            if np.any(inside[i] & inside[:, i]):
+                raise PhantomValidationError(
+                    f"organ {organs[i].name!r} and another organ contain each other",
+                    field=f"organs.{organs[i].name}",
+                )
+            parent[i] = containers[np.argmin(volumes[containers])]
+    return parent
