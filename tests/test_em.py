@@ -98,8 +98,8 @@ def test_lossless_medium_wavelength_and_velocity():
     f = 402e6
     assert em.wavelength_m(27.9, f) == pytest.approx(299_792_458.0 / f / math.sqrt(27.9), rel=EXACT)
     # science.md: v = c / sqrt(27.9) = 0.568e8 m/s (3 digits: tolerance 1e-3). Its
-    # "141.3 mm" wavelength comes from the rounded 0.568e8; unrounded it is
-    # 0.56757e8 / 402e6 = 141.19 mm, which is what we check (4 digits).
+    # "141.3 mm" wavelength (thesis Sec. 4: 141.28 mm) uses c = 3e8 m/s; with the
+    # exact c0 it is 141.19 mm, which is what we check (4 digits).
     assert em.phase_velocity_m_per_s(27.9, f) == pytest.approx(0.568e8, rel=1e-3)
     assert em.wavelength_m(27.9, f) == pytest.approx(0.1412, rel=5e-4)
     assert em.attenuation_np_per_m(27.9, f) == 0.0
