@@ -78,6 +78,7 @@ __all__ = [
     "is_total_internal_reflection",
     "phase_velocity_m_per_s",
     "power_reflectance",
+    "propagation_factor",
     "power_transmittance",
     "reflect_direction",
     "refract_direction",
@@ -216,6 +217,20 @@ def attenuation_db_per_m(eps: complex | np.ndarray, frequency_hz: float | np.nda
 def wavelength_m(eps: complex | np.ndarray, frequency_hz: float | np.ndarray) -> np.ndarray:
     """Wavelength in the medium ``2 pi / Re k`` in metres."""
     return 2.0 * np.pi / wavenumber(eps, frequency_hz).real
+
+
+def propagation_factor(
+    eps: complex | np.ndarray, frequency_hz: float | np.ndarray, length_m: float | np.ndarray
+) -> np.ndarray:
+    """Plane-wave field factor ``exp(-j k L) = exp(-alpha L) exp(-j beta L)`` over a path length ``L``.
+
+    Amplitude decays as ``exp(-Im(-k) L)`` and the phase lags by ``Re(k) L``
+    (science.md "Physics of the ray model"). ``length_m`` must be finite and >= 0.
+    """
+    length = np.asarray(length_m, dtype=float)
+    if not np.all(np.isfinite(length)) or np.any(length < 0.0):
+        raise InputError("path length must be finite and non-negative (metres)", field="length_m")
+    return np.exp(-1j * wavenumber(eps, frequency_hz) * length)
 
 
 # --------------------------------------------------------------------------- Snell

@@ -129,6 +129,25 @@ def test_small_intestine_phase_velocity_below_lossless_value():
     assert v < 299_792_458.0 / math.sqrt(d.relative_permittivity)
 
 
+def test_propagation_factor():
+    """|exp(-jkL)| = exp(-alpha L) and arg = -beta L, with alpha, beta from the real
+    closed form above (tolerance 1e-12: one exp of a double)."""
+    eps_r, sigma, f = 57.1, 0.797, 402e6
+    w = 2 * np.pi * f
+    tan_d = sigma / (w * _EPS0 * eps_r)
+    scale = w * np.sqrt(eps_r / 2) / 299_792_458.0
+    beta = scale * np.sqrt(np.sqrt(1 + tan_d**2) + 1)
+    alpha = scale * np.sqrt(np.sqrt(1 + tan_d**2) - 1)
+    length = np.array([0.0, 0.01, 0.05, 0.1])
+    eps = em.complex_relative_permittivity(eps_r, sigma, f)
+    a = em.propagation_factor(eps, f, length)
+    np.testing.assert_allclose(np.abs(a), np.exp(-alpha * length), rtol=1e-12)
+    np.testing.assert_allclose(np.angle(a * np.exp(1j * beta * length)), 0.0, atol=1e-9)
+    with pytest.raises(InputError) as info:
+        em.propagation_factor(eps, f, -0.1)
+    assert info.value.field == "length_m"
+
+
 def test_broadcasting_over_media_and_frequencies():
     eps = np.array([10.0 - 1j, 50.0 - 20j, 4.0])[:, None]
     f = np.array([1e8, 4e8, 2.45e9, 5e9])[None, :]
