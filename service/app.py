@@ -1,0 +1,92 @@
+"""The CapsuleRT FastAPI application (``service.app:app``) and its factory.
+
+``create_app(settings)`` builds an independent app (own registry, metrics,
+compute gate); tests build several with different limits.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+
+import anyio.to_thread
+from fastapi import FastAPI
+
+from service import __version__
+from service.compute import ComputeGate
+from service.deps import AppState
+from service.errors import install_error_handlers
+from service.logs import configure_logging
+from service.metrics import Metrics
+from service.middleware import RequestContextMiddleware
+from service.registry import Registry
+from service.routes import bounds, catalogue, channel, ops, phantoms, ranging
+from service.settings import Settings
+from service.storage import PhantomStore
+
+log = logging.getLogger("capsule_rt.app")
+
+DESCRIPTION = """\
+CapsuleRT emulates in-body radio channels for locating a wireless capsule
+endoscope: it ray-traces a torso phantom of lossy tissue meshes (Gabriel 1996
+dielectric model, Fresnel/Snell at every organ boundary) and estimates the
+capsule-to-sensor range by TOA, PDOA and RSS, with Cramér-Rao bounds.
+
+Conventions: SI units, the unit in every field name; complex numbers are
+`{"re": .., "im": ..}`; `NaN`/`Infinity` are rejected in requests and never
+emitted (a zero gain is reported as -400 dB). Every error has a body
+`{"detail": [{"loc": [...], "msg": "...", "type": "..."}]}` whose `loc`
+names the offending field. Heavy requests (channel, ranging, uploads) run in
+worker threads; a saturated server answers 503 with `Retry-After` at once.
+"""
+
+TAGS = [
+    {"name": "channel", "description": "Ray-traced channel impulse responses."},
+    {"name": "ranging", "description": "Monte Carlo TOA / PDOA / RSS ranging over a channel profile."},
+    {"name": "bounds", "description": "Closed-form Cramér-Rao bounds."},
+    {"name": "catalogue", "description": "Tissues and built-in scenarios."},
+    {"name": "phantoms", "description": "Built-in and uploaded phantoms."},
+    {"name": "operations", "description": "Health, readiness, metrics."},
+]
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings()
+    configure_logging(settings.log_level, settings.log_json)
+    metrics = Metrics()
+    registry = Registry(store=PhantomStore(settings.data_dir))
+    gate = ComputeGate(settings.max_concurrency, settings.max_queue, settings.retry_after_s, metrics)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        if not registry.ready:
+            await anyio.to_thread.run_sync(registry.load_builtins, settings.load_builtins)
+        log.info(
+            "ready",
+            extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios), "data_dir": str(settings.data_dir)},
+        )
+        try:
+            yield
+        finally:
+            gate.cancel_all()
+
+    app = FastAPI(
+        title="CapsuleRT",
+        version=__version__,
+        description=DESCRIPTION,
+        openapi_tags=TAGS,
+        lifespan=lifespan,
+    )
+    app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
+    install_error_handlers(app, settings.retry_after_s)
+    for module in (channel, ranging, bounds, catalogue, phantoms, ops):
+        app.include_router(module.router)
+    app.add_middleware(RequestContextMiddleware, metrics=metrics)
+    return app
+
+
+def _default_app() -> FastAPI:
+    return create_app(Settings())
+
+
+app = _default_app()

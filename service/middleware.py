@@ -1,0 +1,72 @@
+"""Pure-ASGI middleware: request id, access log, request metrics."""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+import uuid
+
+from service.logs import request_id_var
+from service.metrics import Metrics
+
+_SANE_ID = re.compile(r"^[A-Za-z0-9._:-]{1,128}$")
+access_log = logging.getLogger("capsule_rt.access")
+
+
+class RequestContextMiddleware:
+    """Accept ``X-Request-ID`` from the client if sane (else make one), echo it in
+    the response, log one JSON line per request and count it per route template."""
+
+    def __init__(self, app, metrics: Metrics) -> None:
+        self.app = app
+        self.metrics = metrics
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        rid = None
+        for name, value in scope.get("headers", []):
+            if name == b"x-request-id":
+                try:
+                    candidate = value.decode("ascii")
+                except UnicodeDecodeError:
+                    candidate = ""
+                if _SANE_ID.match(candidate):
+                    rid = candidate
+                break
+        rid = rid or uuid.uuid4().hex
+        scope["capsule_rt.request_id"] = rid
+        token = request_id_var.set(rid)
+        status = {"code": 500}
+        start = time.perf_counter()
+
+        async def send_wrapper(message):
+            if message["type"] == "http.response.start":
+                status["code"] = message["status"]
+                headers = list(message.get("headers", []))
+                headers.append((b"x-request-id", rid.encode("ascii")))
+                message = {**message, "headers": headers}
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_wrapper)
+        finally:
+            elapsed = time.perf_counter() - start
+            route = scope.get("route")
+            template = getattr(route, "path", None) or "unmatched"
+            method = scope.get("method", "")
+            self.metrics.requests.labels(method, template, str(status["code"])).inc()
+            self.metrics.latency.labels(method, template).observe(elapsed)
+            access_log.info(
+                "request",
+                extra={
+                    "method": method,
+                    "path": scope.get("path", ""),
+                    "route": template,
+                    "status": status["code"],
+                    "duration_s": round(elapsed, 6),
+                },
+            )
+            request_id_var.reset(token)

@@ -1,0 +1,140 @@
+"""Ranging requests -> estimators calls -> response dicts (no HTTP; shared with the CLI)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from service.errors import Unprocessable
+from service.schemas import PdoaRequest, ProfileIn, RangingCommon, RssRequest, ToaRequest
+from service.settings import Settings
+
+
+def path_profile(profile: ProfileIn):
+    """Build an ``estimators.profile.PathProfile`` from a request profile (api.md convention:
+    gains exclude the propagation phase, which the delay carries)."""
+    from estimators.profile import PathProfile
+
+    delays = np.array([p.delay_s for p in profile.paths], float)
+    gains = np.array([complex(p.gain.re, p.gain.im) for p in profile.paths])
+    band_f = band_g = None
+    with_band = [p.band_gains for p in profile.paths if p.band_gains]
+    if with_band and len(with_band) == len(profile.paths):
+        freqs = [tuple(b.frequency_hz for b in bg) for bg in with_band]
+        if all(f == freqs[0] for f in freqs):
+            band_f = np.array(freqs[0], float)
+            band_g = np.array([[complex(b.gain.re, b.gain.im) for b in bg] for bg in with_band])
+    return PathProfile(delays_s=delays, gains=gains, band_frequencies_hz=band_f, band_gains=band_g)
+
+
+def _check_trials(req: RangingCommon, settings: Settings) -> None:
+    if req.trials > settings.max_trials:
+        raise Unprocessable(f"{req.trials} exceeds this server's limit of {settings.max_trials}", loc=["body", "trials"])
+
+
+def _num(x: Any) -> float | None:
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _result(r: Any, **extra: Any) -> dict[str, Any]:
+    out = {
+        "method": str(getattr(r, "method", "")),
+        "distance_m": float(r.distance_m),
+        "delay_s": _num(getattr(r, "delay_s", None)),
+        "std_m": float(r.std_m),
+        "error_m": _num(getattr(r, "error_m", None)),
+        "rmse_m": _num(getattr(r, "rmse_m", None)),
+        "crlb_m": _num(getattr(r, "crlb_m", None)),
+        "trials": int(r.trials),
+        "max_unambiguous_range_m": _num(getattr(r, "max_unambiguous_range_m", None)),
+        "crlb_phase_difference_m": _num(getattr(r, "crlb_phase_difference_m", None)),
+    }
+    out.update(extra)
+    for key in ("distance_m", "std_m"):
+        if not math.isfinite(out[key]):
+            raise Unprocessable(
+                f"the estimator produced a non-finite {key}; the profile or SNR leaves nothing to range on",
+                loc=["body", "profile"],
+            )
+    return out
+
+
+def toa(req: ToaRequest, settings: Settings) -> dict[str, Any]:
+    from estimators.toa import estimate_toa
+
+    _check_trials(req, settings)
+    waveform = req.waveform.model_dump(exclude_none=True)
+    if waveform["kind"] == "gaussian_pulse":
+        waveform.pop("duration_s", None)
+    else:
+        waveform.pop("bandwidth_hz", None)
+    results = estimate_toa(
+        path_profile(req.profile),
+        method=req.method,
+        waveform=waveform,
+        snr_db=req.snr_db,
+        trials=req.trials,
+        seed=req.seed,
+        relative_permittivity=req.relative_permittivity,
+        true_distance_m=req.true_distance_m,
+    )
+    return _response([_result(r) for r in results], "gcc" if req.method == "all" else req.method)
+
+
+def _response(results: list[dict[str, Any]], primary: str) -> dict[str, Any]:
+    if not results:
+        raise Unprocessable("the estimator returned no result", loc=["body", "method"])
+    top = next((r for r in results if r["method"] == primary), results[0])
+    return {**top, "results": results}
+
+
+def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
+    from estimators.pdoa import estimate_pdoa  # type: ignore[import-not-found]
+
+    _check_trials(req, settings)
+    if req.band is not None:
+        if req.band.points > settings.max_band_points:
+            raise Unprocessable(
+                f"{req.band.points} exceeds this server's limit of {settings.max_band_points}", loc=["body", "band", "points"]
+            )
+        freqs = np.linspace(req.band.start_hz, req.band.stop_hz, req.band.points)
+    elif req.frequencies_hz is not None:
+        freqs = np.asarray(req.frequencies_hz, float)
+    else:
+        freqs = np.array([400e6, 420e6])
+    results = estimate_pdoa(
+        path_profile(req.profile),
+        frequencies_hz=freqs,
+        method=req.method,
+        snr_db=req.snr_db,
+        trials=req.trials,
+        seed=req.seed,
+        duration_s=req.duration_s,
+        relative_permittivity=req.relative_permittivity,
+        true_distance_m=req.true_distance_m,
+    )
+    if not isinstance(results, (list, tuple)):
+        results = [results]
+    return _response([_result(r) for r in results], str(getattr(req, "method", "")) or results[0]["method"])
+
+
+def rss(req: RssRequest, settings: Settings) -> dict[str, Any]:
+    from estimators.rss import estimate_rss  # type: ignore[import-not-found]
+
+    _check_trials(req, settings)
+    results = estimate_rss(
+        path_profile(req.profile),
+        model=req.model,
+        transmit_power_dbm=req.transmit_power_dbm,
+        trials=req.trials,
+        seed=req.seed,
+        true_distance_m=req.true_distance_m,
+    )
+    if not isinstance(results, (list, tuple)):
+        results = [results]
+    return _response([_result(r) for r in results], str(getattr(req, "method", "")) or results[0]["method"])

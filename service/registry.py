@@ -1,0 +1,153 @@
+"""Phantoms (built-in and uploaded) and built-in scenarios known to one app instance.
+
+Built-ins are built once at start (:meth:`Registry.load_builtins`). Uploaded
+phantoms live in :class:`service.storage.PhantomStore`; their description is
+read from the stored ``meta.json`` and the phantom itself is parsed lazily
+from the stored .glb on first use and kept in a small LRU cache, so uploads
+survive a restart without slowing the start down.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from raytrace.phantom import AIR_NAME, Phantom
+from service import adapters
+from service.errors import NotFound
+from service.storage import PhantomStore, is_upload_id
+
+log = logging.getLogger("capsule_rt.registry")
+
+
+def _vec(a) -> list[float]:
+    return [float(x) for x in np.asarray(a, float).reshape(3)]
+
+
+def describe_phantom(phantom_id: str, phantom: Phantom, *, builtin: bool) -> dict[str, Any]:
+    """The :class:`service.schemas.PhantomOut` dict of a phantom."""
+    organs = []
+    for i, organ in enumerate(phantom.organs):
+        mat = organ.material
+        parent = int(phantom.parent[i])
+        organs.append(
+            {
+                "name": organ.name,
+                "tissue": mat.tissue,
+                "relative_permittivity": None if mat.tissue else float(mat.relative_permittivity),
+                "conductivity_s_per_m": None if mat.tissue else float(mat.conductivity_s_per_m),
+                "triangles": int(len(organ.mesh.faces)),
+                "parent": AIR_NAME if parent < 0 else phantom.organs[parent].name,
+                "bounds_m": [_vec(b) for b in np.asarray(organ.mesh.bounds, float)],
+            }
+        )
+    sites = {
+        name: {"kind": s.kind, "position_m": _vec(s.position_m), "medium": s.medium}
+        for name, s in phantom.sites.items()
+    }
+    return {
+        "id": phantom_id,
+        "name": phantom.name,
+        "description": phantom.description or "",
+        "builtin": builtin,
+        "triangles": phantom.triangle_count,
+        "bounds_m": [_vec(b) for b in phantom.bounds_m],
+        "organs": organs,
+        "sites": sites,
+    }
+
+
+SUMMARY_KEYS = ("id", "name", "description", "builtin", "triangles", "bounds_m")
+
+
+@dataclass
+class Registry:
+    store: PhantomStore
+    loader: Callable[[bytes, dict], Phantom] | None = None
+    cache_size: int = 8
+    builtins: dict[str, Phantom] = field(default_factory=dict)
+    builtin_info: dict[str, dict] = field(default_factory=dict)
+    scenarios: dict[str, adapters.ScenarioSpec] = field(default_factory=dict)
+    _cache: "OrderedDict[str, Phantom]" = field(default_factory=OrderedDict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    _glb_cache: dict[str, bytes] = field(default_factory=dict)
+    ready: bool = False
+
+    # ------------------------------------------------------------ lifecycle
+    def load_builtins(self, enabled: bool = True) -> None:
+        self.store.init()
+        if enabled:
+            phantoms, scenarios = adapters.builtin_phantoms_and_scenarios()
+            for pid, phantom in phantoms.items():
+                self.add_builtin(pid, phantom)
+            self.scenarios.update(scenarios)
+        self.ready = True
+
+    def add_builtin(self, phantom_id: str, phantom: Phantom) -> None:
+        self.builtins[phantom_id] = phantom
+        self.builtin_info[phantom_id] = describe_phantom(phantom_id, phantom, builtin=True)
+
+    # ------------------------------------------------------------ queries
+    def ids(self) -> list[str]:
+        return sorted(self.builtins) + self.store.ids()
+
+    def upload_count(self) -> int:
+        return len(self.store.ids())
+
+    def info(self, phantom_id: str, field_loc: list | None = None) -> dict[str, Any]:
+        if phantom_id in self.builtin_info:
+            return self.builtin_info[phantom_id]
+        if is_upload_id(phantom_id) and self.store.exists(phantom_id):
+            return self.store.meta(phantom_id)
+        raise NotFound(self._unknown(phantom_id), loc=field_loc or ["path", "phantom_id"])
+
+    def summaries(self) -> list[dict[str, Any]]:
+        out = []
+        for pid in self.ids():
+            try:
+                info = self.info(pid)
+            except NotFound:  # deleted concurrently
+                continue
+            out.append({k: info[k] for k in SUMMARY_KEYS})
+        return out
+
+    def get(self, phantom_id: str, field_loc: list | None = None) -> Phantom:
+        """The phantom (parsing a stored upload on first use)."""
+        if phantom_id in self.builtins:
+            return self.builtins[phantom_id]
+        loc = field_loc or ["path", "phantom_id"]
+        if not (is_upload_id(phantom_id) and self.store.exists(phantom_id)):
+            raise NotFound(self._unknown(phantom_id), loc=loc)
+        with self._lock:
+            if phantom_id in self._cache:
+                self._cache.move_to_end(phantom_id)
+                return self._cache[phantom_id]
+        stored = self.store.load(phantom_id)
+        phantom = adapters.load_glb(stored.mesh, stored.manifest)
+        with self._lock:
+            self._cache[phantom_id] = phantom
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
+        return phantom
+
+    def mesh_glb(self, phantom_id: str) -> bytes:
+        if phantom_id in self.builtins:
+            if phantom_id not in self._glb_cache:
+                self._glb_cache[phantom_id] = adapters.export_glb(self.builtins[phantom_id])
+            return self._glb_cache[phantom_id]
+        if is_upload_id(phantom_id) and self.store.exists(phantom_id):
+            return self.store.load(phantom_id).mesh
+        raise NotFound(self._unknown(phantom_id), loc=["path", "phantom_id"])
+
+    def forget(self, phantom_id: str) -> None:
+        with self._lock:
+            self._cache.pop(phantom_id, None)
+
+    def _unknown(self, phantom_id: str) -> str:
+        known = ", ".join(self.ids()[:20]) or "none"
+        return f"unknown phantom {phantom_id!r}; known phantoms: {known} (GET /v1/phantoms)"

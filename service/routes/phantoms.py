@@ -1,0 +1,174 @@
+"""Phantoms: list, describe, upload (.glb + manifest), download mesh, delete."""
+
+from __future__ import annotations
+
+import json
+
+import anyio.to_thread
+from fastapi import APIRouter, Path, Request, Response
+from fastapi.responses import JSONResponse
+from pydantic import ValidationError
+
+from raytrace.budget import Budget
+from service import adapters
+from service.deps import state
+from service.errors import Conflict, NotFound, StorageFull, Unprocessable, error_responses
+from service.registry import describe_phantom
+from service.schemas import ID_PATTERN, Manifest, PhantomOut, PhantomsResponse, UploadResponse
+from service.storage import is_upload_id, new_upload_id
+from service.uploads import read_upload
+
+router = APIRouter(prefix="/v1/phantoms", tags=["phantoms"])
+
+PhantomIdPath = Path(
+    ...,
+    pattern=ID_PATTERN,
+    description="Phantom id: a built-in name (e.g. `torso`) or an upload's `up-<16 hex>`.",
+    examples=["torso"],
+)
+
+_UPLOAD_BODY = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["mesh", "manifest"],
+                    "properties": {
+                        "mesh": {
+                            "type": "string",
+                            "format": "binary",
+                            "description": "Binary glTF (.glb) whose mesh nodes are named after the organs.",
+                        },
+                        "manifest": {
+                            "type": "string",
+                            "description": "JSON manifest (schema `Manifest`): name, units, organs, sites.",
+                        },
+                    },
+                },
+                "encoding": {"mesh": {"contentType": "model/gltf-binary"}, "manifest": {"contentType": "application/json"}},
+            }
+        },
+    }
+}
+
+
+@router.get("", response_model=PhantomsResponse, operation_id="list_phantoms", summary="List phantoms")
+async def list_phantoms(request: Request) -> PhantomsResponse:
+    """Built-in and uploaded phantoms (summaries; GET /v1/phantoms/{id} for organs and sites)."""
+    reg = state(request).registry
+    summaries = await anyio.to_thread.run_sync(reg.summaries)
+    return PhantomsResponse(phantoms=summaries)
+
+
+@router.get(
+    "/{phantom_id}",
+    response_model=PhantomOut,
+    operation_id="get_phantom",
+    summary="Describe a phantom: organs and named sites",
+    responses=error_responses(404, 422),
+)
+async def get_phantom(request: Request, phantom_id: str = PhantomIdPath) -> PhantomOut:
+    reg = state(request).registry
+    info = await anyio.to_thread.run_sync(reg.info, phantom_id)
+    return PhantomOut(**info)
+
+
+@router.get(
+    "/{phantom_id}/mesh",
+    operation_id="get_phantom_mesh",
+    summary="The phantom as binary glTF (.glb) with organ-named nodes",
+    response_class=Response,
+    responses={
+        200: {"content": {"model/gltf-binary": {"schema": {"type": "string", "format": "binary"}}}, "description": "The .glb."},
+        **error_responses(404, 422),
+    },
+)
+async def get_phantom_mesh(request: Request, phantom_id: str = PhantomIdPath) -> Response:
+    """Round-trips through POST /v1/phantoms (with a manifest naming the same organs)."""
+    reg = state(request).registry
+    glb = await anyio.to_thread.run_sync(reg.mesh_glb, phantom_id)
+    return Response(
+        glb,
+        media_type="model/gltf-binary",
+        headers={"Content-Disposition": f'attachment; filename="{phantom_id}.glb"'},
+    )
+
+
+@router.delete(
+    "/{phantom_id}",
+    status_code=204,
+    operation_id="delete_phantom",
+    summary="Delete an uploaded phantom",
+    response_class=Response,
+    responses=error_responses(404, 409, 422),
+)
+async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> Response:
+    """Built-in phantoms cannot be deleted (409)."""
+    reg = state(request).registry
+    if phantom_id in reg.builtins:
+        raise Conflict(f"phantom {phantom_id!r} is built in and cannot be deleted", loc=["path", "phantom_id"])
+    if not is_upload_id(phantom_id):
+        raise NotFound(reg._unknown(phantom_id), loc=["path", "phantom_id"])
+    removed = await anyio.to_thread.run_sync(reg.store.delete, phantom_id)
+    reg.forget(phantom_id)
+    if not removed:
+        raise NotFound(reg._unknown(phantom_id), loc=["path", "phantom_id"])
+    return Response(status_code=204)
+
+
+@router.post(
+    "",
+    status_code=201,
+    response_model=UploadResponse,
+    operation_id="upload_phantom",
+    summary="Upload a phantom: multipart `mesh` (.glb) + `manifest` (JSON)",
+    openapi_extra=_UPLOAD_BODY,
+    responses=error_responses(413, 422, 503, 504, 507),
+)
+async def upload_phantom(request: Request) -> JSONResponse:
+    """Validated like a built-in (closed, outward-oriented, non-intersecting organs;
+    every manifest organ present as a mesh node and vice versa; size and triangle
+    caps) and stored atomically in the data directory: it survives a restart and
+    is never half-written. The body is read as a stream and refused (413) as soon
+    as it passes the size cap."""
+    st = state(request)
+    settings = st.settings
+    if st.registry.upload_count() >= settings.max_uploads:
+        raise StorageFull(
+            f"{settings.max_uploads} uploaded phantoms stored already (the cap); delete one first",
+            loc=["body", "mesh"],
+        )
+    request.scope["capsule_rt.error_loc"] = "body"
+    parts = await read_upload(request, settings.max_upload_bytes, settings.max_manifest_bytes)
+    try:
+        raw_manifest = json.loads(parts.manifest.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise Unprocessable(f"manifest is not valid JSON: {exc}", loc=["body", "manifest"]) from exc
+    try:
+        manifest = Manifest.model_validate(raw_manifest)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise Unprocessable(
+            f"manifest: {err['msg']}", loc=["body", "manifest", *err.get("loc", ())]
+        ) from exc
+    manifest_dict = manifest.model_dump(exclude_none=True)
+
+    def build(budget: Budget):
+        phantom = adapters.load_glb(
+            parts.mesh, manifest_dict, max_bytes=settings.max_upload_bytes, max_triangles=settings.max_triangles
+        )
+        budget.charge(0)
+        phantom_id = new_upload_id()
+        info = describe_phantom(phantom_id, phantom, builtin=False)
+        st.registry.store.save(phantom_id, parts.mesh, manifest_dict, info)
+        return phantom_id, phantom, info
+
+    budget = Budget(deadline_s=settings.request_deadline_s)
+    phantom_id, phantom, info = await st.gate.run(build, budget)
+    with st.registry._lock:
+        st.registry._cache[phantom_id] = phantom
+    return JSONResponse(
+        UploadResponse(**info).model_dump(), status_code=201, headers={"Location": f"/v1/phantoms/{phantom_id}"}
+    )

@@ -1,0 +1,45 @@
+"""POST /v1/ranging/{toa,pdoa,rss}: Monte Carlo ranging over a channel profile (worker thread)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+
+from raytrace.budget import Budget
+from service import ranging as ops
+from service.deps import state
+from service.errors import error_responses
+from service.schemas import PdoaRequest, RangingResponse, RssRequest, ToaRequest
+
+router = APIRouter(prefix="/v1/ranging", tags=["ranging"])
+
+_ERRORS = error_responses(422, 503, 504)
+
+
+async def _run(request: Request, fn, req) -> RangingResponse:
+    st = state(request)
+    out = await st.gate.run(lambda budget: fn(req, st.settings), Budget(deadline_s=st.settings.request_deadline_s))
+    return RangingResponse.model_validate(out)
+
+
+@router.post("/toa", response_model=RangingResponse, operation_id="ranging_toa", summary="TOA ranging", responses=_ERRORS)
+async def ranging_toa(req: ToaRequest, request: Request) -> RangingResponse:
+    """Transmit the waveform through the profile, add white Gaussian noise at `snr_db`,
+    estimate the delay by first peak (Eq 4.18), all peaks (Eq 4.19-4.21) or generalized
+    cross-correlation (Eq 4.22-4.24), and turn it into a distance with
+    v = c / sqrt(relative_permittivity). `trials` noise realisations, seeded."""
+    return await _run(request, ops.toa, req)
+
+
+@router.post("/pdoa", response_model=RangingResponse, operation_id="ranging_pdoa", summary="PDOA ranging", responses=_ERRORS)
+async def ranging_pdoa(req: PdoaRequest, request: Request) -> RangingResponse:
+    """Phase of the channel at two tones (Eq 5.3-5.5) or a regression of the unwrapped
+    phase over N tones (slope = -2 pi tau), with noise; adds the unambiguous range and
+    both bounds."""
+    return await _run(request, ops.pdoa, req)
+
+
+@router.post("/rss", response_model=RangingResponse, operation_id="ranging_rss", summary="RSS ranging", responses=_ERRORS)
+async def ranging_rss(req: RssRequest, request: Request) -> RangingResponse:
+    """Invert the IEEE 802.15.6 CM2 path-loss model (thesis Eq 2.2, Table 2.2) for the
+    distance, with log-normal shadowing drawn per trial."""
+    return await _run(request, ops.rss, req)

@@ -1,0 +1,539 @@
+"""Request and response models of the HTTP API (``shared/design/api.md``), pydantic v2.
+
+Conventions:
+
+* SI units, the unit in the field name and in brackets in its description.
+* Every request model forbids unknown fields and non-finite numbers
+  (``NaN`` / ``Infinity`` get a 422). Responses never contain them either:
+  a zero gain's ``-inf`` dB is clamped to :data:`GAIN_DB_FLOOR` (-400 dB).
+* Complex numbers are ``{"re": float, "im": float}``.
+* Array sizes and compute knobs are bounded; the ``le`` bounds here are the
+  hard ceilings of :mod:`service.settings`, which an operator may tighten.
+* Errors (every 4xx/5xx) have the body :class:`ErrorResponse`: ``detail`` is a
+  list of ``{loc, msg, type}`` whose ``loc`` names the offending field
+  (``["body", "receivers", 0, "position_m"]``), the same shape FastAPI uses
+  for schema violations.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
+
+from service.settings import (
+    MAX_BAND_POINTS,
+    MAX_INTERACTIONS,
+    MAX_PROFILE_PATHS,
+    MAX_RAYS,
+    MAX_RECEIVERS,
+    MAX_TRIALS,
+)
+
+#: dB value reported for a zero gain / power (instead of -inf) [dB].
+GAIN_DB_FLOOR = -400.0
+
+#: Tissue-model validity range of the Gabriel 1996 model [Hz].
+FREQUENCY_MIN_HZ = 10.0
+FREQUENCY_MAX_HZ = 20e9
+
+ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+
+PhantomId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
+ScenarioId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
+Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN)]
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+FrequencyHz = Annotated[float, Field(ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ)]
+
+
+class Strict(BaseModel):
+    """Base of request models: no unknown fields, no NaN / infinity."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Out(BaseModel):
+    """Base of response models."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+# ----------------------------------------------------------------- errors
+class ErrorItem(BaseModel):
+    loc: list[str | int] = Field(description="Where the problem is: location then field path, e.g. [\"body\", \"rays\"].")
+    msg: str = Field(description="Why it was rejected.")
+    type: str = Field(description="Machine-readable error type.")
+
+
+class ErrorResponse(BaseModel):
+    detail: list[ErrorItem]
+
+
+# ----------------------------------------------------------------- shared
+class Complex(Strict):
+    re: float = Field(description="Real part [same unit as the quantity].")
+    im: float = Field(description="Imaginary part [same unit as the quantity].")
+
+
+class Band(Strict):
+    start_hz: FrequencyHz = Field(description="First frequency [Hz].")
+    stop_hz: FrequencyHz = Field(description="Last frequency [Hz] (> start_hz).")
+    points: int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].")
+
+    @model_validator(mode="after")
+    def _order(self) -> "Band":
+        if not self.stop_hz > self.start_hz:
+            raise ValueError("stop_hz must be greater than start_hz")
+        return self
+
+
+class HomogeneousMedium(Strict):
+    relative_permittivity: float = Field(ge=1.0, le=1000.0, description="Relative permittivity eps_r' [-].")
+    conductivity_s_per_m: float = Field(0.0, ge=0.0, le=1000.0, description="Conductivity [S/m].")
+
+
+class AntennaIn(Strict):
+    """An antenna: either ``position_m`` or a phantom ``site`` (exactly one)."""
+
+    position_m: Vec3 | None = Field(None, description="Position [m] (phantom coordinates).")
+    site: Name | None = Field(None, description="Name of one of the phantom's sites (GET /v1/phantoms/{id}).")
+    polarization: Vec3 = Field([0.0, 0.0, 1.0], description="Polarization unit vector [-] (normalised by the server).")
+    pattern: Literal["isotropic", "dipole"] = Field("isotropic", description="Radiation pattern.")
+
+    @model_validator(mode="after")
+    def _one_position(self) -> "AntennaIn":
+        if (self.position_m is None) == (self.site is None):
+            raise ValueError("give exactly one of position_m or site")
+        if sum(c * c for c in self.polarization) <= 1e-24:
+            raise ValueError("polarization must be a non-zero vector")
+        return self
+
+
+class ReceiverIn(AntennaIn):
+    name: Name | None = Field(None, description="Receiver name (default: the site name, or r<index>).")
+
+
+# ----------------------------------------------------------------- channel
+class ChannelRequest(Strict):
+    """A channel computation (api.md "Channel")."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "phantom": "torso",
+                    "frequency_hz": 402e6,
+                    "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 5},
+                    "transmitter": {"site": "small_intestine"},
+                    "receivers": [{"name": "s1", "site": "front"}],
+                    "max_interactions": 3,
+                    "rays": 20000,
+                    "dynamic_range_db": 80,
+                },
+                {"scenario": "thesis-fig-5-6", "rays": 20000},
+            ]
+        },
+    )
+
+    phantom: PhantomId | None = Field(
+        None, description="Phantom id (GET /v1/phantoms); default: the scenario's, else `torso`."
+    )
+    scenario: ScenarioId | None = Field(
+        None, description="Built-in scenario id (GET /v1/scenarios) supplying phantom, antennas and frequency; explicit fields override it."
+    )
+    homogeneous: HomogeneousMedium | None = Field(
+        None, description="Replace every body tissue by this one medium (same geometry)."
+    )
+    frequency_hz: FrequencyHz | None = Field(
+        None, description="Carrier frequency [Hz]; default: the scenario's, else 402e6."
+    )
+    band: Band | None = Field(None, description="Also return each path's complex gain over this band.")
+    transmitter: AntennaIn | None = Field(None, description="Transmitter (the capsule); required without a scenario.")
+    receivers: list[ReceiverIn] | None = Field(
+        None,
+        min_length=1,
+        max_length=MAX_RECEIVERS,
+        description=f"Receivers (skin sensors), 1..{MAX_RECEIVERS}; required without a scenario.",
+    )
+    max_interactions: int | None = Field(
+        None, ge=0, le=MAX_INTERACTIONS, description=f"Max reflections + refractions per path [-] (default 6, <= {MAX_INTERACTIONS})."
+    )
+    rays: int | None = Field(
+        None, ge=1, le=MAX_RAYS, description=f"Rays launched from the transmitter [-] (default 100000, <= {MAX_RAYS})."
+    )
+    dynamic_range_db: float | None = Field(
+        None, gt=0.0, le=300.0, description="Paths weaker than the strongest by more than this are dropped [dB] (default 80)."
+    )
+
+
+class Interaction(Out):
+    kind: Literal["reflection", "refraction", "total_internal_reflection"]
+    point_m: Vec3 = Field(description="Where it happens [m].")
+    from_medium: str = Field(description="Medium the wave arrives in.")
+    to_medium: str = Field(description="Medium on the far side of the surface.")
+
+
+class Segment(Out):
+    medium: str
+    length_m: float = Field(description="Length of the straight piece [m].")
+
+
+class BandGain(Out):
+    frequency_hz: float = Field(description="Frequency [Hz].")
+    gain: Complex = Field(description="Complex path gain at that frequency [-].")
+
+
+class PathOut(Out):
+    delay_s: float = Field(description="Absolute propagation delay [s].")
+    gain: Complex = Field(description="Complex gain a_k of h(t) = sum a_k delta(t - delay_k) [-].")
+    gain_db: float = Field(description=f"20 log10 |gain| [dB] (floor {GAIN_DB_FLOOR:g}).")
+    length_m: float = Field(description="Geometric length [m].")
+    interactions: list[Interaction]
+    segments: list[Segment]
+    band_gains: list[BandGain] | None = None
+
+
+class ProfileOut(Out):
+    receiver: str
+    position_m: Vec3 = Field(description="Receiver position [m].")
+    medium: str = Field(description="Medium at the receiver.")
+    geometric_distance_m: float = Field(description="Straight-line transmitter-receiver distance [m].")
+    paths: list[PathOut] = Field(description="Paths sorted by delay.")
+    first_path_delay_s: float | None = Field(description="Delay of the first path [s] (null: no path).")
+    path_gain_db: float = Field(description=f"10 log10 sum |a_k|^2 [dB] (floor {GAIN_DB_FLOOR:g}).")
+    rms_delay_spread_s: float = Field(description="Power-weighted RMS delay spread [s].")
+
+
+class PlacedAntenna(Out):
+    position_m: Vec3 = Field(description="Position [m].")
+    medium: str = Field(description="Medium at the position.")
+
+
+class TraceStatsOut(Out):
+    rays_launched: int
+    ray_segments_traced: int
+    paths_found: int
+    elapsed_s: float = Field(description="Wall time of the trace [s].")
+
+
+class ChannelResponse(Out):
+    phantom: str
+    scenario: str | None = None
+    frequency_hz: float = Field(description="Carrier frequency [Hz].")
+    transmitter: PlacedAntenna
+    profiles: list[ProfileOut]
+    stats: TraceStatsOut
+
+
+# ----------------------------------------------------------------- ranging
+class PathIn(Strict):
+    """A path of a profile: at least delay and complex gain; the other channel fields are accepted and ignored."""
+
+    delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute delay [s].")
+    gain: Complex = Field(description="Complex gain [-].")
+    gain_db: float | None = None
+    length_m: float | None = None
+    interactions: list[Interaction] | None = Field(None, max_length=64)
+    segments: list[Segment] | None = Field(None, max_length=128)
+    band_gains: list[BandGain] | None = Field(None, max_length=MAX_BAND_POINTS)
+
+
+class ProfileIn(Strict):
+    """A channel profile: ``profiles[i]`` of POST /v1/channel as is, or a hand-made ``{"paths": [...]}``."""
+
+    paths: list[PathIn] = Field(min_length=1, max_length=MAX_PROFILE_PATHS)
+    receiver: str | None = Field(None, max_length=64)
+    position_m: Vec3 | None = None
+    medium: str | None = Field(None, max_length=128)
+    geometric_distance_m: float | None = None
+    first_path_delay_s: float | None = None
+    path_gain_db: float | None = None
+    rms_delay_spread_s: float | None = None
+
+
+_EXAMPLE_PROFILE = {
+    "paths": [
+        {"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}},
+        {"delay_s": 2.1e-9, "gain": {"re": -3e-4, "im": 2e-4}},
+    ]
+}
+
+
+class RangingCommon(Strict):
+    profile: ProfileIn
+    snr_db: float = Field(30.0, ge=-50.0, le=200.0, description="Signal-to-noise ratio [dB].")
+    trials: int = Field(100, ge=1, le=MAX_TRIALS, description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}).")
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the noise generator [-].")
+    relative_permittivity: float = Field(
+        27.9, ge=1.0, le=1000.0, description="Assumed relative permittivity for delay-to-distance [-]."
+    )
+    true_distance_m: float | None = Field(
+        None, gt=0.0, le=100.0, description="True distance [m]; adds error statistics."
+    )
+
+
+class Waveform(Strict):
+    kind: Literal["tone_burst", "gaussian_pulse"] = Field("tone_burst", description="Transmitted waveform.")
+    carrier_hz: float = Field(402e6, gt=0.0, le=100e9, description="Carrier frequency [Hz].")
+    duration_s: float = Field(25e-9, gt=0.0, le=1e-6, description="Observation / burst duration [s].")
+    sample_rate_hz: float = Field(20e9, gt=0.0, le=1e12, description="Sample rate [Hz].")
+    bandwidth_hz: float | None = Field(None, gt=0.0, le=100e9, description="Bandwidth of a pulse [Hz].")
+
+
+class ToaRequest(RangingCommon):
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "profile": _EXAMPLE_PROFILE,
+                    "method": "all",
+                    "snr_db": 30,
+                    "trials": 20,
+                    "seed": 1,
+                    "true_distance_m": 0.076,
+                    "waveform": {"kind": "tone_burst", "carrier_hz": 402e6, "duration_s": 25e-9, "sample_rate_hz": 20e9},
+                }
+            ]
+        },
+    )
+    method: Literal["first_peak", "all_peaks", "gcc", "all"] = Field("gcc", description="TOA estimator (`all`: every one).")
+    waveform: Waveform = Field(default_factory=Waveform, description="Transmitted waveform.")
+
+
+class PdoaRequest(RangingCommon):
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "profile": _EXAMPLE_PROFILE,
+                    "method": "regression",
+                    "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 21},
+                    "snr_db": 30,
+                    "trials": 50,
+                    "seed": 1,
+                    "true_distance_m": 0.076,
+                }
+            ]
+        },
+    )
+    method: Literal["two_tone", "regression"] = Field("two_tone", description="PDOA estimator.")
+    frequencies_hz: list[FrequencyHz] | None = Field(
+        None, min_length=2, max_length=MAX_BAND_POINTS, description="Tone frequencies [Hz] (or give band)."
+    )
+    band: Band | None = Field(None, description="Equally spaced tones (or give frequencies_hz).")
+    duration_s: float = Field(25e-9, gt=0.0, le=1e-3, description="Observation time per tone [s].")
+
+    @model_validator(mode="after")
+    def _tones(self) -> "PdoaRequest":
+        if self.frequencies_hz is not None and self.band is not None:
+            raise ValueError("give frequencies_hz or band, not both")
+        return self
+
+
+class RssRequest(RangingCommon):
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {"profile": _EXAMPLE_PROFILE, "model": "cm2_deep_tissue", "trials": 200, "seed": 1, "true_distance_m": 0.076}
+            ]
+        },
+    )
+    model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
+        "cm2_deep_tissue", description="IEEE 802.15.6 CM2 path-loss model (thesis Table 2.2)."
+    )
+    transmit_power_dbm: float | None = Field(
+        None, ge=-100.0, le=100.0, description="Transmit power [dBm]; default: use the profile's path gain as -path loss."
+    )
+
+
+class RangingResult(Out):
+    method: str
+    distance_m: float = Field(description="Mean estimated distance [m].")
+    delay_s: float | None = Field(None, description="Mean estimated delay [s].")
+    std_m: float = Field(description="Standard deviation of the estimates [m].")
+    error_m: float | None = Field(None, description="Mean error (estimate - true) [m].")
+    rmse_m: float | None = Field(None, description="Root-mean-square error [m].")
+    crlb_m: float | None = Field(None, description="Cramér-Rao bound on the distance std [m].")
+    trials: int
+    max_unambiguous_range_m: float | None = Field(None, description="PDOA: v / (f2 - f1) [m].")
+    crlb_phase_difference_m: float | None = Field(None, description="PDOA: bound from the tone spacing alone [m].")
+
+
+class RangingResponse(RangingResult):
+    """The requested method's result at the top level (api.md); for TOA ``method: all``
+    the top level is the ``gcc`` result. ``results`` lists every method computed."""
+
+    results: list[RangingResult] = Field(description="One result per method computed (three for TOA `all`).")
+
+
+# ----------------------------------------------------------------- bounds
+class ToaBoundRequest(Strict):
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30, "relative_permittivity": 27.9}
+            ]
+        },
+    )
+    carrier_hz: float = Field(ge=1.0, le=1e12, description="Tone frequency [Hz].")
+    duration_s: float = Field(ge=1e-15, le=1.0, description="Observation time T0 [s].")
+    bandwidth_hz: float = Field(ge=1.0, le=1e12, description="Receiver (noise) bandwidth W [Hz].")
+    snr_db: float = Field(ge=-100.0, le=200.0, description="Signal-to-noise ratio [dB].")
+    relative_permittivity: float = Field(27.9, ge=1.0, le=1000.0, description="Relative permittivity [-].")
+    delay_s: float = Field(0.0, ge=0.0, le=1.0, description="True delay tau [s].")
+
+
+class PdoaBoundRequest(Strict):
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "duration_s": 50e-9, "relative_permittivity": 27.9}
+            ]
+        },
+    )
+    center_hz: float = Field(ge=1.0, le=1e12, description="Centre frequency f0 [Hz].")
+    tone_spacing_hz: float = Field(ge=1e-3, le=1e12, description="Tone spacing W [Hz] (< 2 center_hz).")
+    snr_db: float = Field(ge=-100.0, le=200.0, description="In-band signal-to-noise ratio [dB].")
+    duration_s: float | None = Field(
+        None, ge=1e-15, le=1.0, description="Observation time T0 [s] (default 1 / tone_spacing_hz, i.e. W T0 = 1)."
+    )
+    relative_permittivity: float = Field(27.9, ge=1.0, le=1000.0, description="Relative permittivity [-].")
+
+
+class RssBoundRequest(Strict):
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={"examples": [{"shadowing_db": 2.236, "path_loss_exponent": 3.0, "distance_m": 0.1}]},
+    )
+    shadowing_db: float = Field(ge=0.0, le=100.0, description="Shadowing standard deviation sigma [dB].")
+    path_loss_exponent: float = Field(ge=0.1, le=20.0, description="Path-loss exponent n [-].")
+    distance_m: float = Field(ge=1e-6, le=100.0, description="True distance [m].")
+
+
+class ToaBoundResponse(Out):
+    sigma_s: float = Field(description="Bound on the delay std [s].")
+    sigma_m: float = Field(description="Bound on the distance std [m].")
+
+
+class PdoaBoundResponse(Out):
+    sigma_s: float = Field(description="Bound on the delay std, two-tone with carrier term [s].")
+    sigma_m: float = Field(description="Bound on the distance std, two-tone with carrier term [m].")
+    sigma_phase_difference_s: float = Field(description="Bound on the delay std from the tone spacing alone [s].")
+    sigma_phase_difference_m: float = Field(description="Bound on the distance std from the tone spacing alone [m].")
+
+
+class RssBoundResponse(Out):
+    sigma_m: float = Field(description="Bound on the distance std [m].")
+
+
+# ----------------------------------------------------------------- catalogue
+class TissueOut(Out):
+    name: str
+    relative_permittivity: float = Field(description="eps_r' [-].")
+    conductivity_s_per_m: float = Field(description="Effective conductivity [S/m].")
+    loss_tangent: float = Field(description="sigma / (w eps0 eps_r') [-].")
+    phase_velocity_m_per_s: float = Field(description="Phase velocity [m/s].")
+    attenuation_db_per_m: float = Field(description="Attenuation [dB/m].")
+    wavelength_m: float = Field(description="Wavelength in the tissue [m].")
+
+
+class TissuesResponse(Out):
+    frequency_hz: float = Field(description="Frequency [Hz].")
+    tissues: list[TissueOut]
+
+
+class OrganOut(Out):
+    name: str
+    tissue: str | None = Field(None, description="Gabriel 1996 tissue, or null for an explicit medium.")
+    relative_permittivity: float | None = Field(None, description="Explicit medium: eps_r' [-].")
+    conductivity_s_per_m: float | None = Field(None, description="Explicit medium: conductivity [S/m].")
+    triangles: int
+    parent: str = Field(description="Containing organ, or `air`.")
+    bounds_m: list[Vec3] = Field(description="Axis-aligned bounds [[xmin,ymin,zmin],[xmax,ymax,zmax]] [m].")
+
+
+class SiteOut(Out):
+    kind: Literal["capsule", "sensor"]
+    position_m: Vec3 = Field(description="Position [m].")
+    medium: str
+
+
+class PhantomSummary(Out):
+    id: str
+    name: str
+    description: str = ""
+    builtin: bool
+    triangles: int
+    bounds_m: list[Vec3] = Field(description="Axis-aligned bounds [m].")
+
+
+class PhantomOut(PhantomSummary):
+    organs: list[OrganOut]
+    sites: dict[str, SiteOut]
+
+
+class PhantomsResponse(Out):
+    phantoms: list[PhantomSummary]
+
+
+class ScenarioOut(Out):
+    id: str
+    description: str
+    phantom: str
+    frequency_hz: float | None = Field(None, description="Carrier [Hz].")
+    request: dict[str, Any] = Field(description="The channel request fields this scenario supplies.")
+
+
+class ScenariosResponse(Out):
+    scenarios: list[ScenarioOut]
+
+
+class ManifestOrgan(Strict):
+    tissue: str | None = Field(None, max_length=64, description="Gabriel 1996 tissue name (GET /v1/tissues).")
+    relative_permittivity: float | None = Field(None, ge=1.0, le=1000.0, description="Explicit medium eps_r' [-].")
+    conductivity_s_per_m: float | None = Field(None, ge=0.0, le=1000.0, description="Explicit medium conductivity [S/m].")
+
+    @model_validator(mode="after")
+    def _one(self) -> "ManifestOrgan":
+        if (self.tissue is None) == (self.relative_permittivity is None):
+            raise ValueError("give either tissue or relative_permittivity (+ conductivity_s_per_m)")
+        return self
+
+
+class Manifest(Strict):
+    """The JSON part of an upload (api.md "POST /v1/phantoms")."""
+
+    name: str = Field(min_length=1, max_length=128, description="Human name of the phantom.")
+    description: str = Field("", max_length=2000)
+    units: Literal["m", "mm"] = Field("m", description="Unit of the mesh coordinates.")
+    organs: dict[Name, ManifestOrgan] = Field(min_length=1, max_length=256, description="Node name -> medium.")
+    sites: dict[Name, Vec3] = Field(default_factory=dict, max_length=1024, description="Site name -> position [manifest units].")
+
+
+class UploadResponse(PhantomOut):
+    pass
+
+
+class Health(Out):
+    status: Literal["ok"]
+
+
+class Readiness(Out):
+    status: Literal["ready", "starting"]
+    phantoms: int
+    scenarios: int
+    ray_engine: str

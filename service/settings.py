@@ -1,0 +1,98 @@
+"""Service configuration: one pydantic-settings class, read from ``CAPSULE_RT_*`` env vars.
+
+Every limit the API enforces lives here so an operator can tighten it. The
+request schema (``openapi.json``) carries the hard ceilings (the defaults
+below); a setting can lower a limit, never raise it above its schema ceiling
+(requests beyond the setting get a 422 that names the field and the limit).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+# Hard ceilings, also used as the schema's ``le`` bounds (see service.schemas).
+MAX_RAYS = 1_000_000
+MAX_INTERACTIONS = 10
+MAX_RECEIVERS = 64
+MAX_BAND_POINTS = 201
+MAX_TRIALS = 10_000
+MAX_PROFILE_PATHS = 10_000
+
+
+class Settings(BaseSettings):
+    """CapsuleRT service settings (environment variables ``CAPSULE_RT_<NAME>``)."""
+
+    model_config = SettingsConfigDict(env_prefix="CAPSULE_RT_", extra="ignore")
+
+    host: str = Field("127.0.0.1", description="Interface `capsule-rt serve` binds to.")
+    port: int = Field(8000, ge=1, le=65535, description="TCP port of `capsule-rt serve`.")
+    workers: int = Field(1, ge=1, le=64, description="Uvicorn worker processes.")
+    data_dir: Path = Field(
+        Path("data"),
+        description="Directory holding uploaded phantoms (`<data_dir>/phantoms/<id>/`); created on start.",
+    )
+    log_level: str = Field("info", description="Log level (debug, info, warning, error).")
+    log_json: bool = Field(True, description="Structured JSON logs (one object per line) on stderr.")
+
+    # Compute limits (each <= its schema ceiling).
+    max_rays: int = Field(MAX_RAYS, ge=1, le=MAX_RAYS, description="Max `rays` per channel request.")
+    max_interactions: int = Field(
+        MAX_INTERACTIONS, ge=0, le=MAX_INTERACTIONS, description="Max `max_interactions` per channel request."
+    )
+    max_receivers: int = Field(
+        MAX_RECEIVERS, ge=1, le=MAX_RECEIVERS, description="Max receivers per channel request."
+    )
+    max_band_points: int = Field(
+        MAX_BAND_POINTS, ge=2, le=MAX_BAND_POINTS, description="Max `band.points` (channel and PDOA)."
+    )
+    max_trials: int = Field(MAX_TRIALS, ge=1, le=MAX_TRIALS, description="Max Monte Carlo `trials` per ranging request.")
+    max_ray_segments: int = Field(
+        50_000_000,
+        ge=1,
+        description="Work budget of one channel request: ray segments traced before it stops with 503.",
+    )
+    request_deadline_s: float = Field(
+        60.0, gt=0, le=3600, description="Wall-time budget of one computation [s]; beyond it: 504."
+    )
+
+    # Concurrency.
+    max_concurrency: int = Field(
+        2, ge=1, le=256, description="Heavy computations (channel, ranging) running at once per worker process."
+    )
+    max_queue: int = Field(
+        0,
+        ge=0,
+        le=1024,
+        description="Heavy requests allowed to wait for a slot; beyond it the server answers 503 + Retry-After.",
+    )
+    retry_after_s: int = Field(2, ge=1, le=3600, description="Retry-After sent with 503 responses [s].")
+
+    # Uploads.
+    max_upload_bytes: int = Field(
+        20 * 1024 * 1024, ge=1024, description="Max size of an uploaded .glb [bytes]; beyond it: 413."
+    )
+    max_manifest_bytes: int = Field(256 * 1024, ge=256, description="Max size of an upload manifest [bytes].")
+    max_triangles: int = Field(
+        500_000, ge=4, description="Max triangles of an uploaded phantom (all organs together)."
+    )
+    max_uploads: int = Field(100, ge=0, description="Max stored uploaded phantoms; beyond it an upload gets 507.")
+    load_builtins: bool = Field(
+        True, description="Build the built-in phantoms (default torso, scenarios) at start."
+    )
+
+    @model_validator(mode="after")
+    def _resolve(self) -> "Settings":
+        self.data_dir = Path(self.data_dir).expanduser()
+        return self
+
+
+def settings_table_markdown() -> str:
+    """The settings as a Markdown table (for the README)."""
+    lines = ["| Variable | Default | Meaning |", "|---|---|---|"]
+    for name, f in Settings.model_fields.items():
+        default = f.default
+        lines.append(f"| `CAPSULE_RT_{name.upper()}` | `{default}` | {f.description} |")
+    return "\n".join(lines)

@@ -1,0 +1,153 @@
+"""Streaming multipart reader for phantom uploads, with size caps enforced while reading.
+
+The request body is read chunk by chunk from the ASGI stream and fed to
+python-multipart's streaming parser; a running byte count stops the read
+(413) as soon as the body, or one part, passes its cap, so an oversized
+upload is never buffered whole. Only the two expected parts are kept
+(``mesh`` <= ``max_upload_bytes``, ``manifest`` <= ``max_manifest_bytes``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from python_multipart.multipart import MultipartParser, parse_options_header
+from starlette.requests import ClientDisconnect, Request
+
+from service.errors import Unprocessable, UploadTooLarge
+
+GLB_MAGIC = b"glTF"
+MULTIPART_OVERHEAD_BYTES = 16 * 1024
+
+
+@dataclass
+class _Part:
+    headers: dict[str, str] = field(default_factory=dict)
+    name: str | None = None
+    filename: str | None = None
+    data: bytearray = field(default_factory=bytearray)
+
+
+@dataclass
+class UploadParts:
+    mesh: bytes
+    mesh_filename: str | None
+    manifest: bytes
+
+
+async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes: int) -> UploadParts:
+    """Read ``mesh`` and ``manifest`` parts from a multipart body (413 beyond the caps, 422 if malformed)."""
+    ctype = request.headers.get("content-type", "")
+    kind, params = parse_options_header(ctype)
+    if kind != b"multipart/form-data" or b"boundary" not in params:
+        raise Unprocessable(
+            "the upload must be multipart/form-data with two parts, 'mesh' (.glb) and 'manifest' (JSON)",
+            loc=["header", "content-type"],
+        )
+    body_cap = max_mesh_bytes + max_manifest_bytes + MULTIPART_OVERHEAD_BYTES
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > body_cap:
+        raise UploadTooLarge(
+            f"request body of {int(declared)} bytes exceeds the upload cap of {body_cap} bytes "
+            f"(mesh <= {max_mesh_bytes}, manifest <= {max_manifest_bytes})",
+            loc=["body", "mesh"],
+        )
+    caps = {"mesh": max_mesh_bytes, "manifest": max_manifest_bytes}
+    parts: dict[str, _Part] = {}
+    state: dict = {"part": None, "hname": bytearray(), "hvalue": bytearray(), "error": None}
+
+    def on_part_begin() -> None:
+        state["part"] = _Part()
+
+    def on_header_field(data: bytes, start: int, end: int) -> None:
+        state["hname"] += data[start:end]
+
+    def on_header_value(data: bytes, start: int, end: int) -> None:
+        state["hvalue"] += data[start:end]
+
+    def on_header_end() -> None:
+        part: _Part = state["part"]
+        part.headers[bytes(state["hname"]).decode("latin-1").lower()] = bytes(state["hvalue"]).decode("latin-1")
+        state["hname"], state["hvalue"] = bytearray(), bytearray()
+
+    def on_headers_finished() -> None:
+        part: _Part = state["part"]
+        _, opts = parse_options_header(part.headers.get("content-disposition", ""))
+        part.name = opts.get(b"name", b"").decode("utf-8", "replace") or None
+        fn = opts.get(b"filename")
+        part.filename = fn.decode("utf-8", "replace") if fn is not None else None
+
+    def on_part_data(data: bytes, start: int, end: int) -> None:
+        part: _Part = state["part"]
+        if part.name not in caps:
+            return  # unknown part: ignored (reported below), never buffered
+        part.data += data[start:end]
+        if len(part.data) > caps[part.name] and state["error"] is None:
+            state["error"] = UploadTooLarge(
+                f"part '{part.name}' exceeds its cap of {caps[part.name]} bytes", loc=["body", part.name]
+            )
+
+    def on_part_end() -> None:
+        part: _Part = state["part"]
+        if part.name is not None:
+            if part.name in parts:
+                state["error"] = state["error"] or Unprocessable(
+                    f"part '{part.name}' given twice", loc=["body", part.name]
+                )
+            parts[part.name] = part
+
+    parser = MultipartParser(
+        params[b"boundary"],
+        {
+            "on_part_begin": on_part_begin,
+            "on_header_field": on_header_field,
+            "on_header_value": on_header_value,
+            "on_header_end": on_header_end,
+            "on_headers_finished": on_headers_finished,
+            "on_part_data": on_part_data,
+            "on_part_end": on_part_end,
+        },
+    )
+    received = 0
+    try:
+        async for chunk in request.stream():
+            received += len(chunk)
+            if received > body_cap:
+                raise UploadTooLarge(
+                    f"request body exceeds the upload cap of {body_cap} bytes "
+                    f"(mesh <= {max_mesh_bytes}, manifest <= {max_manifest_bytes})",
+                    loc=["body", "mesh"],
+                )
+            try:
+                parser.write(chunk)
+            except Exception as exc:  # python-multipart raises its own MultipartParseError
+                raise Unprocessable(f"malformed multipart body: {exc}", loc=["body"]) from exc
+            if state["error"] is not None:
+                raise state["error"]
+        try:
+            parser.finalize()
+        except Exception as exc:
+            raise Unprocessable(f"malformed multipart body: {exc}", loc=["body"]) from exc
+    except ClientDisconnect as exc:
+        raise Unprocessable("client disconnected during the upload", loc=["body"]) from exc
+    if state["error"] is not None:
+        raise state["error"]
+    unknown = sorted(set(parts) - set(caps))
+    if unknown:
+        raise Unprocessable(
+            f"unexpected part(s) {unknown}: only 'mesh' and 'manifest' are accepted", loc=["body", unknown[0]]
+        )
+    for name in ("mesh", "manifest"):
+        if name not in parts:
+            raise Unprocessable(f"missing part '{name}'", loc=["body", name])
+    mesh = parts["mesh"]
+    if mesh.filename is not None and not mesh.filename.lower().endswith(".glb"):
+        raise Unprocessable(
+            f"only binary glTF (.glb) meshes are accepted, got file name {mesh.filename!r}", loc=["body", "mesh"]
+        )
+    if bytes(mesh.data[:4]) != GLB_MAGIC:
+        raise Unprocessable(
+            "the mesh is not a binary glTF (.glb): it does not start with the magic bytes 'glTF'",
+            loc=["body", "mesh"],
+        )
+    return UploadParts(bytes(mesh.data), mesh.filename, bytes(parts["manifest"].data))
