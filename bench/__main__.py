@@ -1,0 +1,132 @@
+"""Run every CapsuleRT benchmark, print a table, write bench/results/latest.json.
+
+    python -m bench            # full run (several minutes on 2 cores)
+    python -m bench --quick    # small sizes: a smoke run of every benchmark
+    python -m bench --skip-http
+
+Every number that matters is printed as a ratio to a reference measured in the
+same run (the raw Embree ray rate on the same mesh) or as a growth exponent;
+the targets of the performance issue are printed beside them, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import numpy as np
+
+from bench import ceiling, estimators_bench, latency, scenes
+from bench.common import ROOT, growth_exponent, run_point
+from raytrace.tracer import trace_channel
+
+
+def tracer_throughput(rays: int, interactions: int) -> dict:
+    phantom = scenes.torso()
+    tx = scenes.transmitter(phantom)
+    rx = scenes.receivers(phantom)
+    trace_channel(phantom, tx, rx[:1], 402e6, rays=1000, max_interactions=1)  # build the scene
+    best = None
+    for _ in range(2):
+        t0 = time.perf_counter()
+        result = trace_channel(phantom, tx, rx, 402e6, rays=rays, max_interactions=interactions)
+        elapsed = time.perf_counter() - t0
+        if best is None or elapsed < best[0]:
+            best = (elapsed, result)
+    elapsed, result = best
+    seg = result.stats.ray_segments_traced
+    return {"rays": rays, "max_interactions": interactions, "receivers": len(rx), "elapsed_s": elapsed,
+            "ray_segments": seg, "segments_per_s": seg / elapsed, "paths": result.stats.paths_found,
+            "triangles": phantom.triangle_count}
+
+
+def scaling(quick: bool) -> dict:
+    rays = [10_000, 30_000, 100_000] if quick else [10_000, 30_000, 100_000, 300_000, 1_000_000]
+    resolutions = [24, 48, 96] if quick else [24, 48, 96, 160, 256]
+    receivers = [1, 8, 32] if quick else [1, 2, 8, 16, 32, 64]
+    out = {"rays": [], "triangles": [], "receivers": []}
+    for n in rays:
+        out["rays"].append(run_point(["--rays", str(n)]))
+    for r in resolutions:
+        out["triangles"].append(run_point(["--rays", "100000", "--resolution", str(r)]))
+    for k in receivers:
+        out["receivers"].append(run_point(["--rays", "100000", "--receivers", str(k)]))
+    out["exponent_time_vs_rays"] = growth_exponent(rays, [p["trace_s"] for p in out["rays"]])
+    out["exponent_time_vs_triangles"] = growth_exponent(
+        [p["triangles"] for p in out["triangles"]], [p["trace_s"] for p in out["triangles"]])
+    out["exponent_time_vs_receivers"] = growth_exponent(receivers, [p["trace_s"] for p in out["receivers"]])
+    return out
+
+
+def _row(name, value, target=""):
+    print(f"  {name:<52} {value:>16}  {target}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
+    ap.add_argument("--skip-http", action="store_true", help="skip the HTTP latency benchmark")
+    ap.add_argument("--skip-scaling", action="store_true", help="skip the sub-process scaling sweep")
+    ap.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "latest.json"))
+    args = ap.parse_args()
+    rays = 20_000 if args.quick else 100_000
+    repeat = 3 if args.quick else 10
+    report = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
+                          "platform": platform.platform()}, "quick": args.quick}
+
+    phantom = scenes.torso()
+    origin = phantom.sites[scenes.capsule_site(phantom)].position_m
+    report["ceiling"] = ceiling.embree_ceiling(phantom, origin, rays)
+    report["tracer"] = tracer_throughput(rays, 6)
+    report["tracer"]["ratio_to_ceiling"] = report["tracer"]["segments_per_s"] / report["ceiling"]["rays_per_s"]
+    report["latency_in_process"] = latency.in_process(repeat, rays, 6)
+    if not args.skip_http:
+        report["latency_http"] = latency.over_http(repeat, rays, 6)
+    if not args.skip_scaling:
+        report["scaling"] = scaling(args.quick)
+    report["estimators"] = estimators_bench.throughput(1000)
+
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, "w") as fh:
+        json.dump(report, fh, indent=2, default=float)
+
+    c, t, li = report["ceiling"], report["tracer"], report["latency_in_process"]
+    print(f"CapsuleRT benchmarks ({'quick' if args.quick else 'full'}) on {report['machine']['cpus']} CPUs, "
+          f"default torso {c['triangles']} triangles, {t['receivers']} sensor sites, max_interactions 6")
+    _row("Embree ceiling [rays/s]", f"{c['rays_per_s']:.3e}")
+    _row("tracer [ray segments/s]", f"{t['segments_per_s']:.3e}")
+    _row("tracer / ceiling", f"{t['ratio_to_ceiling']:.2f}", "target >= 0.50")
+    _row("in-process channel, all sites p50 / p95 [s]",
+         f"{li['all_sensor_sites']['p50_s']:.3f} / {li['all_sensor_sites']['p95_s']:.3f}", "target p50 <= 0.5")
+    _row("in-process channel, one receiver p50 / p95 [s]",
+         f"{li['one_receiver']['p50_s']:.3f} / {li['one_receiver']['p95_s']:.3f}", "target <= 0.3")
+    _row("in-process first trace (cold) [s]", f"{li['cold_first_trace_s']:.3f}")
+    if "latency_http" in report:
+        lh = report["latency_http"]
+        _row("HTTP channel, all sites p50 / p95 [s]",
+             f"{lh['all_sensor_sites']['p50_s']:.3f} / {lh['all_sensor_sites']['p95_s']:.3f}", "target p50 <= 0.5")
+        _row("HTTP channel, one receiver p50 / p95 [s]",
+             f"{lh['one_receiver']['p50_s']:.3f} / {lh['one_receiver']['p95_s']:.3f}", "target <= 0.3")
+        _row("service cold start to /readyz [s]", f"{lh['cold_start_s']:.2f}", "target <= 5")
+        _row("HTTP first channel request (cold) [s]", f"{lh['cold_first_request_s']:.3f}")
+    if "scaling" in report:
+        s = report["scaling"]
+        _row("time ~ rays^k", f"k = {s['exponent_time_vs_rays']:.2f}", "target ~1 (linear)")
+        _row("time ~ triangles^k", f"k = {s['exponent_time_vs_triangles']:.2f}", "target < 1 (BVH)")
+        _row("time ~ receivers^k", f"k = {s['exponent_time_vs_receivers']:.2f}", "target ~0")
+        default_point = min(s["rays"], key=lambda p: abs(p["rays"] - 100_000))
+        _row("peak RSS, default request [MB]", f"{default_point['peak_rss_mb']:.0f}", "target <= 1024")
+        for key, label in (("rays", "rays"), ("triangles", "triangles"), ("receivers", "receivers")):
+            for p in s[key]:
+                x = p["triangles"] if key == "triangles" else p[key]
+                _row(f"  {label} = {x}", f"{p['trace_s']:.3f} s {p['peak_rss_mb']:.0f} MB")
+    for k, v in report["estimators"].items():
+        _row(k.replace("_", " "), f"{v:.3e}")
+    print(f"wrote {os.path.relpath(args.out, ROOT)}")
+
+
+if __name__ == "__main__":
+    main()
