@@ -1,0 +1,53 @@
+"""CapsuleRT estimators: TOA / PDOA / RSS ranging and Cramér-Rao bounds as pure functions.
+
+Input is a channel profile (no dependency on the tracer or the service):
+
+    PathProfile(delays_s, gains, band_frequencies_hz=None, band_gains=None,
+                gains_include_delay_phase=False, reference_frequency_hz=None)
+        .frequency_response(frequencies_hz) -> complex H(f)
+
+Ranging (Monte Carlo, vectorised over trials, seeded; return result dataclasses):
+
+    estimate_toa(profile, method="all"|"first_peak"|"all_peaks"|"gcc"|"envelope",
+                 waveform=ToneBurst()|GaussianPulse()|dict, snr_db=30.0, trials=100, seed=0,
+                 relative_permittivity=27.9, true_distance_m=None, peak_threshold=0.5,
+                 return_estimates=False) -> list[TOAResult]
+    estimate_pdoa(profile, frequencies_hz=None, band=None, method="two_tone"|"regression",
+                  snr_db=30.0, trials=100, seed=0, relative_permittivity=27.9,
+                  true_distance_m=None, duration_s=None, return_estimates=False) -> PDOAResult
+    estimate_rss(profile=None, *, rss_dbm=None, transmit_power_dbm=None,
+                 model="cm2_deep_tissue"|"cm2_near_surface", trials=100, seed=0,
+                 true_distance_m=None, shadowing=True, return_estimates=False) -> RSSResult
+
+Bounds (closed forms, derivations in estimators.bounds):
+
+    toa_crlb(carrier_hz, duration_s, bandwidth_hz, snr_db, relative_permittivity=27.9, delay_s=0.0)
+        -> TOABound(sigma_s, sigma_m)                                     (Eq 4.16-4.17, w = 2 pi f)
+    pdoa_crlb(center_hz, tone_spacing_hz, snr_db, duration_s=None, relative_permittivity=27.9)
+        -> PDOABound(sigma_s, sigma_m, sigma_phase_difference_s, sigma_phase_difference_m)  (Eq 5.16)
+    multitone_crlb(frequencies_hz, snr_db, duration_s=None, relative_permittivity=27.9) -> PDOABound
+    rss_crlb(shadowing_db, path_loss_exponent, distance_m) -> RSSBound(sigma_m)
+    waveform_toa_crlb(waveform, snr_db, bandwidth_hz, relative_permittivity=27.9,
+                      carrier_phase_known=True) -> TOABound
+
+Errors: every invalid input raises EstimatorInputError (a ValueError) with
+``.field`` (dotted request path) and ``.reason``; map it to HTTP 422.
+"""
+
+from .bounds import (PDOABound, RSSBound, TOABound, multitone_crlb, pdoa_crlb, rss_crlb, toa_crlb,
+                     waveform_toa_crlb)
+from .constants import DEFAULT_RELATIVE_PERMITTIVITY, SPEED_OF_LIGHT_M_PER_S, velocity_m_per_s
+from .errors import EstimatorInputError
+from .pdoa import estimate_pdoa
+from .profile import PathProfile, single_path
+from .results import PDOAResult, RSSResult, TOAResult
+from .rss import CM2_MODELS, estimate_rss
+from .toa import estimate_toa, make_waveform
+from .waveforms import GaussianPulse, ToneBurst
+
+__all__ = [
+    "CM2_MODELS", "DEFAULT_RELATIVE_PERMITTIVITY", "EstimatorInputError", "GaussianPulse", "PDOABound",
+    "PDOAResult", "PathProfile", "RSSBound", "RSSResult", "SPEED_OF_LIGHT_M_PER_S", "TOABound", "TOAResult",
+    "ToneBurst", "estimate_pdoa", "estimate_rss", "estimate_toa", "make_waveform", "multitone_crlb",
+    "pdoa_crlb", "rss_crlb", "single_path", "toa_crlb", "velocity_m_per_s", "waveform_toa_crlb",
+]

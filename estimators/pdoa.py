@@ -1,0 +1,219 @@
+"""Phase-difference-of-arrival ranging (thesis Eq 5.1-5.6), two tones or N-tone regression.
+
+The measured quantity is the channel's phasor at each tone, H(f_i) from
+:meth:`PathProfile.frequency_response` (H(f) = sum_k a_k exp(-j 2 pi f tau_k)),
+so a single path of delay tau has phase -2 pi f tau (Eq 5.2, up to whole
+cycles and the gain's own phase, which cancels in differences).
+
+Two tones (Eq 5.3-5.5): d = v / (2 pi) * (phi1 - phi2) / (f2 - f1), with the
+phase difference taken in [0, 2 pi); the estimate lies in [0, v / (f2 - f1)),
+the maximum unambiguous range (2.84 m for 20 MHz at eps_r 27.9). A true
+distance beyond it WRAPS (aliases to d mod v / (f2 - f1)); the result says so.
+
+Regression over N equally spaced tones (spacing df): the delay is minus the
+slope of the unwrapped phase against frequency over 2 pi. Unwrapping is made
+robust by first taking a coarse delay tau0 from the mean adjacent-tone phasor
+product sum_i H_{i+1} conj(H_i) (tau0 in [0, 1/df)), derotating every tone by
+exp(+j 2 pi f_i tau0), unwrapping the small residual phase and fitting it by
+least squares (free intercept: the gain's phase is a nuisance); tau = tau0 +
+residual slope. Unambiguous range v / df.
+
+Noise (per trial, per tone): each tone's phasor is observed as
+H_i + n_i, n_i ~ CN(0, sigma^2) independent, with
+
+    sigma^2 = sum_i |H_i|^2 / (SNR W T0),
+
+W = f_max - f_min the occupied band, T0 = ``duration_s`` (default 1/W, the
+thesis' W T0 = 1), SNR the in-band ratio of Eq 5.16. This is what a receiver
+gets by correlating each of the equal-power transmitted tones over T0 in
+white noise of PSD N0/2 with E/N0 = SNR W T0 (total received energy E):
+sigma^2 = 2 N0 / T0 per tone, giving a per-tone phase variance of
+1 / (2 E_i / N0). With this model the two-tone estimator's spread equals
+the phase-difference bound of bounds.pdoa_crlb at high SNR (it is efficient),
+and the bound's E/N0 means the same thing as the simulation's.
+
+Statistics are circular: the mean delay is the circular mean over the
+ambiguity interval, and the spread is taken from each estimate's deviation
+wrapped to +-half the interval, so estimates straddling the wrap point
+(distance near 0 or near the maximum range) do not fake a metre of spread.
+``wrapped`` is set when a given true distance is at or beyond the maximum
+unambiguous range, or when trials reach past that range (the distance sits
+at its far edge and some trials alias to near zero).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from ._checks import finite_float, generator, relative_permittivity as _check_eps, snr_db as _check_snr
+from ._checks import trials_count
+from .bounds import multitone_crlb, pdoa_crlb
+from .constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
+from .errors import EstimatorInputError
+from .profile import PathProfile
+from .results import PDOAResult, summarise
+
+METHODS = ("two_tone", "regression")
+MAX_TONES = 4096
+
+
+def band_frequencies(band: Mapping | Sequence) -> np.ndarray:
+    """Frequencies of ``band = {"start_hz", "stop_hz", "points"}`` (inclusive, equally spaced)."""
+    if isinstance(band, Mapping):
+        try:
+            start, stop, points = band["start_hz"], band["stop_hz"], band["points"]
+        except KeyError as exc:
+            raise EstimatorInputError(f"missing {exc.args[0]!r}", "band") from None
+    else:
+        raise EstimatorInputError("must be an object {start_hz, stop_hz, points}", "band")
+    start = finite_float(start, "band.start_hz", positive=True)
+    stop = finite_float(stop, "band.stop_hz", positive=True)
+    if stop <= start:
+        raise EstimatorInputError(f"must exceed start_hz ({start:.6g}), got {stop:.6g}", "band.stop_hz")
+    if isinstance(points, bool) or not isinstance(points, (int, np.integer)) or not 2 <= points <= MAX_TONES:
+        raise EstimatorInputError(f"must be an integer in [2, {MAX_TONES}], got {points!r}", "band.points")
+    return np.linspace(start, stop, int(points))
+
+
+def _frequencies(method: str, frequencies_hz, band) -> np.ndarray:
+    if (frequencies_hz is None) == (band is None):
+        raise EstimatorInputError("give exactly one of frequencies_hz or band", "frequencies_hz")
+    if band is not None:
+        f = band_frequencies(band)
+        field = "band"
+    else:
+        try:
+            f = np.asarray(frequencies_hz, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise EstimatorInputError("must be a list of numbers", "frequencies_hz") from None
+        field = "frequencies_hz"
+        if not np.all(np.isfinite(f)) or np.any(f <= 0):
+            raise EstimatorInputError("must be finite and > 0", field)
+        if f.size > MAX_TONES:
+            raise EstimatorInputError(f"at most {MAX_TONES} tones", field)
+    if method == "two_tone":
+        if band is not None:
+            f = f[[0, -1]]
+        if f.size != 2:
+            raise EstimatorInputError(f"two_tone needs exactly two frequencies [f1, f2], got {f.size}", field)
+        if f[1] <= f[0]:
+            raise EstimatorInputError(f"need f2 > f1, got f1={f[0]:.6g} Hz, f2={f[1]:.6g} Hz", field)
+        return f
+    if f.size < 2:
+        raise EstimatorInputError("regression needs at least two frequencies", field)
+    df = np.diff(f)
+    if np.any(df <= 0):
+        raise EstimatorInputError("must be strictly increasing", field)
+    if np.max(np.abs(df - df.mean())) > 1e-6 * df.mean():
+        raise EstimatorInputError("regression needs equally spaced tones", field)
+    return f
+
+
+def _two_tone_delays(h: np.ndarray, f: np.ndarray) -> np.ndarray:
+    dphi = np.angle(h[:, 1] * np.conj(h[:, 0]))  # phi2 - phi1, in (-pi, pi]
+    return np.mod(-dphi, 2.0 * math.pi) / (2.0 * math.pi * (f[1] - f[0]))
+
+
+def _regression_delays(h: np.ndarray, f: np.ndarray) -> np.ndarray:
+    df = f[1] - f[0]
+    period = 1.0 / df
+    z = np.sum(h[:, 1:] * np.conj(h[:, :-1]), axis=1)
+    tau0 = np.mod(-np.angle(z), 2.0 * math.pi) / (2.0 * math.pi * df)
+    resid = h * np.exp(2j * math.pi * f[None, :] * tau0[:, None])
+    psi = np.unwrap(np.angle(resid), axis=1)
+    fc = f - f.mean()
+    slope = (psi @ fc) / np.dot(fc, fc)
+    return np.mod(tau0 - slope / (2.0 * math.pi), period)
+
+
+def _circular(delays: np.ndarray, period: float) -> tuple[np.ndarray, bool]:
+    """Estimates unwrapped around their circular mean, and whether any reaches past the range.
+
+    Unwrapped estimates lie in [mean - period/2, mean + period/2). Some below 0
+    just means a short distance seen through noise; some at or above
+    ``period`` means trials that, raw, aliased to near zero: the distance is
+    at the far edge of the unambiguous range.
+    """
+    mean = np.mod(np.angle(np.mean(np.exp(2j * math.pi * delays / period))) * period / (2.0 * math.pi), period)
+    dev = delays - mean
+    dev -= period * np.round(dev / period)
+    unwrapped = mean + dev
+    return unwrapped, bool(np.any(unwrapped >= period))
+
+
+def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: str = "two_tone",
+                  snr_db: float | None = 30.0, trials: int = 100, seed=0,
+                  relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
+                  true_distance_m: float | None = None, duration_s: float | None = None,
+                  return_estimates: bool = False) -> PDOAResult:
+    """Monte Carlo PDOA ranging over ``profile`` (api.md POST /v1/ranging/pdoa).
+
+    Args:
+        profile: the channel (its frequency response is evaluated at the tones).
+        frequencies_hz: ``[f1, f2]`` (two_tone) or an equally spaced list (regression);
+            or ``band={"start_hz", "stop_hz", "points"}`` (two_tone uses its two ends).
+        method: ``two_tone`` | ``regression``.
+        snr_db: in-band SNR (see module docstring); None = noiseless.
+        trials (1..10000), seed (int >= 0 or Generator), relative_permittivity,
+        true_distance_m (adds error_m / rmse_m and the wrap check), duration_s (T0,
+        default 1 / bandwidth), return_estimates.
+    """
+    if not isinstance(profile, PathProfile):
+        raise EstimatorInputError("must be a PathProfile", "profile")
+    if method not in METHODS:
+        raise EstimatorInputError(f"unknown method {method!r} (two_tone | regression)", "method")
+    f = _frequencies(method, frequencies_hz, band)
+    snr = _check_snr(snr_db)
+    n_trials = trials_count(trials)
+    rng = generator(seed)
+    eps = _check_eps(relative_permittivity)
+    v = velocity_m_per_s(eps)
+    if true_distance_m is not None:
+        true_distance_m = finite_float(true_distance_m, "true_distance_m", nonnegative=True)
+    width = float(f[-1] - f[0])
+    t0 = 1.0 / width if duration_s is None else finite_float(duration_s, "duration_s", positive=True)
+
+    h = profile.frequency_response(f)
+    power = float(np.sum(np.abs(h) ** 2))
+    if power <= 0.0:
+        raise EstimatorInputError("the channel response is zero at every tone (paths cancel exactly)",
+                                  "profile.paths.gain")
+    obs = np.broadcast_to(h, (n_trials, f.size)).copy()
+    if snr is not None:
+        sigma2 = power / (10.0 ** (snr / 10.0) * width * t0)
+        obs += math.sqrt(sigma2 / 2.0) * (rng.standard_normal((n_trials, f.size, 2)) @ np.array([1.0, 1.0j]))
+
+    if method == "two_tone":
+        delays = _two_tone_delays(obs, f)
+        period = 1.0 / width
+    else:
+        delays = _regression_delays(obs, f)
+        period = 1.0 / float(f[1] - f[0])
+    max_range = v * period
+    unwrapped, straddle = _circular(delays, period)
+    dist = v * unwrapped
+    stats = summarise(dist, true_distance_m)
+
+    reason = None
+    if true_distance_m is not None and true_distance_m >= max_range:
+        reason = (f"true distance {true_distance_m:.6g} m is beyond the maximum unambiguous range "
+                  f"{max_range:.6g} m: the estimate aliases to the distance modulo that range")
+    elif straddle:
+        reason = ("the distance is at the edge of the maximum unambiguous range: some trials alias to "
+                  "near zero (statistics are taken circularly, but the true distance may exceed the range)")
+
+    crlb = crlb_pd = None
+    if snr is not None:
+        if method == "two_tone":
+            b = pdoa_crlb(0.5 * (f[0] + f[1]), width, snr, t0, eps)
+        else:
+            b = multitone_crlb(f, snr, t0, eps)
+        crlb, crlb_pd = b.sigma_m, b.sigma_phase_difference_m
+    return PDOAResult(method=method, distance_m=stats.distance_m, delay_s=float(np.mean(unwrapped)),
+                      std_m=stats.std_m, error_m=stats.error_m, rmse_m=stats.rmse_m, crlb_m=crlb,
+                      crlb_phase_difference_m=crlb_pd, max_unambiguous_range_m=max_range,
+                      wrapped=reason is not None, wrap_reason=reason, trials=n_trials, frequencies_hz=f,
+                      estimates_m=dist if return_estimates else None)
