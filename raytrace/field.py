@@ -1,0 +1,198 @@
+"""Complex gain of refined paths: Jones field tracking, Fresnel, absorption, ray tube.
+
+Normalisation (``shared/design/api.md``: ``|a|^2`` is the power transfer
+between the two isotropic antennas). An isotropic transmitter of power P_t
+in a medium of index n_t has, at 1 m, power density P_t / (4 pi) and field
+``|E_1|^2 = 2 eta0 P_t / (4 pi Re n_t)``. Along the ray the field is
+``E_rx = E_1 * R`` with the transfer ratio
+
+    R = prod_k c_k sqrt(cos_t,k / cos_i,k) * exp(-j k0 sum_i n_i L_i) / sqrt(|det J|)
+
+where ``c_k`` are the Fresnel field coefficients (TE on the s component, TM
+on the p component, Jones calculus with the basis of :mod:`raytrace.em`),
+the ``sqrt(cos_t / cos_i)`` factor (refraction only, geometric cosines) is
+the jump of the tube's cross-section at the interface so that the power in
+the tube changes by exactly the power transmittance
+``T = Re(n2 cos_t) |t|^2 / Re(n1 cos_i)``, ``exp(-j k0 n_i L_i)`` is the
+phase and absorption of segment i (complex index, ``Im n <= 0``), and
+``|det J|`` [m^2/sr] is the tube cross-section at the receiver per unit launch
+solid angle (1 m^2/sr at 1 m: the reference), from
+:func:`raytrace.refine.refine`. The receiver (effective aperture
+``lambda0^2 / (4 pi Re n_r^2)``) collects
+``P_r = Re n_r |E_rx|^2 / (2 eta0) * lambda0^2 / (4 pi Re n_r^2)``, hence
+
+    P_r / P_t = (lambda0 / (4 pi))^2 |R|^2 / (Re n_t Re n_r)
+    a = lambda0 / (4 pi) * R / sqrt(Re n_t Re n_r)
+
+which gives ``lambda0 / (4 pi n d)`` for a lossless homogeneous line of sight
+and the Friis ``lambda0 / (4 pi d)`` in free space. Polarization: the
+transmitter radiates a unit field along the projection of its polarization on
+the plane normal to the launch direction (``dipole``: not normalised, i.e.
+weighted by sin(theta)); the receiver responds with the projection of the
+arriving field vector on its own polarization (normalised projection for an
+isotropic receiver). Where an isotropic antenna's polarization is parallel to
+the ray the projection is undefined; a fixed perpendicular is used instead.
+
+Caustics: the tube cross-section is floored at ``(TUBE_FLOOR * L)^2`` (L the
+unfolded length) so geometric optics' infinite field at a caustic is capped;
+the caustic phase shift is not applied (geometric optics limitation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from raytrace.em import C0, Fresnel, interface_basis
+from raytrace.media import MediaTable
+from raytrace.refine import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION, Steps
+
+#: Smallest tube cross-section as a fraction of the unfolded length (caps caustic gain at +20 dB).
+TUBE_FLOOR = 0.1
+
+
+def ray_fresnel(n1: np.ndarray, n2: np.ndarray, cos_i: np.ndarray, tir: np.ndarray) -> Fresnel:
+    """Fresnel field coefficients (Born & Wolf 1.5.20-21, tmm sign convention of
+    :mod:`raytrace.em`) for a *ray* crossing from lossy medium n1 into n2.
+
+    The only difference from :func:`raytrace.em.fresnel` is the branch of the
+    complex ``cos_t``: em picks the root with ``Im(n2 cos_t) <= 0`` (decaying
+    away from the interface), which is right for a homogeneous incident wave
+    from a lossless medium but, for a ray leaving a lossy tissue into a less
+    lossy one (muscle -> air), selects a backward root (``Re cos_t < 0``,
+    ``|r| > 1``). A ray below the geometric critical angle (``tir`` False,
+    real parts) is transmitted forward: the principal root (``Re cos_t >= 0``)
+    is used; beyond it, the evanescent root with ``Im(n2 cos_t) <= 0``.
+    """
+    n1 = np.asarray(n1, complex)
+    n2 = np.asarray(n2, complex)
+    ci = np.asarray(cos_i, float)
+    ct = np.sqrt(1.0 - (n1 / n2) ** 2 * (1.0 - ci * ci) + 0j)  # principal: Re >= 0
+    evanescent = np.where((n2 * ct).imag > 0.0, -ct, ct)
+    ct = np.where(np.asarray(tir, bool), evanescent, ct)
+    n1ci, n2ct, n2ci, n1ct = n1 * ci, n2 * ct, n2 * ci, n1 * ct
+    same = n1 == n2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r_te = np.where(same, 0.0, (n1ci - n2ct) / (n1ci + n2ct))
+        t_te = np.where(same, 1.0, 2.0 * n1ci / (n1ci + n2ct))
+        r_tm = np.where(same, 0.0, (n2ci - n1ct) / (n2ci + n1ct))
+        t_tm = np.where(same, 1.0, 2.0 * n1ci / (n2ci + n1ct))
+    return Fresnel(r_te=r_te + 0j, t_te=t_te + 0j, r_tm=r_tm + 0j, t_tm=t_tm + 0j, cos_t=ct)
+
+
+def antenna_vector(direction: np.ndarray, polarization: np.ndarray, pattern: str) -> np.ndarray:
+    """(P, 3) real vector an antenna couples to along each unit ray direction."""
+    pol = np.asarray(polarization, float)
+    pol = pol / np.linalg.norm(pol)
+    proj = pol[None, :] - np.einsum("ij,j->i", direction, pol)[:, None] * direction
+    if pattern == "dipole":
+        return proj
+    norm = np.linalg.norm(proj, axis=1, keepdims=True)
+    ref = np.where(np.abs(direction[:, 0:1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    fallback = np.cross(direction, ref)
+    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
+    return np.where(norm > 1e-9, proj / np.maximum(norm, 1e-300), fallback)
+
+
+@dataclass
+class PathFields:
+    gains: np.ndarray  # (P, F) complex
+    delay_s: np.ndarray  # (P,)
+    length_m: np.ndarray  # (P,)
+    reflect_tir: list[np.ndarray]  # per step: (P,) True where a reflection is total (Snell has no real solution)
+
+
+def path_gains(
+    steps: Steps,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    rx_m: np.ndarray,
+    rx_medium: np.ndarray,
+    launch_dirs: np.ndarray,
+    tube_m2_per_sr: np.ndarray,
+    tx_polarization: np.ndarray,
+    tx_pattern: str,
+    rx_polarization: np.ndarray,
+    rx_pattern: np.ndarray,
+) -> PathFields:
+    """Complex gains at every frequency of ``media`` for recorded paths (vectorised over paths)."""
+    p = len(launch_dirs)
+    freqs = media.frequencies_hz
+    n = media.n  # (F, M+1)
+    n_re0 = media.n_real
+    k0 = 2.0 * np.pi * freqs / C0  # (F,)
+    e = antenna_vector(launch_dirs, tx_polarization, tx_pattern).astype(complex)
+    field = np.repeat(e[:, None, :], len(freqs), axis=1)  # (P, F, 3)
+    optical = np.zeros((p, len(freqs)), complex)  # sum n_i(f) L_i
+    delay_len = np.zeros(p)  # sum Re n_i(f0) L_i
+    length = np.zeros(p)
+    prev = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
+    med = np.full(p, tx_medium, np.int64)
+    tir_flags: list[np.ndarray] = []
+    for s in range(len(steps.valid)):
+        v = steps.valid[s]
+        tir_step = np.zeros(p, bool)
+        if v.any():
+            j = np.flatnonzero(v)
+            seg = np.linalg.norm(steps.point[s][j] - prev[j], axis=1)
+            mf = steps.med_from[s][j]
+            optical[j] += n[:, mf + 1].T * seg[:, None]
+            delay_len[j] += n_re0[mf + 1] * seg
+            length[j] += seg
+            prev[j] = steps.point[s][j]
+            kind = steps.kind[s][j]
+            inter = kind != KIND_PASS
+            if inter.any():
+                i = j[inter]
+                mf_i, mt_i = mf[inter], steps.med_to[s][i]
+                basis = interface_basis(steps.dir_in[s][i], steps.normal[s][i], n_re0[mf_i + 1], n_re0[mt_i + 1])
+                ci = basis.cos_i
+                fr = ray_fresnel(n[:, mf_i + 1].T, n[:, mt_i + 1].T, ci[:, None], basis.tir[:, None])  # (I, F)
+                es = np.einsum("ifj,ij->if", field[i], basis.s)
+                ep = np.einsum("ifj,ij->if", field[i], basis.p_in)
+                refl = kind[inter] == KIND_REFLECTION
+                tir_step[i] = refl & basis.tir
+                cs = np.where(refl[:, None], fr.r_te, fr.t_te)
+                cp = np.where(refl[:, None], fr.r_tm, fr.t_tm)
+                p_t = np.where(refl[:, None], 0.0, np.nan_to_num(basis.p_transmitted))
+                p_out = np.where(refl[:, None], basis.p_reflected, p_t)
+                ct_geo = np.abs(np.einsum("ij,ij->i", np.nan_to_num(basis.k_transmitted), basis.normal_forward))
+                jump = np.where(refl, 1.0, np.sqrt(ct_geo / np.maximum(ci, 1e-300)))
+                field[i] = (
+                    (cs * es)[:, :, None] * basis.s[:, None, :] + (cp * ep)[:, :, None] * p_out[:, None, :]
+                ) * jump[:, None, None]
+            med[j] = np.where(kind == KIND_REFLECTION, mf, steps.med_to[s][j])
+        tir_flags.append(tir_step)
+    seg = np.linalg.norm(rx_m - prev, axis=1)
+    optical += n[:, med + 1].T * seg[:, None]
+    delay_len += n_re0[med + 1] * seg
+    length += seg
+    last_dir = (rx_m - prev) / np.maximum(seg, 1e-300)[:, None]
+    # receiver projection
+    e_rx = np.zeros((p, 3))
+    for pattern in np.unique(rx_pattern):
+        sel = rx_pattern == pattern
+        e_rx[sel] = _rx_vectors(last_dir[sel], rx_polarization[sel], str(pattern))
+    response = np.einsum("pfj,pj->pf", field, e_rx)
+    tube = np.maximum(tube_m2_per_sr, (TUBE_FLOOR * length) ** 2)
+    lam0 = C0 / freqs
+    n_norm = np.sqrt(n[:, tx_medium + 1].real[None, :] * n[:, rx_medium + 1].T.real)  # (P, F)
+    gains = (lam0 / (4.0 * np.pi))[None, :] * response * np.exp(-1j * k0[None, :] * optical) / np.sqrt(tube)[:, None] / n_norm
+    return PathFields(gains=gains, delay_s=delay_len / C0, length_m=length, reflect_tir=tir_flags)
+
+
+def _rx_vectors(direction: np.ndarray, polarization: np.ndarray, pattern: str) -> np.ndarray:
+    pol = polarization / np.linalg.norm(polarization, axis=1, keepdims=True)
+    proj = pol - np.einsum("ij,ij->i", direction, pol)[:, None] * direction
+    if pattern == "dipole":
+        return proj
+    norm = np.linalg.norm(proj, axis=1, keepdims=True)
+    ref = np.where(np.abs(direction[:, 0:1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    fallback = np.cross(direction, ref)
+    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
+    return np.where(norm > 1e-9, proj / np.maximum(norm, 1e-300), fallback)
+
+
+KIND_NAMES = {KIND_REFRACTION: "refraction", KIND_REFLECTION: "reflection"}

@@ -1,0 +1,73 @@
+"""Per-medium optical constants for one trace: complex refractive indices at
+every requested frequency, and which triangles are transparent.
+
+Medium index ``m`` (``-1`` air, ``i >= 0`` organ i) is stored at column
+``m + 1``. With a ``homogeneous`` override every organ's material is replaced
+by that one material (air stays air), the thesis' homogeneous case; a surface
+whose two sides hold the same material is *transparent*: the tracer neither
+reflects nor bends there (it only splits the path's segments).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from raytrace.em import refractive_index
+from raytrace.errors import FrequencyOutOfRangeError
+from raytrace.phantom import AIR, Material, Phantom
+from raytrace.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
+
+
+@dataclass(frozen=True)
+class MediaTable:
+    """``n[f, m + 1]``: complex refractive index (Re > 0, Im <= 0) of medium m at frequency f."""
+
+    frequencies_hz: np.ndarray  # (F,) first one is the centre (geometry) frequency
+    n: np.ndarray  # (F, M + 1) complex
+    materials: tuple[Material, ...]  # (M + 1,) air first
+    face_transparent: np.ndarray  # (F_tri,) bool
+    parent: np.ndarray  # (M,) organ -> parent medium index
+
+    @property
+    def n_real(self) -> np.ndarray:
+        """Re n at the centre frequency, used for all ray geometry (Snell directions, delays)."""
+        return self.n[0].real
+
+    @classmethod
+    def build(
+        cls,
+        phantom: Phantom,
+        frequencies_hz: np.ndarray,
+        homogeneous: Material | None = None,
+        *,
+        field: str = "frequency_hz",
+    ) -> "MediaTable":
+        f = np.asarray(frequencies_hz, dtype=float).ravel()
+        bad = ~np.isfinite(f) | (f < FREQUENCY_MIN_HZ) | (f > FREQUENCY_MAX_HZ)
+        if bad.any():
+            raise FrequencyOutOfRangeError(
+                f"frequency {f[bad][0]!r} Hz is outside the tissue model's valid range "
+                f"{FREQUENCY_MIN_HZ:g}-{FREQUENCY_MAX_HZ:g} Hz (Gabriel 1996)",
+                field=field,
+            )
+        organ_materials = [homogeneous if homogeneous is not None else o.material for o in phantom.organs]
+        materials = (AIR, *organ_materials)
+        n = np.stack(
+            [refractive_index(np.broadcast_to(m.complex_relative_permittivity(f), f.shape)) for m in materials],
+            axis=1,
+        ).astype(complex)
+        parent = np.asarray(phantom.parent, dtype=np.int64)
+        organ = np.asarray(phantom.face_organ, dtype=np.int64)
+        same = np.array(
+            [materials[i + 1] == materials[int(parent[i]) + 1] for i in range(len(phantom.organs))],
+            dtype=bool,
+        )
+        return cls(
+            frequencies_hz=f,
+            n=n,
+            materials=materials,
+            face_transparent=same[organ] if len(organ) else np.zeros(0, bool),
+            parent=parent,
+        )

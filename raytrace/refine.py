@@ -1,0 +1,376 @@
+"""Exact paths from interaction signatures: physical re-tracing and Newton refinement.
+
+A *signature* is the ordered list of events of a path, each encoded as one
+integer ``code = (organ * 2 + leaving) * 2 + reflect``: which organ's
+surface, from which side (``leaving = 1``: from inside the organ to its
+parent), and whether the wave is reflected (1) or refracted (0). Surfaces
+between identical materials (homogeneous override) are transparent and are
+not events.
+
+:func:`follow` shoots rays from the transmitter along given launch
+directions and makes them obey a signature *physically*: at each hit (first
+hit in the full scene, so nothing can be skipped) the surface must be the one
+the signature names, and the new direction follows the law of reflection or
+Snell's law (real parts of the indices, smooth normals). :func:`refine` then
+drives the launch direction by Newton's method (finite-difference Jacobian on
+two tangent angles) until the last leg passes through the receiver; the
+stationary optical path (Fermat) is automatically satisfied since every
+vertex obeys Snell / reflection. The same Jacobian is the numerical ray tube:
+``|det J|`` is the tube cross-section at the receiver per unit launch solid
+angle [m^2/sr], i.e. the geometric spreading (1 m^2/sr at 1 m in a homogeneous
+medium, d^2 at distance d). Everything is vectorised over all candidate paths.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from raytrace.budget import Budget
+from raytrace.em import refract_direction
+from raytrace.media import MediaTable
+from raytrace.scene import TracerScene
+
+KIND_REFRACTION = 0
+KIND_REFLECTION = 1
+KIND_PASS = 2
+
+#: Newton stops when the last leg misses the receiver by less than this [m].
+MISS_TOLERANCE_M = 1e-9
+#: Finite-difference step of the launch angles [rad].
+FD_STEP_RAD = 1e-7
+#: Largest Newton step on the launch angles [rad].
+MAX_STEP_RAD = 0.25
+MAX_ITERATIONS = 40
+LINE_SEARCH_HALVINGS = 10
+
+
+def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.ndarray:
+    return (np.asarray(organ, np.int64) * 2 + np.asarray(leaving, np.int64)) * 2 + np.asarray(reflect, np.int64)
+
+
+@dataclass
+class Steps:
+    """Per-step records of a :func:`follow` in record mode, arrays over paths (P, ...)."""
+
+    valid: list[np.ndarray] = field(default_factory=list)  # (P,) bool
+    point: list[np.ndarray] = field(default_factory=list)  # (P, 3)
+    face: list[np.ndarray] = field(default_factory=list)  # (P,)
+    kind: list[np.ndarray] = field(default_factory=list)  # (P,) KIND_*
+    med_from: list[np.ndarray] = field(default_factory=list)  # (P,)
+    med_to: list[np.ndarray] = field(default_factory=list)  # (P,) far side of the surface
+    normal: list[np.ndarray] = field(default_factory=list)  # (P, 3) smooth outward normal
+    dir_in: list[np.ndarray] = field(default_factory=list)  # (P, 3)
+
+
+@dataclass
+class FollowResult:
+    ok: np.ndarray  # (P,) the signature was obeyed (and, in record mode, the last leg is clear)
+    last_point: np.ndarray  # (P, 3) last event point (or the transmitter)
+    last_dir: np.ndarray  # (P, 3) direction of the last leg
+    last_med: np.ndarray  # (P,)
+    segments: int  # ray casts done
+    steps: Steps | None = None
+
+
+def follow(
+    scene: TracerScene,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    dirs: np.ndarray,
+    codes: np.ndarray,
+    nint: np.ndarray,
+    *,
+    targets_m: np.ndarray | None = None,
+) -> FollowResult:
+    """Trace each ray through its signature (vectorised over rays).
+
+    Without ``targets_m`` the trace stops after the last event (for Newton).
+    With ``targets_m`` (record mode) it continues along the straight line to
+    each target, through transparent surfaces, and fails (``ok = False``) if
+    a real surface blocks the last leg; every step is recorded.
+    """
+    p = len(dirs)
+    record = targets_m is not None
+    o = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
+    d = np.array(dirs, dtype=float)
+    med = np.full(p, tx_medium, dtype=np.int64)
+    push = np.zeros((p, 3))
+    k = np.zeros(p, dtype=np.int64)
+    nint = np.asarray(nint, dtype=np.int64)
+    ok = np.ones(p, dtype=bool)
+    done = np.zeros(p, dtype=bool) if record else (nint == 0)
+    steps = Steps() if record else None
+    off = scene.offset_m
+    n_re = media.n_real
+    segments = 0
+    max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
+    for _ in range(max_steps):
+        act = ok & ~done
+        if not act.any():
+            break
+        idx = np.flatnonzero(act)
+        final = k[idx] >= nint[idx]
+        if record and final.any():
+            to_t = targets_m[idx[final]] - o[idx[final]]
+            d[idx[final]] = to_t / np.linalg.norm(to_t, axis=1, keepdims=True)
+        di = d[idx]
+        face, t = scene.first_hit(o[idx], di, push[idx])
+        segments += len(idx)
+        hit = face >= 0
+        if record:
+            dist = np.where(final, np.linalg.norm(targets_m[idx] - o[idx], axis=1), np.inf)
+            reached = final & (~hit | (t >= dist))
+            done[idx[reached]] = True
+            live = ~reached
+        else:
+            live = np.ones(len(idx), bool)
+        ok[idx[live & ~hit]] = False
+        live &= hit
+        rec = {}
+        if record:
+            rec = dict(
+                valid=np.zeros(p, bool), point=np.zeros((p, 3)), face=np.full(p, -1, np.int64),
+                kind=np.full(p, -1, np.int64), med_from=np.full(p, -2, np.int64),
+                med_to=np.full(p, -2, np.int64), normal=np.zeros((p, 3)), dir_in=np.zeros((p, 3)),
+            )
+        if live.any():
+            j = idx[live]
+            f = face[live]
+            dj = di[live]
+            pt = o[j] + t[live, None] * dj
+            fn = scene.face_normals[f]
+            dn = np.einsum("ij,ij->i", dj, fn)
+            leaving = dn > 0.0
+            organ = scene.face_organ[f]
+            parent = media.parent[organ]
+            m_from = np.where(leaving, organ, parent)
+            m_to = np.where(leaving, parent, organ)
+            sgn = np.where(leaving, 1.0, -1.0)[:, None]
+            consistent = m_from == med[j]
+            transparent = media.face_transparent[f]
+            is_final = k[j] >= nint[j]
+            # record-mode last leg: a real surface before the receiver blocks the path
+            blocked = ~transparent & is_final
+            expected = np.where(is_final, -1, np.take_along_axis(codes[j], np.minimum(k[j], codes.shape[1] - 1)[:, None], 1)[:, 0] if codes.shape[1] else -1)
+            reflect = (expected & 1).astype(bool)
+            code = encode(organ, leaving, reflect)
+            event = ~transparent & ~is_final
+            mismatch = event & (code != expected)
+            bad = ~consistent | blocked | mismatch
+            kind = np.where(transparent, KIND_PASS, np.where(reflect, KIND_REFLECTION, KIND_REFRACTION))
+            ns = scene.smooth_normals(f, pt)
+            new_d = dj.copy()
+            new_med = np.where(transparent, m_to, med[j])
+            new_push = sgn * fn * off
+            r_sel = event & reflect & ~bad
+            if r_sel.any():
+                dr = dj[r_sel] - 2.0 * np.einsum("ij,ij->i", dj[r_sel], ns[r_sel])[:, None] * ns[r_sel]
+                new_d[r_sel] = dr
+                new_push[r_sel] = -sgn[r_sel] * fn[r_sel] * off
+                wrong = np.einsum("ij,ij->i", dr, fn[r_sel]) * sgn[r_sel, 0] >= 0.0
+                bad[np.flatnonzero(r_sel)[wrong]] = True
+            t_sel = event & ~reflect & ~bad
+            if t_sel.any():
+                dt, tir = refract_direction(dj[t_sel], ns[t_sel], n_re[m_from[t_sel] + 1], n_re[m_to[t_sel] + 1])
+                dt = np.where(tir[:, None], dj[t_sel], dt)
+                new_d[t_sel] = dt
+                new_med[t_sel] = m_to[t_sel]
+                wrong = tir | (np.einsum("ij,ij->i", dt, fn[t_sel]) * sgn[t_sel, 0] <= 0.0)
+                bad[np.flatnonzero(t_sel)[wrong]] = True
+            ok[j[bad]] = False
+            good = ~bad
+            jg = j[good]
+            o[jg] = pt[good]
+            d[jg] = new_d[good]
+            med[jg] = new_med[good]
+            push[jg] = new_push[good]
+            k[jg] += event[good]
+            if not record:
+                done[jg] = k[jg] >= nint[jg]
+            if record:
+                rec["valid"][jg] = True
+                rec["point"][jg] = pt[good]
+                rec["face"][jg] = f[good]
+                rec["kind"][jg] = kind[good]
+                rec["med_from"][jg] = m_from[good]
+                rec["med_to"][jg] = m_to[good]
+                rec["normal"][jg] = ns[good]
+                rec["dir_in"][jg] = dj[good]
+        if record:
+            for key, value in rec.items():
+                getattr(steps, key).append(value)
+    ok &= done
+    if record:
+        d_last = np.where(ok[:, None], d, np.nan)
+    else:
+        d_last = d
+    return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps)
+
+
+def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors orthogonal to each unit direction and to each other (right-handed)."""
+    ref = np.where(np.abs(d[:, 0:1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    u = np.cross(d, ref)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(d, u)
+    return u, v
+
+
+def _landing(res: FollowResult, rx: np.ndarray, d_base: np.ndarray, e1: np.ndarray, e2: np.ndarray):
+    """Where each last leg crosses the plane through the receiver normal to ``d_base``."""
+    d = res.last_dir
+    denom = np.einsum("ij,ij->i", d, d_base)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.einsum("ij,ij->i", rx - res.last_point, d_base) / denom
+    x = res.last_point + tau[:, None] * d - rx
+    r = np.stack([np.einsum("ij,ij->i", x, e1), np.einsum("ij,ij->i", x, e2)], axis=1)
+    ok = res.ok & (denom > 1e-6) & (tau > 0.0) & np.isfinite(r).all(axis=1)
+    return r, ok
+
+
+def _normalize(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+@dataclass
+class Refined:
+    dirs: np.ndarray  # (P, 3) launch directions
+    converged: np.ndarray  # (P,) bool
+    tube_m2_per_sr: np.ndarray  # (P,) |det J|: ray-tube cross-section at the receiver per launch solid angle
+    segments: int
+
+
+def refine_by_continuation(
+    scene: TracerScene,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    rx_m: np.ndarray,
+    codes: np.ndarray,
+    nint: np.ndarray,
+    *,
+    stages: int = 8,
+    budget: Budget | None = None,
+) -> Refined:
+    """Refraction-only paths by homotopy on the refractive indices.
+
+    With every index set to 1 the straight transmitter->receiver line is the
+    exact path; the indices are raised as ``n_i^s`` for s from 0 to 1 in
+    ``stages`` steps, each stage's Newton starting from the previous stage's
+    solution. This finds direct paths whose straight launch direction would
+    be totally reflected (a capsule deep in muscle, a sensor in air).
+    """
+    import dataclasses
+
+    dirs = (rx_m - tx_m) / np.linalg.norm(rx_m - tx_m, axis=1, keepdims=True)
+    alive = np.ones(len(dirs), bool)
+    segments = 0
+    out = None
+    log_n = np.log(media.n_real)
+    for s in np.linspace(0.0, 1.0, stages + 1)[1:]:
+        idx = np.flatnonzero(alive)
+        if len(idx) == 0:
+            break
+        staged = dataclasses.replace(media, n=np.exp(s * log_n)[None, :] + 0j)
+        res = refine(scene, staged, tx_m, tx_medium, rx_m[idx], dirs[idx], codes[idx], nint[idx], budget=budget)
+        segments += res.segments
+        dirs[idx[res.converged]] = res.dirs[res.converged]
+        alive[idx[~res.converged]] = False
+        out = res
+    tube = np.full(len(dirs), np.nan)
+    if out is not None:
+        tube[np.flatnonzero(alive)] = out.tube_m2_per_sr[out.converged]
+    return Refined(dirs=dirs, converged=alive, tube_m2_per_sr=tube, segments=segments)
+
+
+def refine(
+    scene: TracerScene,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    rx_m: np.ndarray,
+    dirs0: np.ndarray,
+    codes: np.ndarray,
+    nint: np.ndarray,
+    *,
+    budget: Budget | None = None,
+) -> Refined:
+    """Newton on the two launch angles until each path's last leg hits its receiver.
+
+    Residual: the offset, in the plane through the receiver normal to the
+    last leg, of where the last leg crosses that plane. Jacobian: forward
+    differences of the same residual for launch directions tilted by
+    :data:`FD_STEP_RAD` along two orthonormal tangents (so the Jacobian
+    determinant is the ray-tube area per steradian). Steps are limited to
+    :data:`MAX_STEP_RAD` and backtracked (halved) until the miss decreases.
+    """
+    p = len(dirs0)
+    dirs = _normalize(np.asarray(dirs0, float).copy())
+    converged = np.zeros(p, bool)
+    failed = np.zeros(p, bool)
+    tube = np.full(p, np.nan)
+    segments = 0
+    h = FD_STEP_RAD
+
+    def run(sel, dd):
+        nonlocal segments
+        res = follow(scene, media, tx_m, tx_medium, dd, codes[sel], nint[sel])
+        segments += res.segments
+        if budget is not None:
+            budget.charge(res.segments)
+        return res
+
+    for _ in range(MAX_ITERATIONS):
+        act = np.flatnonzero(~converged & ~failed)
+        if len(act) == 0:
+            break
+        d0 = dirs[act]
+        rx = rx_m[act]
+        base = run(act, d0)
+        db = np.where(base.ok[:, None], base.last_dir, np.array([0.0, 0.0, 1.0]))
+        e1, e2 = tangent_basis(db)
+        r0, ok0 = _landing(base, rx, db, e1, e2)
+        u, v = tangent_basis(d0)
+        ra, oka = _landing(run(act, _normalize(d0 + h * u)), rx, db, e1, e2)
+        rb, okb = _landing(run(act, _normalize(d0 + h * v)), rx, db, e1, e2)
+        jac = np.stack([(ra - r0) / h, (rb - r0) / h], axis=2)  # (n, 2, 2)
+        det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+        good = ok0 & oka & okb & np.isfinite(det) & (np.abs(det) > 0.0)
+        miss = np.linalg.norm(r0, axis=1)
+        conv = good & (miss < MISS_TOLERANCE_M)
+        converged[act[conv]] = True
+        tube[act[conv]] = np.abs(det[conv])
+        failed[act[~good]] = True
+        todo = good & ~conv
+        if not todo.any():
+            continue
+        jt = jac[todo]
+        dt = det[todo]
+        inv = np.stack([np.stack([jt[:, 1, 1], -jt[:, 0, 1]], 1), np.stack([-jt[:, 1, 0], jt[:, 0, 0]], 1)], 1) / dt[:, None, None]
+        step = -np.einsum("nij,nj->ni", inv, r0[todo])
+        norm = np.linalg.norm(step, axis=1)
+        step *= np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))[:, None]
+        sel = act[todo]
+        du, dv = u[todo], v[todo]
+        base_dir = d0[todo]
+        old = miss[todo]
+        lam = np.ones(len(sel))
+        pending = np.ones(len(sel), bool)
+        for _h in range(LINE_SEARCH_HALVINGS):
+            pi = np.flatnonzero(pending)
+            if len(pi) == 0:
+                break
+            trial = _normalize(base_dir[pi] + lam[pi, None] * (step[pi, 0:1] * du[pi] + step[pi, 1:2] * dv[pi]))
+            res = run(sel[pi], trial)
+            dd = np.where(res.ok[:, None], res.last_dir, np.array([0.0, 0.0, 1.0]))
+            a1, a2 = tangent_basis(dd)
+            rt, okt = _landing(res, rx_m[sel[pi]], dd, a1, a2)
+            better = okt & (np.linalg.norm(rt, axis=1) < old[pi])
+            dirs[sel[pi[better]]] = trial[better]
+            pending[pi[better]] = False
+            lam[pi[~better]] *= 0.5
+        failed[sel[pending]] = True
+    return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=segments)

@@ -1,0 +1,166 @@
+"""Raw Embree scene of a phantom for the tracer: batched first-hit queries.
+
+Embree (embreex) intersects in float32; this module uses it only to find
+*which* triangle a ray hits first, then re-intersects the ray with that
+triangle's plane in float64 from the true (un-offset) origin, so hit points
+and path lengths carry float64 accuracy whatever the float32 rounding.
+
+Spawned rays: the float32 query origin is pushed off the surface just left by
+:attr:`TracerScene.offset_m` (a few float32 ulps of the scene's coordinate
+magnitude) along the facet normal, on the side the ray travels into, so the
+query never re-hits the surface it starts on; the float64 geometry still
+starts exactly on the surface (``shared/design/tracer.md``, "Numerical care").
+
+Normals: the facet normal decides the side (entering / leaving an organ);
+directions (reflection, refraction) use smooth normals interpolated from the
+hit's barycentrics over per-corner normals. A corner whose vertex normal
+deviates from its facet normal by more than :data:`CREASE_ANGLE_RAD` (a box
+corner, a cylinder rim) uses the facet normal instead, so flat faces stay
+exactly flat and curved faceted organs get continuous normals.
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+
+from raytrace.phantom import Phantom
+
+#: Corners whose vertex normal deviates more than this from the facet normal are creases.
+CREASE_ANGLE_RAD = np.deg2rad(35.0)
+#: Spawn offset in float32 ulps of the largest (centred) coordinate.
+OFFSET_ULPS = 16.0
+
+
+@dataclass
+class TracerScene:
+    """Everything the tracer needs about a phantom's triangles, float64 plus an Embree scene."""
+
+    embree: object
+    center: np.ndarray  # (3,) float64 translation applied before float32 conversion
+    vertices: np.ndarray  # (V, 3) float64
+    faces: np.ndarray  # (F, 3) int64
+    face_organ: np.ndarray  # (F,) int
+    face_normals: np.ndarray  # (F, 3) float64 unit, outward
+    plane_d: np.ndarray  # (F,) n . v0
+    corner_normals: np.ndarray  # (F, 3, 3) per-corner smooth normals (creased)
+    scale_m: float  # bounding-box diagonal
+    offset_m: float  # spawn offset
+
+    @classmethod
+    def build(cls, phantom: Phantom) -> "TracerScene":
+        vertices = np.asarray(phantom.vertices, dtype=float)
+        faces = np.asarray(phantom.faces, dtype=np.int64)
+        lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+        center = 0.5 * (lo + hi)
+        centred = vertices - center
+        embree = rtcore_scene.EmbreeScene()
+        TriangleMesh(
+            scene=embree,
+            vertices=centred.astype(np.float32),
+            indices=faces.astype(np.int32),
+        )
+        fn = np.asarray(phantom.face_normals, dtype=float)
+        fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
+        corners = np.asarray(phantom.vertex_normals, dtype=float)[faces]  # (F, 3, 3)
+        corners = corners / np.linalg.norm(corners, axis=2, keepdims=True)
+        crease = np.einsum("fcj,fj->fc", corners, fn) < np.cos(CREASE_ANGLE_RAD)
+        corners = np.where(crease[..., None], fn[:, None, :], corners)
+        magnitude = float(np.abs(centred).max())
+        ulp = np.spacing(np.float32(max(magnitude, 1e-6)))
+        return cls(
+            embree=embree,
+            center=center,
+            vertices=vertices,
+            faces=faces,
+            face_organ=np.asarray(phantom.face_organ, dtype=np.int64),
+            face_normals=fn,
+            plane_d=np.einsum("fj,fj->f", fn, vertices[faces[:, 0]]),
+            corner_normals=corners,
+            scale_m=float(np.linalg.norm(hi - lo)),
+            offset_m=float(OFFSET_ULPS * ulp),
+        )
+
+    # ----------------------------------------------------------- queries
+    def first_hit(
+        self, origins_m: np.ndarray, directions: np.ndarray, push: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """First triangle hit by each ray and the float64 distance to it.
+
+        ``push`` (N, 3): offset added to the float32 query origin only (the
+        spawn offset off the surface just left). Returns ``(face, t_m)``:
+        ``face = -1`` and ``t = inf`` on a miss; ``t`` is measured from the
+        true origin along the unit direction to the hit triangle's plane.
+        """
+        n = len(origins_m)
+        if n == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        q = origins_m - self.center
+        if push is not None:
+            q = q + push
+        res = self.embree.run(
+            np.ascontiguousarray(q, dtype=np.float32),
+            np.ascontiguousarray(directions, dtype=np.float32),
+            output=1,
+        )
+        face = res["primID"].astype(np.int64)
+        hit = face >= 0
+        t = np.full(n, np.inf)
+        if hit.any():
+            f = face[hit]
+            nrm = self.face_normals[f]
+            denom = np.einsum("ij,ij->i", nrm, directions[hit])
+            num = self.plane_d[f] - np.einsum("ij,ij->i", nrm, origins_m[hit])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t64 = num / denom
+            t32 = res["tfar"][hit].astype(float)
+            good = np.isfinite(t64) & (np.abs(denom) > 1e-12)
+            t[hit] = np.where(good, np.maximum(t64, 0.0), t32)
+        face[~hit] = -1
+        return face, t
+
+    def smooth_normals(self, face: np.ndarray, points_m: np.ndarray) -> np.ndarray:
+        """Unit outward normals interpolated from barycentrics (float64) of points on their faces."""
+        tri = self.vertices[self.faces[face]]  # (N, 3, 3)
+        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+        v0, v1, v2 = b - a, c - a, points_m - a
+        d00 = np.einsum("ij,ij->i", v0, v0)
+        d01 = np.einsum("ij,ij->i", v0, v1)
+        d11 = np.einsum("ij,ij->i", v1, v1)
+        d20 = np.einsum("ij,ij->i", v2, v0)
+        d21 = np.einsum("ij,ij->i", v2, v1)
+        den = d00 * d11 - d01 * d01
+        v = (d11 * d20 - d01 * d21) / den
+        w = (d00 * d21 - d01 * d20) / den
+        u = 1.0 - v - w
+        bary = np.clip(np.stack([u, v, w], axis=1), 0.0, 1.0)
+        cn = self.corner_normals[face]
+        nrm = np.einsum("nc,ncj->nj", bary, cn)
+        norm = np.linalg.norm(nrm, axis=1, keepdims=True)
+        fallback = self.face_normals[face]
+        nrm = np.where(norm > 1e-12, nrm / np.where(norm > 1e-12, norm, 1.0), fallback)
+        # Never let the smooth normal flip relative to the facet.
+        flip = np.einsum("ij,ij->i", nrm, fallback) <= 0.0
+        return np.where(flip[:, None], fallback, nrm)
+
+
+_CACHE: dict[int, tuple[weakref.ref, TracerScene]] = {}
+_LOCK = threading.Lock()
+
+
+def scene_for(phantom: Phantom) -> TracerScene:
+    """The :class:`TracerScene` of a phantom, built once and cached while the phantom lives."""
+    key = id(phantom)
+    with _LOCK:
+        entry = _CACHE.get(key)
+        if entry is not None and entry[0]() is phantom:
+            return entry[1]
+    scene = TracerScene.build(phantom)
+    with _LOCK:
+        _CACHE[key] = (weakref.ref(phantom, lambda _r, k=key: _CACHE.pop(k, None)), scene)
+    return scene

@@ -1,0 +1,365 @@
+"""Channel between a transmitter and receivers inside a phantom: exact ray paths.
+
+Pipeline (``shared/design/tracer.md``):
+
+1. Validate the request (typed errors naming the field).
+2. Direct path seeds: the straight transmitter->receiver segment's crossings
+   (a multi-hit walk along it) give the refraction-only signature; it is
+   always refined, whatever ``max_interactions`` is, so the direct path is
+   found whenever it exists physically.
+3. Shooting and bouncing rays (:mod:`raytrace.sbr`): one Fibonacci launch for
+   all receivers, reflected + transmitted splitting up to
+   ``max_interactions``, candidates grouped by interaction signature.
+4. Refinement (:mod:`raytrace.refine`): Newton on the launch angles until
+   each signature's last leg passes through its receiver; the Jacobian gives
+   the ray tube. Paths that fail, or whose exact geometry is blocked, are
+   dropped; duplicates (same signature, same delay) are merged.
+5. Field (:mod:`raytrace.field`): Jones/Fresnel/absorption/spreading per path,
+   at the centre frequency and every band frequency (geometry traced once at
+   the centre frequency, tissue properties re-evaluated per frequency).
+
+Ray geometry (Snell directions, total internal reflection, delays) uses
+``Re n`` of the complex refractive index at the centre frequency; Fresnel
+coefficients use the complex indices and the complex ``cos_t``; delays are
+``sum L_i Re n_i / c``, absolute. Geometric optics is an approximation where
+organs are comparable to the wavelength (science.md).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Sequence
+
+import numpy as np
+
+from raytrace.budget import Budget
+from raytrace.errors import InputError, InvalidGeometryError
+from raytrace.field import path_gains
+from raytrace.media import MediaTable
+from raytrace.paths import (
+    Antenna,
+    ChannelResult,
+    Interaction,
+    Path,
+    ReceiverProfile,
+    Segment,
+    TraceStats,
+)
+from raytrace.phantom import Material, Phantom
+from raytrace.refine import KIND_PASS, KIND_REFLECTION, encode, follow, refine, refine_by_continuation
+from raytrace.sbr import shoot
+from raytrace.scene import TracerScene, scene_for
+
+#: Receivers closer than this to the transmitter are rejected [m].
+MIN_SEPARATION_M = 1e-4
+#: Candidate seeds refined per (receiver, signature) group (distinct face sequences first).
+SEEDS_PER_SIGNATURE = 3
+#: Two converged paths with the same signature and delays closer than this are one path [s].
+DUPLICATE_DELAY_S = 1e-16
+
+
+def trace_channel(
+    phantom: Phantom,
+    transmitter: Antenna,
+    receivers: Sequence[Antenna],
+    frequency_hz: float,
+    *,
+    band_frequencies_hz: np.ndarray | None = None,
+    max_interactions: int = 6,
+    rays: int = 100_000,
+    dynamic_range_db: float = 80.0,
+    homogeneous: Material | None = None,
+    budget: Budget | None = None,
+) -> ChannelResult:
+    """Trace every path from ``transmitter`` to each receiver and return their complex gains.
+
+    ``a`` of each path is normalised so that ``|a|^2`` is the power transfer
+    between the antennas (free space line of sight: ``lambda0 / (4 pi d)``;
+    see :mod:`raytrace.field` for the derivation). Paths weaker than the
+    strongest one of a receiver by more than ``dynamic_range_db`` are dropped;
+    rays whose Fresnel/absorption power factor falls below it are pruned.
+    """
+    started = time.monotonic()
+    tx, rx, tx_pol, rx_pol, rx_pattern = _validate(
+        phantom, transmitter, receivers, frequency_hz, rays, max_interactions, dynamic_range_db
+    )
+    freqs = [float(frequency_hz)]
+    band = None
+    if band_frequencies_hz is not None:
+        band = np.asarray(band_frequencies_hz, dtype=float).ravel()
+        if band.size == 0:
+            raise InputError("band needs at least one frequency", field="band_frequencies_hz")
+        MediaTable.build(phantom, band, homogeneous, field="band_frequencies_hz")
+        freqs += band.tolist()
+    media = MediaTable.build(phantom, np.array([float(frequency_hz)]), homogeneous)  # validates f0
+    if band is not None:
+        media = MediaTable.build(phantom, np.array(freqs), homogeneous)
+
+    tx_medium = int(phantom.medium_index(tx[None, :], field="transmitter.position_m")[0])
+    rx_medium = np.array(
+        [int(phantom.medium_index(r[None, :], field=f"receivers[{i}].position_m")[0]) for i, r in enumerate(rx)],
+        dtype=np.int64,
+    )
+    scene = scene_for(phantom)
+    segments = 0
+
+    # --- seeds: direct (straight-line signature) + shooting and bouncing
+    d_codes, d_n, seg = _straight_signatures(scene, media, tx, rx)
+    segments += seg
+    cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
+                  float(dynamic_range_db), budget)
+    segments += cands.segments
+    s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
+    width = max(d_codes.shape[1], s_codes.shape[1], 1)
+    seed_rx = np.concatenate([np.arange(len(rx)), s_rx])
+    seed_codes = np.concatenate([_pad(d_codes, width), _pad(s_codes, width)])
+    seed_n = np.concatenate([d_n, s_n])
+    direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
+    seed_dir = np.concatenate([direct_dir, s_dir])
+    if budget is not None:
+        budget.charge(0)
+
+    # --- refine every seed, then re-trace the converged ones with the last leg checked
+    refined = refine(scene, media, tx, tx_medium, rx[seed_rx], seed_dir, seed_codes, seed_n, budget=budget)
+    segments += refined.segments
+    # direct seeds whose straight launch fails (e.g. total reflection on the way): homotopy
+    retry = np.flatnonzero(~refined.converged[: len(rx)])
+    if len(retry):
+        again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], seed_codes[retry], seed_n[retry],
+                                       budget=budget)
+        segments += again.segments
+        refined.dirs[retry] = again.dirs
+        refined.converged[retry] = again.converged
+        refined.tube_m2_per_sr[retry] = again.tube_m2_per_sr
+    conv = np.flatnonzero(refined.converged)
+    rec = follow(scene, media, tx, tx_medium, refined.dirs[conv], seed_codes[conv], seed_n[conv],
+                 targets_m=rx[seed_rx[conv]])
+    segments += rec.segments
+    if budget is not None:
+        budget.charge(rec.segments)
+    fields = path_gains(
+        rec.steps, media, tx, tx_medium, rx[seed_rx[conv]], rx_medium[seed_rx[conv]], refined.dirs[conv],
+        refined.tube_m2_per_sr[conv], tx_pol, transmitter.pattern, rx_pol[seed_rx[conv]],
+        rx_pattern[seed_rx[conv]],
+    )
+    keep = rec.ok & np.isfinite(fields.gains).all(axis=1) & np.isfinite(fields.delay_s)
+    keep &= _unique_paths(seed_rx[conv], seed_codes[conv], fields.delay_s, keep)
+
+    # --- assemble profiles
+    profiles = []
+    n_paths = 0
+    floor = 10.0 ** (-float(dynamic_range_db) / 20.0)
+    for r, antenna in enumerate(receivers):
+        rows = np.flatnonzero(keep & (seed_rx[conv] == r))
+        if len(rows):
+            amp = np.abs(fields.gains[rows, 0])
+            rows = rows[amp >= floor * amp.max()]
+            rows = rows[np.argsort(fields.delay_s[rows], kind="stable")]
+        paths = tuple(
+            _make_path(phantom, rec.steps, fields, row, tx, rx[r], int(tx_medium), band is not None) for row in rows
+        )
+        n_paths += len(paths)
+        profiles.append(
+            ReceiverProfile(
+                receiver=antenna.name or f"rx{r}",
+                position_m=rx[r].copy(),
+                medium=phantom.medium_name(int(rx_medium[r])),
+                geometric_distance_m=float(np.linalg.norm(rx[r] - tx)),
+                paths=paths,
+            )
+        )
+    stats = TraceStats(
+        rays_launched=int(cands.rays_launched),
+        ray_segments_traced=int(segments),
+        paths_found=n_paths,
+        elapsed_s=time.monotonic() - started,
+    )
+    return ChannelResult(
+        phantom=phantom.name,
+        frequency_hz=float(frequency_hz),
+        transmitter_position_m=tx.copy(),
+        transmitter_medium=phantom.medium_name(tx_medium),
+        profiles=tuple(profiles),
+        stats=stats,
+        band_frequencies_hz=band,
+    )
+
+
+# ------------------------------------------------------------------ helpers
+def _validate(phantom, transmitter, receivers, frequency_hz, rays, max_interactions, dynamic_range_db):
+    def vec(value, name, *, unit=False):
+        try:
+            v = np.asarray(value, dtype=float).reshape(3)
+        except (TypeError, ValueError) as exc:
+            raise InvalidGeometryError("expected three numbers", field=name) from exc
+        if not np.isfinite(v).all():
+            raise InvalidGeometryError(f"coordinates must be finite numbers, got {v.tolist()}", field=name)
+        if unit:
+            norm = np.linalg.norm(v)
+            if norm == 0.0:
+                raise InvalidGeometryError("polarization must be a non-zero vector", field=name)
+            v = v / norm
+        return v
+
+    def pattern(value, name):
+        if value not in ("isotropic", "dipole"):
+            raise InputError(f"pattern must be 'isotropic' or 'dipole', got {value!r}", field=name)
+        return value
+
+    for value, name in ((rays, "rays"), (max_interactions, "max_interactions")):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise InputError(f"must be a positive integer, got {value!r}", field=name)
+    try:
+        dr = float(dynamic_range_db)
+    except (TypeError, ValueError) as exc:
+        raise InputError("must be a number of decibels", field="dynamic_range_db") from exc
+    if not (np.isfinite(dr) and dr > 0.0):
+        raise InputError(f"must be finite and positive, got {dynamic_range_db!r}", field="dynamic_range_db")
+    try:
+        f0 = float(frequency_hz)
+    except (TypeError, ValueError) as exc:
+        raise InputError("must be a number of hertz", field="frequency_hz") from exc
+    if not np.isfinite(f0):
+        raise InputError("must be finite", field="frequency_hz")
+    if len(receivers) == 0:
+        raise InputError("at least one receiver is needed", field="receivers")
+    tx = vec(transmitter.position_m, "transmitter.position_m")
+    tx_pol = vec(transmitter.polarization, "transmitter.polarization", unit=True)
+    pattern(transmitter.pattern, "transmitter.pattern")
+    rx = np.zeros((len(receivers), 3))
+    rx_pol = np.zeros((len(receivers), 3))
+    rx_pattern = np.empty(len(receivers), dtype=object)
+    for i, antenna in enumerate(receivers):
+        rx[i] = vec(antenna.position_m, f"receivers[{i}].position_m")
+        rx_pol[i] = vec(antenna.polarization, f"receivers[{i}].polarization", unit=True)
+        rx_pattern[i] = pattern(antenna.pattern, f"receivers[{i}].pattern")
+        if np.linalg.norm(rx[i] - tx) < MIN_SEPARATION_M:
+            raise InvalidGeometryError(
+                f"receiver is within {MIN_SEPARATION_M} m of the transmitter; the channel is undefined",
+                field=f"receivers[{i}].position_m",
+            )
+    return tx, rx, tx_pol, rx_pol, rx_pattern.astype(str)
+
+
+def _straight_signatures(scene: TracerScene, media: MediaTable, tx: np.ndarray, rx: np.ndarray):
+    """Refraction-only signature of each straight transmitter->receiver segment (multi-hit walk)."""
+    m = len(rx)
+    o = np.broadcast_to(tx, (m, 3)).copy()
+    d = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
+    push = np.zeros((m, 3))
+    codes: list[np.ndarray] = []
+    active = np.ones(m, bool)
+    segments = 0
+    for _ in range(1024):
+        idx = np.flatnonzero(active)
+        if len(idx) == 0:
+            break
+        face, t = scene.first_hit(o[idx], d[idx], push[idx])
+        segments += len(idx)
+        remaining = np.linalg.norm(rx[idx] - o[idx], axis=1)
+        cross = (face >= 0) & (t < remaining)
+        active[idx[~cross]] = False
+        step = np.full(m, -1, np.int64)
+        if cross.any():
+            j = idx[cross]
+            f = face[cross]
+            fn = scene.face_normals[f]
+            leaving = np.einsum("ij,ij->i", d[j], fn) > 0.0
+            o[j] = o[j] + t[cross, None] * d[j]
+            push[j] = np.where(leaving, 1.0, -1.0)[:, None] * fn * scene.offset_m
+            real = ~media.face_transparent[f]
+            step[j[real]] = encode(scene.face_organ[f[real]], leaving[real], 0)
+        if (step >= 0).any():
+            codes.append(step)
+    if not codes:
+        return np.zeros((m, 0), np.int64), np.zeros(m, np.int64), segments
+    table = np.stack(codes, axis=1)  # (m, steps) with -1 gaps
+    # compact each row (drop the -1 gaps, keep order)
+    order = np.argsort(table < 0, axis=1, kind="stable")
+    table = np.take_along_axis(table, order, axis=1)
+    nint = (table >= 0).sum(axis=1)
+    return table[:, : max(int(nint.max()), 0)], nint, segments
+
+
+def _pad(a: np.ndarray, width: int) -> np.ndarray:
+    out = np.full((len(a), width), -1, np.int64)
+    out[:, : a.shape[1]] = a
+    return out
+
+
+def _select_seeds(c):
+    """Per (receiver, signature): the closest candidates with distinct face sequences, up to
+    :data:`SEEDS_PER_SIGNATURE`."""
+    if len(c.receiver) == 0:
+        return c.receiver, c.codes, c.nint, c.launch_dir
+    key = np.concatenate([c.receiver[:, None], c.codes], axis=1)
+    _, group = np.unique(key, axis=0, return_inverse=True)
+    group = group.ravel()
+    fkey = np.concatenate([group[:, None], c.faces], axis=1)
+    # best candidate per (group, face sequence)
+    order = np.lexsort((c.closeness, *fkey.T[::-1]))
+    fk_sorted = fkey[order]
+    first = np.ones(len(order), bool)
+    first[1:] = np.any(fk_sorted[1:] != fk_sorted[:-1], axis=1)
+    best = order[first]
+    # within each group, keep the closest few
+    order2 = best[np.lexsort((c.closeness[best], group[best]))]
+    g = group[order2]
+    start = np.ones(len(order2), bool)
+    start[1:] = g[1:] != g[:-1]
+    rank = np.arange(len(order2)) - np.maximum.accumulate(np.where(start, np.arange(len(order2)), 0))
+    chosen = np.sort(order2[rank < SEEDS_PER_SIGNATURE])
+    return c.receiver[chosen], c.codes[chosen], c.nint[chosen], c.launch_dir[chosen]
+
+
+def _unique_paths(rx_idx, codes, delay_s, keep):
+    """Mask keeping the first of converged paths with the same receiver, signature and delay."""
+    n = len(rx_idx)
+    out = np.zeros(n, bool)
+    if n == 0:
+        return out
+    rows = np.flatnonzero(keep)
+    if len(rows) == 0:
+        return out
+    bucket = np.round(delay_s[rows] / 1e-15).astype(np.int64)
+    key = np.concatenate([rx_idx[rows, None], codes[rows], bucket[:, None]], axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    out[rows[np.sort(first)]] = True
+    return out
+
+
+def _make_path(phantom, steps, fields, row, tx_m, rx_m, tx_medium, band) -> Path:
+    """Interactions and segments of one recorded path (per path, after all the vectorised work)."""
+    interactions = []
+    points = [np.asarray(tx_m, float)]
+    media = []
+    med = tx_medium
+    for s in range(len(steps.valid)):
+        if not steps.valid[s][row]:
+            continue
+        point = steps.point[s][row].copy()
+        kind = int(steps.kind[s][row])
+        mf, mt = int(steps.med_from[s][row]), int(steps.med_to[s][row])
+        if kind != KIND_PASS:
+            if kind == KIND_REFLECTION:
+                name = "total_internal_reflection" if fields.reflect_tir[s][row] else "reflection"
+            else:
+                name = "refraction"
+            interactions.append(Interaction(name, point, phantom.medium_name(mf), phantom.medium_name(mt)))
+        points.append(point)
+        media.append(mf)
+        med = mf if kind == KIND_REFLECTION else mt
+    points.append(np.asarray(rx_m, float))
+    media.append(med)
+    segments = tuple(
+        Segment(phantom.medium_name(m), float(np.linalg.norm(points[i + 1] - points[i])))
+        for i, m in enumerate(media)
+    )
+    return Path(
+        delay_s=float(fields.delay_s[row]),
+        gain=complex(fields.gains[row, 0]),
+        length_m=float(fields.length_m[row]),
+        interactions=tuple(interactions),
+        segments=segments,
+        band_gains=fields.gains[row, 1:].copy() if band else None,
+    )
