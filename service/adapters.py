@@ -27,6 +27,7 @@ class ScenarioSpec:
     description: str
     phantom: str
     frequency_hz: float | None = None
+    notes: str = ""
     request: dict[str, Any] = field(default_factory=dict)  # ChannelRequest fields it supplies
 
 
@@ -39,7 +40,8 @@ def builtin_phantoms_and_scenarios() -> tuple[dict[str, Phantom], dict[str, Scen
     except ImportError:
         sc = None
     if sc is not None and hasattr(sc, "builtin_phantoms"):
-        phantoms.update(sc.builtin_phantoms())
+        for pid, factory in sc.builtin_phantoms().items():
+            phantoms[pid] = factory() if callable(factory) else factory
     else:
         try:
             from raytrace.torso import default_torso  # type: ignore[import-not-found]
@@ -79,9 +81,11 @@ def scenario_spec(sid: str, s: Any) -> ScenarioSpec:
     """Convert a ``raytrace.scenarios`` entry (object or dict) to a :class:`ScenarioSpec`."""
     get = (lambda k, d=None: s.get(k, d)) if isinstance(s, dict) else (lambda k, d=None: getattr(s, k, d))
     request: dict[str, Any] = {}
-    phantom = get("phantom") or get("phantom_id") or "torso"
+    phantom = get("phantom_id")
     if not isinstance(phantom, str):
-        phantom = getattr(phantom, "name", "torso")
+        phantom = get("phantom")
+    if not isinstance(phantom, str):
+        phantom = "torso"
     tx = get("transmitter")
     if tx is not None:
         request["transmitter"] = _antenna_dict(tx)
@@ -112,6 +116,7 @@ def scenario_spec(sid: str, s: Any) -> ScenarioSpec:
         description=str(get("description", "") or ""),
         phantom=phantom,
         frequency_hz=request.get("frequency_hz"),
+        notes=str(get("notes", "") or ""),
         request=request,
     )
 

@@ -53,6 +53,11 @@ def _result(r: Any, **extra: Any) -> dict[str, Any]:
         "trials": int(r.trials),
         "max_unambiguous_range_m": _num(getattr(r, "max_unambiguous_range_m", None)),
         "crlb_phase_difference_m": _num(getattr(r, "crlb_phase_difference_m", None)),
+        "wrapped": getattr(r, "wrapped", None),
+        "wrap_reason": getattr(r, "wrap_reason", None),
+        "model": getattr(r, "model", None),
+        "path_loss_db": _num(getattr(r, "path_loss_db", None)),
+        "median_distance_m": _num(getattr(r, "median_distance_m", None)),
     }
     out.update(extra)
     for key in ("distance_m", "std_m"):
@@ -86,7 +91,7 @@ def toa(req: ToaRequest, settings: Settings) -> dict[str, Any]:
     return _response([_result(r) for r in results], "gcc" if req.method == "all" else req.method)
 
 
-def _response(results: list[dict[str, Any]], primary: str) -> dict[str, Any]:
+def _response(results: list[dict[str, Any]], primary: str | None) -> dict[str, Any]:
     if not results:
         raise Unprocessable("the estimator returned no result", loc=["body", "method"])
     top = next((r for r in results if r["method"] == primary), results[0])
@@ -97,19 +102,14 @@ def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
     from estimators.pdoa import estimate_pdoa  # type: ignore[import-not-found]
 
     _check_trials(req, settings)
-    if req.band is not None:
-        if req.band.points > settings.max_band_points:
-            raise Unprocessable(
-                f"{req.band.points} exceeds this server's limit of {settings.max_band_points}", loc=["body", "band", "points"]
-            )
-        freqs = np.linspace(req.band.start_hz, req.band.stop_hz, req.band.points)
-    elif req.frequencies_hz is not None:
-        freqs = np.asarray(req.frequencies_hz, float)
-    else:
-        freqs = np.array([400e6, 420e6])
+    if req.band is not None and req.band.points > settings.max_band_points:
+        raise Unprocessable(
+            f"{req.band.points} exceeds this server's limit of {settings.max_band_points}", loc=["body", "band", "points"]
+        )
     results = estimate_pdoa(
         path_profile(req.profile),
-        frequencies_hz=freqs,
+        frequencies_hz=None if req.frequencies_hz is None else np.asarray(req.frequencies_hz, float),
+        band=None if req.band is None else req.band.model_dump(),
         method=req.method,
         snr_db=req.snr_db,
         trials=req.trials,
@@ -120,7 +120,7 @@ def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
     )
     if not isinstance(results, (list, tuple)):
         results = [results]
-    return _response([_result(r) for r in results], str(getattr(req, "method", "")) or results[0]["method"])
+    return _response([_result(r) for r in results], getattr(req, "method", None))
 
 
 def rss(req: RssRequest, settings: Settings) -> dict[str, Any]:
@@ -128,13 +128,15 @@ def rss(req: RssRequest, settings: Settings) -> dict[str, Any]:
 
     _check_trials(req, settings)
     results = estimate_rss(
-        path_profile(req.profile),
-        model=req.model,
+        None if req.profile is None else path_profile(req.profile),
+        rss_dbm=req.rss_dbm,
         transmit_power_dbm=req.transmit_power_dbm,
+        model=req.model,
         trials=req.trials,
         seed=req.seed,
         true_distance_m=req.true_distance_m,
+        shadowing=req.shadowing,
     )
     if not isinstance(results, (list, tuple)):
         results = [results]
-    return _response([_result(r) for r in results], str(getattr(req, "method", "")) or results[0]["method"])
+    return _response([_result(r) for r in results], getattr(req, "method", None))

@@ -328,7 +328,9 @@ class PdoaRequest(RangingCommon):
         None, min_length=2, max_length=MAX_BAND_POINTS, description="Tone frequencies [Hz] (or give band)."
     )
     band: Band | None = Field(None, description="Equally spaced tones (or give frequencies_hz).")
-    duration_s: float = Field(25e-9, gt=0.0, le=1e-3, description="Observation time per tone [s].")
+    duration_s: float | None = Field(
+        None, ge=1e-12, le=1e-3, description="Observation time per tone [s] (default: the estimator's, 1 / tone spacing)."
+    )
 
     @model_validator(mode="after")
     def _tones(self) -> "PdoaRequest":
@@ -350,9 +352,18 @@ class RssRequest(RangingCommon):
     model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
         "cm2_deep_tissue", description="IEEE 802.15.6 CM2 path-loss model (thesis Table 2.2)."
     )
+    profile: ProfileIn | None = Field(None, description="Channel profile: its path gain gives the path loss (or give rss_dbm).")
+    rss_dbm: float | None = Field(None, ge=-300.0, le=100.0, description="Measured received power [dBm] (with transmit_power_dbm).")
     transmit_power_dbm: float | None = Field(
-        None, ge=-100.0, le=100.0, description="Transmit power [dBm]; default: use the profile's path gain as -path loss."
+        None, ge=-100.0, le=100.0, description="Transmit power [dBm], with rss_dbm; not needed with a profile."
     )
+    shadowing: bool = Field(True, description="Draw log-normal shadowing per trial (false: deterministic inversion).")
+
+    @model_validator(mode="after")
+    def _source(self) -> "RssRequest":
+        if self.profile is None and (self.rss_dbm is None or self.transmit_power_dbm is None):
+            raise ValueError("give a profile, or rss_dbm together with transmit_power_dbm")
+        return self
 
 
 class RangingResult(Out):
@@ -366,6 +377,11 @@ class RangingResult(Out):
     trials: int
     max_unambiguous_range_m: float | None = Field(None, description="PDOA: v / (f2 - f1) [m].")
     crlb_phase_difference_m: float | None = Field(None, description="PDOA: bound from the tone spacing alone [m].")
+    wrapped: bool | None = Field(None, description="PDOA: the estimate may have wrapped (range ambiguity).")
+    wrap_reason: str | None = Field(None, description="PDOA: why a wrap is suspected.")
+    model: str | None = Field(None, description="RSS: the path-loss model inverted.")
+    path_loss_db: float | None = Field(None, description="RSS: deterministic path loss that was inverted [dB].")
+    median_distance_m: float | None = Field(None, description="RSS: inversion without shadowing [m].")
 
 
 class RangingResponse(RangingResult):
@@ -495,6 +511,7 @@ class ScenarioOut(Out):
     description: str
     phantom: str
     frequency_hz: float | None = Field(None, description="Carrier [Hz].")
+    notes: str = Field("", description="Assumptions and what the case is meant to show.")
     request: dict[str, Any] = Field(description="The channel request fields this scenario supplies.")
 
 

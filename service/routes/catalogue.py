@@ -76,6 +76,7 @@ async def list_scenarios(request: Request) -> ScenariosResponse:
                 description=s.description,
                 phantom=s.phantom,
                 frequency_hz=s.frequency_hz,
+                notes=s.notes,
                 request=s.request,
             )
             for s in sorted(reg.scenarios.values(), key=lambda s: s.id)

@@ -1,0 +1,238 @@
+"""``capsule-rt``: serve the API, run a channel request locally, a demo, or write openapi.json.
+
+    capsule-rt serve [--host H] [--port P] [--workers N] [--data-dir DIR]
+    capsule-rt channel REQUEST.json [--output OUT.json]
+    capsule-rt demo [--rays N]
+    capsule-rt openapi [--output openapi.json] [--check]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def openapi_text() -> str:
+    """The app's OpenAPI document as stable JSON text (sorted keys, 2-space indent, final newline)."""
+    from service.app import create_app
+    from service.settings import Settings
+
+    app = create_app(Settings(load_builtins=False))
+    return json.dumps(app.openapi(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
+
+
+def _cmd_openapi(args: argparse.Namespace) -> int:
+    text = openapi_text()
+    out = Path(args.output)
+    if args.check:
+        current = out.read_text() if out.exists() else ""
+        if current != text:
+            print(f"{out} is out of date; run `capsule-rt openapi`", file=sys.stderr)
+            return 1
+        print(f"{out} is up to date")
+        return 0
+    tmp = out.with_suffix(out.suffix + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, out)
+    print(f"wrote {out} ({len(text)} bytes)")
+    return 0
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.settings import Settings
+
+    if args.data_dir:
+        os.environ["CAPSULE_RT_DATA_DIR"] = str(args.data_dir)
+    settings = Settings()
+    host = args.host or settings.host
+    port = args.port or settings.port
+    workers = args.workers or settings.workers
+    uvicorn.run(
+        "service.app:app",
+        host=host,
+        port=port,
+        workers=workers,
+        log_level=settings.log_level,
+        access_log=False,  # the app logs one JSON line per request itself
+        proxy_headers=True,
+        timeout_graceful_shutdown=10,
+    )
+    return 0
+
+
+def _local_registry():
+    from service.registry import Registry
+    from service.settings import Settings
+    from service.storage import PhantomStore
+
+    settings = Settings()
+    registry = Registry(store=PhantomStore(settings.data_dir))
+    registry.load_builtins(settings.load_builtins)
+    return registry, settings
+
+
+def _error_json(exc: Exception) -> dict[str, Any]:
+    from raytrace.errors import CapsuleRTError
+    from service.errors import ServiceError, field_to_loc
+
+    if isinstance(exc, ServiceError):
+        return {"detail": [{"loc": exc.loc, "msg": exc.reason, "type": exc.type}]}
+    if isinstance(exc, CapsuleRTError) or hasattr(exc, "field"):
+        return {"detail": [{"loc": ["body", *field_to_loc(getattr(exc, "field", None))],
+                            "msg": getattr(exc, "reason", str(exc)), "type": type(exc).__name__}]}
+    return {"detail": [{"loc": [], "msg": str(exc), "type": type(exc).__name__}]}
+
+
+def run_channel_request(payload: dict) -> dict[str, Any]:
+    """Run one POST /v1/channel body locally (no HTTP); returns the response dict."""
+    from raytrace.budget import Budget
+    from service import channel as ops
+    from service.schemas import ChannelRequest, ChannelResponse
+
+    registry, settings = _local_registry()
+    req = ChannelRequest.model_validate(payload)
+    resolved = ops.resolve(req, registry, settings)
+    result = ops.run(resolved, Budget(deadline_s=settings.request_deadline_s, max_ray_segments=settings.max_ray_segments))
+    out = ops.result_to_dict(result, resolved)
+    return json.loads(ChannelResponse.model_validate(out).model_dump_json())
+
+
+def _cmd_channel(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from raytrace.errors import CapsuleRTError
+    from service.errors import ServiceError
+
+    try:
+        payload = json.loads(Path(args.file).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        print(json.dumps({"detail": [{"loc": ["file"], "msg": str(exc), "type": "invalid_file"}]}), file=sys.stderr)
+        return 2
+    try:
+        out = run_channel_request(payload)
+    except ValidationError as exc:
+        items = [{"loc": ["body", *e["loc"]], "msg": e["msg"], "type": e["type"]} for e in exc.errors()]
+        print(json.dumps({"detail": items}, indent=2), file=sys.stderr)
+        return 2
+    except (CapsuleRTError, ServiceError, ValueError) as exc:
+        print(json.dumps(_error_json(exc), indent=2), file=sys.stderr)
+        return 2
+    text = json.dumps(out, indent=2) + "\n"
+    if args.output:
+        Path(args.output).write_text(text)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:
+    cells = [[str(c) for c in header]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    line = "  ".join("-" * w for w in widths)
+    out = ["  ".join(c.rjust(w) for c, w in zip(cells[0], widths)), line]
+    out += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in cells[1:]]
+    return "\n".join(out)
+
+
+def _demo_case(title: str, payload: dict) -> None:
+    from service import ranging
+    from service.schemas import PdoaRequest, ToaRequest
+    from service.settings import Settings
+
+    print(f"\n=== {title} ===")
+    out = run_channel_request(payload)
+    print(f"phantom {out['phantom']}, {out['frequency_hz'] / 1e6:g} MHz, transmitter in {out['transmitter']['medium']} "
+          f"at {[round(x, 4) for x in out['transmitter']['position_m']]} m; "
+          f"{out['stats']['rays_launched']} rays, {out['stats']['paths_found']} paths, {out['stats']['elapsed_s']:.2f} s")
+    settings = Settings()
+    for prof in out["profiles"]:
+        print(f"\nreceiver {prof['receiver']} ({prof['medium']}), geometric distance {prof['geometric_distance_m'] * 1e3:.2f} mm, "
+              f"path gain {prof['path_gain_db']:.1f} dB, rms delay spread {prof['rms_delay_spread_s'] * 1e12:.1f} ps")
+        rows = []
+        for k, p in enumerate(prof["paths"]):
+            kinds = ",".join(i["kind"][:4] for i in p["interactions"]) or "-"
+            rows.append((k, f"{p['delay_s'] * 1e9:.4f}", f"{p['gain_db']:.1f}", f"{p['length_m'] * 1e3:.2f}", len(p["interactions"]), kinds))
+        if rows:
+            print(_table(rows, ["path", "delay [ns]", "gain [dB]", "length [mm]", "interactions", "kinds"]))
+        else:
+            print("  (no path found)")
+            continue
+        truth = prof["geometric_distance_m"]
+        toa = ranging.toa(ToaRequest(profile=prof, method="all", trials=50, seed=1, true_distance_m=truth), settings)
+        band = {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}
+        try:
+            pdoa = ranging.pdoa(PdoaRequest(profile=prof, method="regression", band=band, trials=50, seed=1,
+                                            true_distance_m=truth), settings)
+            results = toa["results"] + pdoa["results"]
+        except Exception as exc:  # noqa: BLE001 - show what worked
+            print(f"  PDOA unavailable: {exc}")
+            results = toa["results"]
+        rows = [
+            (r["method"], f"{r['distance_m'] * 1e3:.2f}", f"{(r['error_m'] or 0) * 1e3:+.2f}", f"{r['std_m'] * 1e3:.3f}",
+             "-" if r["crlb_m"] is None else f"{r['crlb_m'] * 1e3:.4f}")
+            for r in results
+        ]
+        print(_table(rows, ["method", "distance [mm]", "error [mm]", "std [mm]", "CRLB [mm]"]))
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    registry, _ = _local_registry()
+    cases = []
+    if "thesis-fig-5-6" in registry.scenarios:
+        cases.append(("thesis-fig-5-6 (thesis Fig 5.5/5.6)", {"scenario": "thesis-fig-5-6", "rays": args.rays}))
+    if "torso" in registry.builtins:
+        torso = registry.builtins["torso"]
+        capsule = next((n for n, s in torso.sites.items() if s.kind == "capsule"), None)
+        sensors = [n for n, s in torso.sites.items() if s.kind == "sensor"][:3]
+        if capsule and sensors:
+            cases.append((
+                f"default torso, capsule at {capsule}",
+                {"phantom": "torso", "transmitter": {"site": capsule}, "receivers": [{"site": n} for n in sensors],
+                 "rays": args.rays, "max_interactions": 4},
+            ))
+    if not cases:
+        print("no built-in scenario or phantom available", file=sys.stderr)
+        return 1
+    for title, payload in cases:
+        _demo_case(title, payload)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="capsule-rt", description="CapsuleRT in-body channel emulator.")
+    sub = p.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("serve", help="run the HTTP API (uvicorn)")
+    s.add_argument("--host", default=None, help="bind address (default CAPSULE_RT_HOST or 127.0.0.1)")
+    s.add_argument("--port", type=int, default=None, help="port (default CAPSULE_RT_PORT or 8000)")
+    s.add_argument("--workers", type=int, default=None, help="worker processes (default CAPSULE_RT_WORKERS or 1)")
+    s.add_argument("--data-dir", default=None, help="upload directory (default CAPSULE_RT_DATA_DIR or ./data)")
+    s.set_defaults(func=_cmd_serve)
+    c = sub.add_parser("channel", help="run a POST /v1/channel body locally and print the response JSON")
+    c.add_argument("file", help="JSON file with the request body")
+    c.add_argument("--output", "-o", default=None, help="write the response here instead of stdout")
+    c.set_defaults(func=_cmd_channel)
+    d = sub.add_parser("demo", help="trace thesis-fig-5-6 and a default-torso case; print paths and TOA/PDOA")
+    d.add_argument("--rays", type=int, default=20_000)
+    d.set_defaults(func=_cmd_demo)
+    o = sub.add_parser("openapi", help="write openapi.json (stable key order)")
+    o.add_argument("--output", "-o", default=str(REPO_ROOT / "openapi.json"))
+    o.add_argument("--check", action="store_true", help="exit 1 if the file differs instead of writing it")
+    o.set_defaults(func=_cmd_openapi)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

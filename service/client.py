@@ -1,0 +1,296 @@
+"""Typed HTTP client of the CapsuleRT API (sync :class:`Client` and async :class:`AsyncClient`).
+
+Each method mirrors one endpoint, takes a request model (or a plain dict,
+validated locally first) and returns the response model. An error answer
+raises :class:`APIError` carrying the status, the ``detail`` list and the
+``Retry-After`` header::
+
+    from service.client import Client
+    with Client("http://127.0.0.1:8000") as api:
+        tissues = api.tissues(402e6)
+        ch = api.channel({"scenario": "thesis-fig-5-6", "rays": 20000})
+        toa = api.ranging_toa({"profile": ch.profiles[0].model_dump(), "method": "gcc"})
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+import httpx
+from pydantic import BaseModel
+
+from service import schemas as s
+
+M = TypeVar("M", bound=BaseModel)
+
+
+class APIError(Exception):
+    """A 4xx/5xx answer: ``status``, ``detail`` (list of {loc, msg, type}), ``retry_after_s``."""
+
+    def __init__(self, status: int, detail: Any, retry_after_s: float | None = None, request_id: str | None = None):
+        self.status = status
+        self.detail = detail
+        self.retry_after_s = retry_after_s
+        self.request_id = request_id
+        super().__init__(f"HTTP {status}: {detail}")
+
+    @property
+    def fields(self) -> list[list]:
+        """The ``loc`` of every error item."""
+        return [item.get("loc", []) for item in self.detail] if isinstance(self.detail, list) else []
+
+
+@dataclass
+class _Call(Generic[M]):
+    method: str
+    path: str
+    model: type[M] | None
+    kwargs: dict[str, Any]
+    raw: bool = False
+
+
+def _body(model: type[BaseModel], req: BaseModel | dict) -> dict[str, Any]:
+    obj = req if isinstance(req, model) else model.model_validate(req)
+    return json.loads(obj.model_dump_json(exclude_unset=True))
+
+
+def _parse(call: _Call, response: httpx.Response):
+    if response.status_code >= 400:
+        try:
+            detail = response.json().get("detail")
+        except ValueError:
+            detail = response.text
+        retry = response.headers.get("retry-after")
+        raise APIError(
+            response.status_code,
+            detail,
+            float(retry) if retry and retry.replace(".", "", 1).isdigit() else None,
+            response.headers.get("x-request-id"),
+        )
+    if call.raw:
+        return response.content if call.model is None else response.text
+    if call.model is None:
+        return None
+    return call.model.model_validate(response.json())
+
+
+class _Endpoints:
+    """Request builders shared by the sync and async clients."""
+
+    @staticmethod
+    def healthz() -> _Call:
+        return _Call("GET", "/healthz", s.Health, {})
+
+    @staticmethod
+    def readyz() -> _Call:
+        return _Call("GET", "/readyz", s.Readiness, {})
+
+    @staticmethod
+    def metrics() -> _Call:
+        return _Call("GET", "/metrics", str, {}, raw=True)  # type: ignore[arg-type]
+
+    @staticmethod
+    def tissues(frequency_hz: float) -> _Call:
+        return _Call("GET", "/v1/tissues", s.TissuesResponse, {"params": {"frequency_hz": repr(float(frequency_hz))}})
+
+    @staticmethod
+    def scenarios() -> _Call:
+        return _Call("GET", "/v1/scenarios", s.ScenariosResponse, {})
+
+    @staticmethod
+    def phantoms() -> _Call:
+        return _Call("GET", "/v1/phantoms", s.PhantomsResponse, {})
+
+    @staticmethod
+    def phantom(phantom_id: str) -> _Call:
+        return _Call("GET", f"/v1/phantoms/{phantom_id}", s.PhantomOut, {})
+
+    @staticmethod
+    def phantom_mesh(phantom_id: str) -> _Call:
+        return _Call("GET", f"/v1/phantoms/{phantom_id}/mesh", None, {}, raw=True)
+
+    @staticmethod
+    def delete_phantom(phantom_id: str) -> _Call:
+        return _Call("DELETE", f"/v1/phantoms/{phantom_id}", None, {})
+
+    @staticmethod
+    def upload_phantom(mesh_glb: bytes, manifest: dict | s.Manifest | str | bytes, filename: str = "phantom.glb") -> _Call:
+        if isinstance(manifest, s.Manifest):
+            manifest = manifest.model_dump_json(exclude_none=True)
+        elif isinstance(manifest, dict):
+            manifest = json.dumps(manifest)
+        files = {
+            "mesh": (filename, mesh_glb, "model/gltf-binary"),
+            "manifest": ("manifest.json", manifest, "application/json"),
+        }
+        return _Call("POST", "/v1/phantoms", s.UploadResponse, {"files": files})
+
+    @staticmethod
+    def channel(req: s.ChannelRequest | dict) -> _Call:
+        return _Call("POST", "/v1/channel", s.ChannelResponse, {"json": _body(s.ChannelRequest, req)})
+
+    @staticmethod
+    def ranging_toa(req: s.ToaRequest | dict) -> _Call:
+        return _Call("POST", "/v1/ranging/toa", s.RangingResponse, {"json": _body(s.ToaRequest, req)})
+
+    @staticmethod
+    def ranging_pdoa(req: s.PdoaRequest | dict) -> _Call:
+        return _Call("POST", "/v1/ranging/pdoa", s.RangingResponse, {"json": _body(s.PdoaRequest, req)})
+
+    @staticmethod
+    def ranging_rss(req: s.RssRequest | dict) -> _Call:
+        return _Call("POST", "/v1/ranging/rss", s.RangingResponse, {"json": _body(s.RssRequest, req)})
+
+    @staticmethod
+    def bound_toa(req: s.ToaBoundRequest | dict) -> _Call:
+        return _Call("POST", "/v1/bounds/toa", s.ToaBoundResponse, {"json": _body(s.ToaBoundRequest, req)})
+
+    @staticmethod
+    def bound_pdoa(req: s.PdoaBoundRequest | dict) -> _Call:
+        return _Call("POST", "/v1/bounds/pdoa", s.PdoaBoundResponse, {"json": _body(s.PdoaBoundRequest, req)})
+
+    @staticmethod
+    def bound_rss(req: s.RssBoundRequest | dict) -> _Call:
+        return _Call("POST", "/v1/bounds/rss", s.RssBoundResponse, {"json": _body(s.RssBoundRequest, req)})
+
+
+class Client:
+    """Synchronous client. ``Client(base_url, timeout=..., transport=...)``; a context manager."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = 120.0, **httpx_kwargs: Any):
+        self._http = httpx.Client(base_url=base_url, timeout=timeout, **httpx_kwargs)
+
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _do(self, call: _Call, headers: dict[str, str] | None = None):
+        return _parse(call, self._http.request(call.method, call.path, headers=headers, **call.kwargs))
+
+    def healthz(self, *, headers: dict[str, str] | None = None) -> s.Health:
+        return self._do(_Endpoints.healthz(), headers)
+
+    def readyz(self, *, headers: dict[str, str] | None = None) -> s.Readiness:
+        return self._do(_Endpoints.readyz(), headers)
+
+    def metrics(self, *, headers: dict[str, str] | None = None) -> str:
+        return self._do(_Endpoints.metrics(), headers)
+
+    def tissues(self, frequency_hz: float, *, headers: dict[str, str] | None = None) -> s.TissuesResponse:
+        return self._do(_Endpoints.tissues(frequency_hz), headers)
+
+    def scenarios(self, *, headers: dict[str, str] | None = None) -> s.ScenariosResponse:
+        return self._do(_Endpoints.scenarios(), headers)
+
+    def phantoms(self, *, headers: dict[str, str] | None = None) -> s.PhantomsResponse:
+        return self._do(_Endpoints.phantoms(), headers)
+
+    def phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> s.PhantomOut:
+        return self._do(_Endpoints.phantom(phantom_id), headers)
+
+    def phantom_mesh(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> bytes:
+        return self._do(_Endpoints.phantom_mesh(phantom_id), headers)
+
+    def delete_phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> None:
+        return self._do(_Endpoints.delete_phantom(phantom_id), headers)
+
+    def upload_phantom(self, mesh_glb: bytes, manifest: dict | s.Manifest | str | bytes, filename: str = "phantom.glb", *, headers: dict[str, str] | None = None) -> s.UploadResponse:
+        return self._do(_Endpoints.upload_phantom(mesh_glb, manifest, filename), headers)
+
+    def channel(self, req: s.ChannelRequest | dict, *, headers: dict[str, str] | None = None) -> s.ChannelResponse:
+        return self._do(_Endpoints.channel(req), headers)
+
+    def ranging_toa(self, req: s.ToaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+        return self._do(_Endpoints.ranging_toa(req), headers)
+
+    def ranging_pdoa(self, req: s.PdoaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+        return self._do(_Endpoints.ranging_pdoa(req), headers)
+
+    def ranging_rss(self, req: s.RssRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+        return self._do(_Endpoints.ranging_rss(req), headers)
+
+    def bound_toa(self, req: s.ToaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.ToaBoundResponse:
+        return self._do(_Endpoints.bound_toa(req), headers)
+
+    def bound_pdoa(self, req: s.PdoaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.PdoaBoundResponse:
+        return self._do(_Endpoints.bound_pdoa(req), headers)
+
+    def bound_rss(self, req: s.RssBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.RssBoundResponse:
+        return self._do(_Endpoints.bound_rss(req), headers)
+
+
+class AsyncClient:
+    """Asynchronous client (same methods, awaitable)."""
+
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = 120.0, **httpx_kwargs: Any):
+        self._http = httpx.AsyncClient(base_url=base_url, timeout=timeout, **httpx_kwargs)
+
+    async def aclose(self) -> None:
+        await self._http.aclose()
+
+    async def __aenter__(self) -> "AsyncClient":
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.aclose()
+
+    async def _do(self, call: _Call, headers: dict[str, str] | None = None):
+        return _parse(call, await self._http.request(call.method, call.path, headers=headers, **call.kwargs))
+
+    async def healthz(self, *, headers: dict[str, str] | None = None) -> s.Health:
+        return await self._do(_Endpoints.healthz(), headers)
+
+    async def readyz(self, *, headers: dict[str, str] | None = None) -> s.Readiness:
+        return await self._do(_Endpoints.readyz(), headers)
+
+    async def metrics(self, *, headers: dict[str, str] | None = None) -> str:
+        return await self._do(_Endpoints.metrics(), headers)
+
+    async def tissues(self, frequency_hz: float, *, headers: dict[str, str] | None = None) -> s.TissuesResponse:
+        return await self._do(_Endpoints.tissues(frequency_hz), headers)
+
+    async def scenarios(self, *, headers: dict[str, str] | None = None) -> s.ScenariosResponse:
+        return await self._do(_Endpoints.scenarios(), headers)
+
+    async def phantoms(self, *, headers: dict[str, str] | None = None) -> s.PhantomsResponse:
+        return await self._do(_Endpoints.phantoms(), headers)
+
+    async def phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> s.PhantomOut:
+        return await self._do(_Endpoints.phantom(phantom_id), headers)
+
+    async def phantom_mesh(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> bytes:
+        return await self._do(_Endpoints.phantom_mesh(phantom_id), headers)
+
+    async def delete_phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> None:
+        return await self._do(_Endpoints.delete_phantom(phantom_id), headers)
+
+    async def upload_phantom(self, mesh_glb: bytes, manifest: dict | s.Manifest | str | bytes, filename: str = "phantom.glb", *, headers: dict[str, str] | None = None) -> s.UploadResponse:
+        return await self._do(_Endpoints.upload_phantom(mesh_glb, manifest, filename), headers)
+
+    async def channel(self, req: s.ChannelRequest | dict, *, headers: dict[str, str] | None = None) -> s.ChannelResponse:
+        return await self._do(_Endpoints.channel(req), headers)
+
+    async def ranging_toa(self, req: s.ToaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+        return await self._do(_Endpoints.ranging_toa(req), headers)
+
+    async def ranging_pdoa(self, req: s.PdoaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+        return await self._do(_Endpoints.ranging_pdoa(req), headers)
+
+    async def ranging_rss(self, req: s.RssRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+        return await self._do(_Endpoints.ranging_rss(req), headers)
+
+    async def bound_toa(self, req: s.ToaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.ToaBoundResponse:
+        return await self._do(_Endpoints.bound_toa(req), headers)
+
+    async def bound_pdoa(self, req: s.PdoaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.PdoaBoundResponse:
+        return await self._do(_Endpoints.bound_pdoa(req), headers)
+
+    async def bound_rss(self, req: s.RssBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.RssBoundResponse:
+        return await self._do(_Endpoints.bound_rss(req), headers)
