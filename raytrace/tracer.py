@@ -53,7 +53,7 @@ from raytrace.scene import TracerScene, scene_for
 #: Receivers closer than this to the transmitter are rejected [m].
 MIN_SEPARATION_M = 1e-4
 #: Candidate seeds refined per (receiver, signature) group (distinct face sequences first).
-SEEDS_PER_SIGNATURE = 3
+SEEDS_PER_SIGNATURE = 8
 #: Two converged paths with the same signature and delays closer than this are one path [s].
 DUPLICATE_DELAY_S = 1e-16
 
