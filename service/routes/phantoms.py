@@ -162,7 +162,10 @@ async def upload_phantom(request: Request) -> JSONResponse:
         budget.charge(0)
         phantom_id = new_upload_id()
         info = describe_phantom(phantom_id, phantom, builtin=False)
-        st.registry.store.save(phantom_id, parts.mesh, manifest_dict, info)
+        try:
+            st.registry.store.save(phantom_id, parts.mesh, manifest_dict, info)
+        except OSError as exc:  # disk full, permissions...: nothing was left behind (see storage.save)
+            raise StorageFull(f"could not store the phantom: {exc.strerror or exc}", loc=["body", "mesh"]) from exc
         return phantom_id, phantom, info
 
     budget = Budget(deadline_s=settings.request_deadline_s)
