@@ -28,12 +28,13 @@ delay within +-half a period of tau_c:
   to 0.04 mm for a phase read off the sampled correlation, whose
   negative-frequency image and burst edges bias it). Efficient: its spread
   meets the bound of Eq 4.16 for the same sampling (W = fs/2).
-* first_peak (Eq 4.18): the first carrier crest of the received waveform
-  (see :func:`crest_times`) minus the matching crest of the transmitted
-  waveform -- the crest nearest (received crest - tau_c) -- wrapped to
-  within half a period of tau_c.
-* all_peaks (Eq 4.19-4.21): the same for every received crest; the delay is
-  the MEAN of the crest-time differences. (Eq 4.21 writes the root mean
+* all_peaks (Eq 4.19-4.21): as the thesis does, cut the received signal into
+  one-period segments and take the crest of each (:func:`segment_crests`);
+  the segments are centred on tau_c + the transmitted crest times
+  (:func:`crest_grid`), so received crest m pairs with transmitted crest m
+  and every difference lies within half a period of tau_c. The delay is the
+  MEAN of the crest-time differences.
+* first_peak (Eq 4.18): the same with the first crest only. (Eq 4.21 writes the root mean
   square sqrt(T^T T / n), which is biased upward by var / (2 tau) under
   noise; the mean is the unbiased least-squares estimate of a common delay.)
 * envelope (not in the thesis; only on request): tau_c itself, i.e. TOA from
@@ -43,7 +44,7 @@ delay within +-half a period of tau_c:
   not the carrier; meant for band-limited pulses (a rectangular burst's
   envelope peak is a triangle whose 3-point parabola is biased by ~1 mm).
 
-Peak methods need fs >= 8 f_c (a crest's +-1/8-period neighbourhood must hold
+Peak methods need fs >= 4 f_c (a crest's +-1/8-period neighbourhood must hold
 samples); GCC and envelope only need Nyquist.
 
 Multipath: all methods measure the composite received waveform; with paths
@@ -170,75 +171,62 @@ def gcc_delay(rx: np.ndarray, waveform: Waveform, tau_c: np.ndarray) -> np.ndarr
     return tau_c + np.arctan2(beta, alpha) / w
 
 
-def crest_times(x: np.ndarray, fs: float, carrier_hz: float, threshold: float) -> tuple[np.ndarray, np.ndarray]:
-    """Carrier crests of each row of ``x`` (trials, N): (trial index, time s), sorted by trial then time.
+def crest_grid(waveform: Waveform) -> np.ndarray:
+    """Nominal crest times (s) of the transmitted carrier that the peak methods use.
 
-    A crest is a local maximum whose +-K samples (K = round(fs / (8 f_c)), an
-    eighth of a period) all exceed ``threshold`` times the row's maximum and lie
-    inside the record. Its time is the phase of a cosine fitted over those
-    2K + 1 samples: y_k ~ alpha cos(w k/fs) + beta sin(w k/fs), offset =
-    atan2(beta, alpha) / w -- exact for a sampled sinusoid at any fractional
-    position, unlike a 3-point parabola, whose vertex is both biased and
-    noise-dominated at tens of samples per period.
+    Crests sit where the carrier phase is 0: m / f_c for a burst (t_ref = 0),
+    t_c + m / f_c for a pulse. A burst uses every crest whose one-period segment
+    [crest - T/2, crest + T/2) lies inside [0, T0] (so no segment straddles an
+    edge); a pulse those within one sigma_t of its centre (envelope >= 0.6).
     """
-    x = np.atleast_2d(x)
+    period = 1.0 / waveform.carrier_hz
+    if waveform.kind == "tone_burst":
+        m = np.arange(1, int(math.floor(waveform.duration_s / period - 0.5)) + 1)
+        return m * period
+    m_max = int(math.floor(waveform.sigma_t_s / period))
+    return waveform.centre_s + np.arange(-m_max, m_max + 1) * period
+
+
+def segment_crests(x: np.ndarray, fs: float, carrier_hz: float, centres_s: np.ndarray) -> np.ndarray:
+    """Crest time (s) in each one-period segment centred on ``centres_s`` (Eq 4.19-4.20).
+
+    x: (trials, N) real; centres_s: (trials, M). In each segment [c - T/2, c + T/2)
+    the largest sample is the coarse crest; its time is refined by the phase of a
+    cosine fitted over its +-K samples (K = round(fs / (8 f_c)), at least 1):
+    y_k ~ alpha cos(w k / fs) + beta sin(w k / fs), offset = atan2(beta, alpha) / w,
+    exact for a sampled sinusoid at any fractional position (a 3-point parabola
+    is both biased and noise-dominated at tens of samples per period).
+    Returns (trials, M).
+    """
     n = x.shape[-1]
+    seg_len = max(2, int(round(fs / carrier_hz)))
+    start = np.rint(centres_s * fs).astype(np.int64) - seg_len // 2
+    idx = np.clip(start[..., None] + np.arange(seg_len), 0, n - 1)  # (T, M, L)
+    rows = np.arange(x.shape[0])[:, None, None]
+    seg = x[rows, idx]
+    top = np.take_along_axis(idx, np.argmax(seg, axis=-1)[..., None], axis=-1)[..., 0]  # (T, M)
     k_half = max(1, int(round(fs / (8.0 * carrier_hz))))
-    thr = threshold * np.max(x, axis=-1, keepdims=True)
-    left, mid, right = x[:, :-2], x[:, 1:-1], x[:, 2:]
-    mask = (mid > left) & (mid >= right) & (mid > thr)
-    ti, ni = np.nonzero(mask)
-    ni = ni + 1
-    inside = (ni - k_half >= 0) & (ni + k_half < n)
-    ti, ni = ti[inside], ni[inside]
     k = np.arange(-k_half, k_half + 1)
-    win = x[ti[:, None], ni[:, None] + k[None, :]]
-    ok = np.all(win > thr[ti], axis=-1)
-    ti, ni, win = ti[ok], ni[ok], win[ok]
+    win = x[rows, np.clip(top[..., None] + k, 0, n - 1)]
     ph = 2.0 * math.pi * carrier_hz * k / fs
-    c, s = np.cos(ph), np.sin(ph)
+    c, sn = np.cos(ph), np.sin(ph)
     alpha = win @ c / np.dot(c, c)
-    beta = win @ s / np.dot(s, s)
-    off = np.arctan2(beta, alpha) / (2.0 * math.pi * carrier_hz)
-    return ti, ni / fs + off
+    beta = win @ sn / np.dot(sn, sn)
+    return top / fs + np.arctan2(beta, alpha) / (2.0 * math.pi * carrier_hz)
 
 
-def _paired_delays(r_t: np.ndarray, r_trial: np.ndarray, tx_crests: np.ndarray, tau_c: np.ndarray,
-                   period: float) -> np.ndarray:
-    """Per received crest: received time minus the matching transmitted crest, wrapped around tau_c."""
-    target = r_t - tau_c[r_trial]
-    j = np.clip(np.searchsorted(tx_crests, target), 1, tx_crests.size - 1) if tx_crests.size > 1 \
-        else np.zeros(target.size, dtype=np.int64)
-    if tx_crests.size > 1:
-        j = np.where(np.abs(tx_crests[j - 1] - target) <= np.abs(tx_crests[j] - target), j - 1, j)
-    diff = r_t - tx_crests[j]
-    return tau_c[r_trial] + _wrap(diff - tau_c[r_trial], period)
-
-
-def peak_delays(rx: np.ndarray, tx_crests: np.ndarray, fs: float, carrier_hz: float, tau_c: np.ndarray,
-                threshold: float) -> tuple[np.ndarray, np.ndarray]:
-    """(first_peak, all_peaks) delays per trial; NaN for a trial with no crest above threshold."""
-    trials = rx.shape[0]
-    r_trial, r_t = crest_times(rx, fs, carrier_hz, threshold)
-    first = np.full(trials, np.nan)
-    allp = np.full(trials, np.nan)
-    if r_t.size == 0:
-        return first, allp
-    d = _paired_delays(r_t, r_trial, tx_crests, tau_c, 1.0 / carrier_hz)
-    uniq, first_idx = np.unique(r_trial, return_index=True)
-    first[uniq] = d[first_idx]
-    counts = np.bincount(r_trial, minlength=trials)
-    sums = np.bincount(r_trial, weights=d, minlength=trials)
-    has = counts > 0
-    allp[has] = sums[has] / counts[has]
-    return first, allp
+def peak_delays(rx: np.ndarray, tx_crests: np.ndarray, grid: np.ndarray, fs: float, carrier_hz: float,
+                tau_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first_peak, all_peaks) delays per trial from the crests in segments at tau_c + grid."""
+    r = segment_crests(rx, fs, carrier_hz, tau_c[:, None] + grid[None, :])
+    d = r - tx_crests[None, :]
+    return d[:, 0], np.mean(d, axis=1)
 
 
 def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform | Mapping | None = None,
                  snr_db: float | None = 30.0, trials: int = 100, seed=0,
                  relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
-                 true_distance_m: float | None = None, peak_threshold: float = 0.5,
-                 return_estimates: bool = False) -> list[TOAResult]:
+                 true_distance_m: float | None = None, return_estimates: bool = False) -> list[TOAResult]:
     """Monte Carlo TOA ranging over ``profile`` (api.md POST /v1/ranging/toa).
 
     Args:
@@ -250,7 +238,6 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         trials: Monte Carlo runs, 1..10000. seed: int >= 0 or numpy Generator.
         relative_permittivity: velocity assumption (default 27.9).
         true_distance_m: adds error_m / rmse_m.
-        peak_threshold: crest threshold of the peak methods, fraction of the trial's maximum.
         return_estimates: attach the per-trial distance estimates.
 
     Returns one TOAResult per method. crlb_m is the Eq 4.16 bound for this
@@ -274,14 +261,11 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
     v = velocity_m_per_s(eps)
     if true_distance_m is not None:
         true_distance_m = finite_float(true_distance_m, "true_distance_m", nonnegative=True)
-    thr = finite_float(peak_threshold, "peak_threshold")
-    if not 0.0 < thr < 1.0:
-        raise EstimatorInputError(f"must lie in (0, 1), got {thr}", "peak_threshold")
     fs, fc = wf.sample_rate_hz, wf.carrier_hz
     peak_methods = [m for m in methods if m in ("first_peak", "all_peaks")]
-    if peak_methods and fs < 8.0 * fc:
+    if peak_methods and fs < 4.0 * fc:
         raise EstimatorInputError(
-            f"peak methods need sample_rate_hz >= 8 x carrier ({8 * fc:.6g} Hz) to locate crests; "
+            f"peak methods need sample_rate_hz >= 4 x carrier ({4 * fc:.6g} Hz) to locate crests; "
             "use method 'gcc' or sample faster", "waveform.sample_rate_hz")
 
     n = observation_samples(wf, profile)
@@ -293,10 +277,11 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
     power = signal_power(clean, wf)
     if power <= 0.0:
         raise EstimatorInputError("the received waveform is identically zero", "profile.paths.gain")
-    tx_crests = crest_times(tx, fs, fc, thr)[1]
-    if tx_crests.size == 0 and peak_methods:
-        raise EstimatorInputError("transmitted waveform has no carrier crest above peak_threshold",
-                                  "peak_threshold")
+    grid = crest_grid(wf)
+    if peak_methods and grid.size == 0:
+        raise EstimatorInputError("the burst holds no whole carrier period away from its edges for the "
+                                  "peak methods", "waveform.duration_s")
+    tx_crests = segment_crests(tx[None, :], fs, fc, grid[None, :])[0]
 
     est = {m: np.empty(n_trials) for m in methods}
     chunk = max(1, _CHUNK_ELEMENTS // scipy.fft.next_fast_len(2 * n))
@@ -311,16 +296,11 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         if "envelope" in est:
             est["envelope"][sl] = tau_c
         if "first_peak" in est or "all_peaks" in est:
-            first, allp = peak_delays(rx, tx_crests, fs, fc, tau_c, thr)
+            first, allp = peak_delays(rx, tx_crests, grid, fs, fc, tau_c)
             if "first_peak" in est:
                 est["first_peak"][sl] = first
             if "all_peaks" in est:
                 est["all_peaks"][sl] = allp
-    for m, d in est.items():
-        if np.any(~np.isfinite(d)):
-            raise EstimatorInputError(
-                f"{m}: {int(np.sum(~np.isfinite(d)))} trial(s) had no carrier crest above the threshold "
-                "(SNR too low for peak detection)", "snr_db")
 
     crlb = None if snr is None else waveform_toa_crlb(wf, snr, fs / 2.0, eps).sigma_m
     crlb_env = None
