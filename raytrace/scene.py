@@ -88,18 +88,29 @@ class TracerScene:
 
     # ----------------------------------------------------------- queries
     def first_hit(
-        self, origins_m: np.ndarray, directions: np.ndarray, push: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
+        self,
+        origins_m: np.ndarray,
+        directions: np.ndarray,
+        push: np.ndarray | None = None,
+        *,
+        barycentric: bool = False,
+        exact: bool = True,
+    ):
         """First triangle hit by each ray and the float64 distance to it.
 
         ``push`` (N, 3): offset added to the float32 query origin only (the
         spawn offset off the surface just left). Returns ``(face, t_m)``:
         ``face = -1`` and ``t = inf`` on a miss; ``t`` is measured from the
         true origin along the unit direction to the hit triangle's plane.
+        With ``barycentric=True`` also Embree's float32 ``(u, v)`` of each hit
+        (point = (1 - u - v) v0 + u v1 + v v2), enough for smooth normals.
+        ``exact=False`` skips the float64 re-intersection (Embree's float32
+        distance from the query origin; the shooting phase only needs seeds).
         """
         n = len(origins_m)
         if n == 0:
-            return np.zeros(0, np.int64), np.zeros(0)
+            empty = (np.zeros(0, np.int64), np.zeros(0))
+            return empty + (np.zeros((0, 2)),) if barycentric else empty
         q = origins_m - self.center
         if push is not None:
             q = q + push
@@ -111,7 +122,9 @@ class TracerScene:
         face = res["primID"].astype(np.int64)
         hit = face >= 0
         t = np.full(n, np.inf)
-        if hit.any():
+        if not exact:
+            t[hit] = res["tfar"][hit]
+        elif hit.any():
             f = face[hit]
             nrm = self.face_normals[f]
             denom = np.einsum("ij,ij->i", nrm, directions[hit])
@@ -122,7 +135,17 @@ class TracerScene:
             good = np.isfinite(t64) & (np.abs(denom) > 1e-12)
             t[hit] = np.where(good, np.maximum(t64, 0.0), t32)
         face[~hit] = -1
+        if barycentric:
+            return face, t, np.stack([res["u"], res["v"]], axis=1).astype(float)
         return face, t
+
+    def smooth_normals_uv(self, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Smooth unit normals from Embree barycentrics (cheaper, float32-accurate: for shooting)."""
+        cn = self.corner_normals[face]
+        u, v = uv[:, 0:1], uv[:, 1:2]
+        nrm = (1.0 - u - v) * cn[:, 0] + u * cn[:, 1] + v * cn[:, 2]
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        return nrm
 
     def smooth_normals(self, face: np.ndarray, points_m: np.ndarray) -> np.ndarray:
         """Unit outward normals interpolated from barycentrics (float64) of points on their faces."""

@@ -55,7 +55,9 @@ MIN_SEPARATION_M = 1e-4
 #: Candidate seeds refined per (receiver, signature) group (distinct face sequences first).
 SEEDS_PER_SIGNATURE = 8
 #: Two converged paths with the same signature and delays closer than this are one path [s].
-DUPLICATE_DELAY_S = 1e-16
+DUPLICATE_DELAY_S = 1e-15
+#: ... and launch directions closer than this [rad].
+DUPLICATE_ANGLE_RAD = 1e-6
 
 
 def trace_channel(
@@ -143,7 +145,7 @@ def trace_channel(
         rx_pattern[seed_rx[conv]],
     )
     keep = rec.ok & np.isfinite(fields.gains).all(axis=1) & np.isfinite(fields.delay_s)
-    keep &= _unique_paths(seed_rx[conv], seed_codes[conv], fields.delay_s, keep)
+    keep &= _unique_paths(seed_rx[conv], seed_codes[conv], fields.delay_s, refined.dirs[conv], keep)
 
     # --- assemble profiles
     profiles = []
@@ -312,19 +314,29 @@ def _select_seeds(c):
     return c.receiver[chosen], c.codes[chosen], c.nint[chosen], c.launch_dir[chosen]
 
 
-def _unique_paths(rx_idx, codes, delay_s, keep):
-    """Mask keeping the first of converged paths with the same receiver, signature and delay."""
-    n = len(rx_idx)
-    out = np.zeros(n, bool)
-    if n == 0:
-        return out
+def _unique_paths(rx_idx, codes, delay_s, dirs, keep):
+    """Mask keeping one of several converged paths with the same receiver, signature,
+    delay (within :data:`DUPLICATE_DELAY_S`) and launch direction (within
+    :data:`DUPLICATE_ANGLE_RAD`): seeds from neighbouring rays converge to the same
+    exact path, while symmetric walls of one organ give distinct paths with equal delays.
+    (A loop over converged paths, a few hundred at most, never over rays.)"""
+    out = np.zeros(len(rx_idx), bool)
     rows = np.flatnonzero(keep)
     if len(rows) == 0:
         return out
-    bucket = np.round(delay_s[rows] / 1e-15).astype(np.int64)
-    key = np.concatenate([rx_idx[rows, None], codes[rows], bucket[:, None]], axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
-    out[rows[np.sort(first)]] = True
+    key = np.concatenate([rx_idx[rows, None], codes[rows]], axis=1)
+    _, group = np.unique(key, axis=0, return_inverse=True)
+    group = group.ravel()
+    kept: dict[int, list[int]] = {}
+    for row, g in zip(rows, group):
+        same = [
+            k for k in kept.get(int(g), [])
+            if abs(delay_s[k] - delay_s[row]) <= DUPLICATE_DELAY_S
+            and np.linalg.norm(dirs[k] - dirs[row]) <= DUPLICATE_ANGLE_RAD
+        ]
+        if not same:
+            kept.setdefault(int(g), []).append(int(row))
+            out[row] = True
     return out
 
 

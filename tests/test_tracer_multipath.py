@@ -127,3 +127,21 @@ def test_total_internal_reflection_is_labelled_and_lossless():
     assert np.sqrt(1 - ci**2) > np.sqrt(5.0 / 50.0)  # beyond the critical angle
     assert abs(abs(tir[0].gain) / (C / F0 / (4 * np.pi * n1 * length)) - 1) < 1e-2
     assert abs(tir[0].delay_s - n1 * length / C) < 1e-13
+
+
+def test_symmetric_walls_of_one_organ_give_two_distinct_paths():
+    """Reflections off the +y and -y walls of the same box share signature and delay;
+    both must be kept (the duplicate filter must not merge distinct geometry)."""
+    outer = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
+    inner = trimesh.creation.box(extents=[0.3, 0.2, 0.3])
+    ph = Phantom.build("walls", [Organ("out", lossless(5.0), outer), Organ("in", lossless(40.0), inner)])
+    tx = Antenna(np.array([-0.04, 0.0, 0.01]))
+    rx = Antenna(np.array([0.05, 0.0, 0.01]))
+    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    n = np.sqrt(40.0)
+    length = np.hypot(0.09, 0.2)  # image in a wall at |y| = 0.1
+    walls = [p for p in res.profiles[0].paths
+             if len(p.interactions) == 1 and abs(abs(p.interactions[0].point_m[1]) - 0.1) < 1e-9]
+    assert sorted(np.sign(p.interactions[0].point_m[1]) for p in walls) == [-1.0, 1.0]
+    for p in walls:
+        assert abs(p.delay_s - n * length / C) < 1e-13
