@@ -233,6 +233,8 @@ def result_to_dict(result: ChannelResult, resolved: ResolvedChannel) -> dict[str
                 "first_path_delay_s": None if first is None else _f(first),
                 "path_gain_db": _db(prof.path_gain_db),
                 "rms_delay_spread_s": _f(prof.rms_delay_spread_s),
+                "reference_frequency_hz": _f(result.frequency_hz),
+                "gains_include_delay_phase": True,
             }
         )
     return {

@@ -13,8 +13,12 @@ from service.settings import Settings
 
 
 def path_profile(profile: ProfileIn):
-    """Build an ``estimators.profile.PathProfile`` from a request profile (api.md convention:
-    gains exclude the propagation phase, which the delay carries)."""
+    """Build an ``estimators.profile.PathProfile`` from a request profile.
+
+    Hand-made profiles default to gains without the propagation phase (the
+    delay carries it); channel profiles say ``gains_include_delay_phase: true``
+    with their carrier as ``reference_frequency_hz``, and the estimators
+    remove it once (estimators.profile docstring)."""
     from estimators.profile import PathProfile
 
     delays = np.array([p.delay_s for p in profile.paths], float)
@@ -26,7 +30,14 @@ def path_profile(profile: ProfileIn):
         if all(f == freqs[0] for f in freqs):
             band_f = np.array(freqs[0], float)
             band_g = np.array([[complex(b.gain.re, b.gain.im) for b in bg] for bg in with_band])
-    return PathProfile(delays_s=delays, gains=gains, band_frequencies_hz=band_f, band_gains=band_g)
+    return PathProfile(
+        delays_s=delays,
+        gains=gains,
+        band_frequencies_hz=band_f,
+        band_gains=band_g,
+        gains_include_delay_phase=profile.gains_include_delay_phase,
+        reference_frequency_hz=profile.reference_frequency_hz,
+    )
 
 
 def _check_trials(req: RangingCommon, settings: Settings) -> None:

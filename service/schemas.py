@@ -205,6 +205,12 @@ class ProfileOut(Out):
     first_path_delay_s: float | None = Field(description="Delay of the first path [s] (null: no path).")
     path_gain_db: float = Field(description=f"10 log10 sum |a_k|^2 [dB] (floor {GAIN_DB_FLOOR:g}).")
     rms_delay_spread_s: float = Field(description="Power-weighted RMS delay spread [s].")
+    reference_frequency_hz: float = Field(description="Frequency at which `paths[].gain` is evaluated (the carrier) [Hz].")
+    gains_include_delay_phase: bool = Field(
+        True,
+        description="The tracer's gains include the propagation phase exp(-j k0 n L) (baseband-equivalent "
+        "convention); the ranging endpoints use this flag to avoid counting it twice.",
+    )
 
 
 class PlacedAntenna(Out):
@@ -252,6 +258,21 @@ class ProfileIn(Strict):
     first_path_delay_s: float | None = None
     path_gain_db: float | None = None
     rms_delay_spread_s: float | None = None
+    gains_include_delay_phase: bool = Field(
+        False,
+        description="false (default, a hand-made h(t) = sum a_k delta(t - delay_k)): gains exclude the propagation "
+        "phase exp(-j 2 pi f delay_k); true (profiles from POST /v1/channel): they include it at "
+        "reference_frequency_hz (band_gains at their own frequencies).",
+    )
+    reference_frequency_hz: float | None = Field(
+        None, ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ, description="Frequency of `gain` when gains_include_delay_phase [Hz]."
+    )
+
+    @model_validator(mode="after")
+    def _reference(self) -> "ProfileIn":
+        if self.gains_include_delay_phase and self.reference_frequency_hz is None:
+            raise ValueError("reference_frequency_hz is required when gains_include_delay_phase is true")
+        return self
 
 
 _EXAMPLE_PROFILE = {

@@ -401,3 +401,19 @@ def test_server_limit_on_trials_is_enforced(make_settings):
     with TestClient(create_app(make_settings(max_trials=10)), raise_server_exceptions=False) as api:
         assert_field(api.post("/v1/ranging/toa", json={"profile": PROFILE, "trials": 11}), 422, "body", "trials")
         assert api.post("/v1/ranging/toa", json={"profile": PROFILE, "trials": 10}).status_code == 200
+
+
+def test_channel_profiles_declare_their_gain_convention_for_ranging(api):
+    """A profile whose gains carry exp(-j 2 pi f tau) (as the tracer's do) ranges like the plain one."""
+    f = 402e6
+    plain = [{"delay_s": 1.338e-9, "gain": {"re": 0.15, "im": 0.0}}, {"delay_s": 1.706e-9, "gain": {"re": -0.08, "im": 0.05}}]
+    phased = []
+    for p in plain:
+        a = complex(p["gain"]["re"], p["gain"]["im"]) * cmath.exp(-2j * math.pi * f * p["delay_s"])
+        phased.append({"delay_s": p["delay_s"], "gain": {"re": a.real, "im": a.imag}})
+    common = {"method": "gcc", "trials": 10, "seed": 5, "true_distance_m": 0.076}
+    a = api.post("/v1/ranging/toa", json={**common, "profile": {"paths": plain}}).json()
+    b = api.post("/v1/ranging/toa", json={**common, "profile": {"paths": phased, "gains_include_delay_phase": True, "reference_frequency_hz": f}}).json()
+    assert b["distance_m"] == pytest.approx(a["distance_m"], rel=1e-9)
+    # The flag without its frequency is a schema error naming the profile.
+    assert_field(api.post("/v1/ranging/toa", json={**common, "profile": {"paths": phased, "gains_include_delay_phase": True}}), 422, "body", "profile")
