@@ -37,8 +37,11 @@ ambiguity interval, and the spread is taken from each estimate's deviation
 wrapped to +-half the interval, so estimates straddling the wrap point
 (distance near 0 or near the maximum range) do not fake a metre of spread.
 ``wrapped`` is set when a given true distance is at or beyond the maximum
-unambiguous range, or when trials reach past that range (the distance sits
-at its far edge and some trials alias to near zero).
+unambiguous range, when trials reach past that range (the distance sits at
+its far edge and some trials alias to near zero), or when the circular mean
+falls in the top quarter of the range, which is reported as a short
+(possibly slightly negative) distance -- the likelier reading in-body -- and
+flagged as ambiguous.
 """
 
 from __future__ import annotations
@@ -58,6 +61,7 @@ from .results import PDOAResult, summarise
 
 METHODS = ("two_tone", "regression")
 MAX_TONES = 4096
+_CHUNK_ELEMENTS = 1 << 20  # trials x tones processed at once
 
 
 def band_frequencies(band: Mapping | Sequence) -> np.ndarray:
@@ -129,19 +133,34 @@ def _regression_delays(h: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.mod(tau0 - slope / (2.0 * math.pi), period)
 
 
-def _circular(delays: np.ndarray, period: float) -> tuple[np.ndarray, bool]:
-    """Estimates unwrapped around their circular mean, and whether any reaches past the range.
+def _circular(delays: np.ndarray, period: float) -> tuple[np.ndarray, str | None]:
+    """Estimates unwrapped around their circular mean, and why they look wrapped (or None).
 
-    Unwrapped estimates lie in [mean - period/2, mean + period/2). Some below 0
-    just means a short distance seen through noise; some at or above
-    ``period`` means trials that, raw, aliased to near zero: the distance is
-    at the far edge of the unambiguous range.
+    The circular mean is placed in [0, period), except that a mean within
+    w = min(3 circular standard deviations, period / 4) below ``period`` is read
+    as a short distance seen through noise and moved below zero (the ranges
+    this tool configures are far longer than in-body distances); that case is
+    flagged. Unwrapped estimates lie within +-period/2 of the mean; some below 0
+    are just noise around a short distance, some at or above ``period`` mean
+    trials that aliased across the far edge (also flagged).
     """
-    mean = np.mod(np.angle(np.mean(np.exp(2j * math.pi * delays / period))) * period / (2.0 * math.pi), period)
+    resultant = np.mean(np.exp(2j * math.pi * delays / period))
+    mean = np.mod(np.angle(resultant) * period / (2.0 * math.pi), period)
+    length = min(1.0, float(np.abs(resultant)))
+    spread = math.sqrt(-2.0 * math.log(length)) * period / (2.0 * math.pi) if length > 0 else math.inf
+    if mean >= period - min(3.0 * spread, 0.25 * period):
+        mean -= period
     dev = delays - mean
     dev -= period * np.round(dev / period)
     unwrapped = mean + dev
-    return unwrapped, bool(np.any(unwrapped >= period))
+    if mean < 0.0:
+        return unwrapped, ("the mean phase points just below zero distance: either a very short distance "
+                           "seen through noise, or a distance at or beyond the maximum unambiguous range "
+                           "that aliased (reported as the short one)")
+    if np.any(unwrapped >= period):
+        return unwrapped, ("the distance is at the far edge of the maximum unambiguous range: some trials "
+                           "alias to near zero (statistics are taken circularly)")
+    return unwrapped, None
 
 
 def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: str = "two_tone",
@@ -181,19 +200,19 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
     if power <= 0.0:
         raise EstimatorInputError("the channel response is zero at every tone (paths cancel exactly)",
                                   "profile.paths.gain")
-    obs = np.broadcast_to(h, (n_trials, f.size)).copy()
-    if snr is not None:
-        sigma2 = power / (10.0 ** (snr / 10.0) * width * t0)
-        obs += math.sqrt(sigma2 / 2.0) * (rng.standard_normal((n_trials, f.size, 2)) @ np.array([1.0, 1.0j]))
-
-    if method == "two_tone":
-        delays = _two_tone_delays(obs, f)
-        period = 1.0 / width
-    else:
-        delays = _regression_delays(obs, f)
-        period = 1.0 / float(f[1] - f[0])
+    sigma = None if snr is None else math.sqrt(power / (10.0 ** (snr / 10.0) * width * t0) / 2.0)
+    estimator = _two_tone_delays if method == "two_tone" else _regression_delays
+    period = 1.0 / width if method == "two_tone" else 1.0 / float(f[1] - f[0])
+    delays = np.empty(n_trials)
+    chunk = max(1, _CHUNK_ELEMENTS // f.size)  # bounded memory; the noise stream is the same as one draw
+    for start in range(0, n_trials, chunk):
+        count = min(chunk, n_trials - start)
+        obs = np.broadcast_to(h, (count, f.size)).copy()
+        if sigma is not None:
+            obs += sigma * (rng.standard_normal((count, f.size, 2)) @ np.array([1.0, 1.0j]))
+        delays[start:start + count] = estimator(obs, f)
     max_range = v * period
-    unwrapped, straddle = _circular(delays, period)
+    unwrapped, edge_reason = _circular(delays, period)
     dist = v * unwrapped
     stats = summarise(dist, true_distance_m)
 
@@ -201,9 +220,8 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
     if true_distance_m is not None and true_distance_m >= max_range:
         reason = (f"true distance {true_distance_m:.6g} m is beyond the maximum unambiguous range "
                   f"{max_range:.6g} m: the estimate aliases to the distance modulo that range")
-    elif straddle:
-        reason = ("the distance is at the edge of the maximum unambiguous range: some trials alias to "
-                  "near zero (statistics are taken circularly, but the true distance may exceed the range)")
+    else:
+        reason = edge_reason
 
     crlb = crlb_pd = None
     if snr is not None:

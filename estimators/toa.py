@@ -76,7 +76,7 @@ THESIS_METHODS = ("first_peak", "all_peaks", "gcc")
 MAX_TOTAL_SAMPLES = 50_000_000
 """Cap on trials x samples per request (work budget)."""
 
-_CHUNK_ELEMENTS = 1 << 22  # trials x fft length processed at once
+_CHUNK_ELEMENTS = 1 << 21  # trials x fft length processed at once (~100 MB peak)
 
 
 def make_waveform(spec: Waveform | Mapping | None) -> Waveform:

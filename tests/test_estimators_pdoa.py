@@ -95,14 +95,35 @@ def test_beyond_the_unambiguous_range_wraps_and_says_so():
 
 
 def test_at_the_edge_of_the_range_without_truth_it_still_flags_wrapping():
-    d = V / 20e6 - 0.005  # 5 mm inside the edge; noise spreads trials across it
-    r = estimate_pdoa(single_path(d / V), frequencies_hz=[400e6, 420e6], snr_db=30.0, trials=200, seed=2,
-                      return_estimates=True)
-    assert r.wrapped
-    assert "edge" in r.wrap_reason
-    # Circular statistics: the mean stays at the edge, not half-way across the range.
-    assert r.distance_m == pytest.approx(d, abs=0.01)
-    assert r.std_m < 0.05
+    rng_m = V / 20e6
+    # 1.5 cm inside the far edge with a 2 cm spread: genuinely ambiguous. The circular mean is read as
+    # a short distance (-1.5 cm), flagged; it equals the true one modulo the range.
+    d = rng_m - 0.015
+    r = estimate_pdoa(single_path(d / V), frequencies_hz=[400e6, 420e6], snr_db=30.0, trials=400, seed=2)
+    assert r.wrapped and "below zero" in r.wrap_reason
+    assert r.distance_m == pytest.approx(d - rng_m, abs=0.01)
+    assert r.std_m < 0.03  # circular statistics: no fake metre of spread
+    # 0.3 m inside the edge (15 spreads): an ordinary, unflagged estimate.
+    d = rng_m - 0.3
+    r = estimate_pdoa(single_path(d / V), frequencies_hz=[400e6, 420e6], snr_db=30.0, trials=400, seed=2,
+                      true_distance_m=d)
+    assert not r.wrapped
+    assert abs(r.error_m) < 0.005
+    # Heavy noise (6 dB: ~0.3 m spread) 1 m from the edge: the mean stays put (over 3 spreads away)
+    # but some of the 10000 trials spill past the edge, and the result says so.
+    d = rng_m - 1.0
+    r = estimate_pdoa(single_path(d / V), frequencies_hz=[400e6, 420e6], snr_db=6.0, trials=10_000, seed=2)
+    assert r.distance_m == pytest.approx(d, abs=0.05)
+    assert r.wrapped and "far edge" in r.wrap_reason
+
+
+def test_short_distance_through_heavy_noise_is_not_reported_at_the_far_edge():
+    # 1 mm true distance, std ~ 0.1 m: raw trials land near 0 and near 2.84 m; the result must
+    # stay near zero whatever the number of trials (not jump to the far edge).
+    for trials in (7, 50, 1000):
+        r = estimate_pdoa(single_path(0.001 / V), frequencies_hz=[400e6, 420e6], snr_db=15.0, trials=trials,
+                          seed=1)
+        assert abs(r.distance_m) < 0.3
 
 
 def test_same_seed_same_result():
@@ -146,3 +167,13 @@ def test_invalid_requests_raise_naming_the_field(kw, field):
         estimate_pdoa(single_path(TAU), **kw)
     assert exc.value.field == field
     assert exc.value.reason
+
+
+def test_chunked_trials_give_the_same_stream_as_one_batch():
+    # 10000 trials x 201 tones is processed in chunks; trial i's noise must not depend on the chunking.
+    kw = dict(band={"start_hz": 400e6, "stop_hz": 420e6, "points": 201}, method="regression", snr_db=20.0,
+              seed=3, return_estimates=True)
+    big = estimate_pdoa(single_path(TAU), trials=10_000, **kw)
+    small = estimate_pdoa(single_path(TAU), trials=7, **kw)
+    np.testing.assert_allclose(big.estimates_m[:7], small.estimates_m, rtol=0, atol=1e-12)
+    assert np.all(np.isfinite(big.estimates_m))
