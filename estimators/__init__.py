@@ -10,7 +10,7 @@ Ranging (Monte Carlo, vectorised over trials, seeded; return result dataclasses)
 
     estimate_toa(profile, method="all"|"first_peak"|"all_peaks"|"gcc"|"envelope",
                  waveform=ToneBurst()|GaussianPulse()|dict, snr_db=30.0, trials=100, seed=0,
-                 relative_permittivity=27.9, true_distance_m=None, peak_threshold=0.5,
+                 relative_permittivity=27.9, true_distance_m=None,
                  return_estimates=False) -> list[TOAResult]
     estimate_pdoa(profile, frequencies_hz=None, band=None, method="two_tone"|"regression",
                   snr_db=30.0, trials=100, seed=0, relative_permittivity=27.9,
@@ -29,6 +29,15 @@ Bounds (closed forms, derivations in estimators.bounds):
     rss_crlb(shadowing_db, path_loss_exponent, distance_m) -> RSSBound(sigma_m)
     waveform_toa_crlb(waveform, snr_db, bandwidth_hz, relative_permittivity=27.9,
                       carrier_phase_known=True) -> TOABound
+
+Results carry method, distance_m (mean), delay_s, std_m, error_m / rmse_m
+(with true_distance_m), crlb_m, trials and optionally estimates_m; PDOAResult
+adds max_unambiguous_range_m, crlb_phase_difference_m, wrapped and
+wrap_reason; RSSResult adds model, path_loss_db, median_distance_m.
+
+Conventions: SNR definitions are in estimators.waveforms (TOA: per-sample,
+W = fs/2) and estimators.pdoa (in-band, E/N0 = SNR W T0); profile gain phase
+conventions in estimators.profile. Randomness only from ``seed``.
 
 Errors: every invalid input raises EstimatorInputError (a ValueError) with
 ``.field`` (dotted request path) and ``.reason``; map it to HTTP 422.

@@ -60,8 +60,9 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.fft
 
-from ._checks import generator, relative_permittivity as _check_eps, snr_db as _check_snr, trials_count
-from ._checks import finite_float
+from ._checks import finite_float, generator, trials_count
+from ._checks import relative_permittivity as _check_eps
+from ._checks import snr_db as _check_snr
 from .bounds import waveform_toa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from .errors import EstimatorInputError
@@ -97,10 +98,6 @@ def make_waveform(spec: Waveform | Mapping | None) -> Waveform:
     if extra:
         raise EstimatorInputError(f"unknown field(s) {sorted(extra)} for {kind}", "waveform")
     return cls(**spec)
-
-
-def _wrap(x: np.ndarray, period: float) -> np.ndarray:
-    return x - period * np.round(x / period)
 
 
 def _parabola_offset(y0: np.ndarray, y1: np.ndarray, y2: np.ndarray) -> np.ndarray:
@@ -231,7 +228,8 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
 
     Args:
         profile: the channel (PathProfile).
-        method: ``first_peak`` | ``all_peaks`` | ``gcc`` | ``all`` (all three, in that order).
+        method: ``first_peak`` | ``all_peaks`` | ``gcc`` | ``envelope`` | ``all`` (the thesis'
+            three, in that order).
         waveform: ToneBurst / GaussianPulse or a dict ``{"kind": ..., ...}``; default
             402 MHz, 25 ns burst at 20 GS/s.
         snr_db: per-sample SNR (waveforms.py docstring); None = noiseless.
@@ -241,8 +239,11 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         return_estimates: attach the per-trial distance estimates.
 
     Returns one TOAResult per method. crlb_m is the Eq 4.16 bound for this
-    waveform and SNR with W = fs / 2 (None when noiseless). A trial where a peak
-    method finds no crest makes that method raise (only at absurd SNRs).
+    waveform and SNR with W = fs / 2 (None when noiseless); the envelope
+    method's is the envelope-only bound (None for a rectangular burst, whose
+    envelope has unbounded bandwidth). Every trial yields an estimate; below
+    the threshold SNR (about 0 dB per sample for the default burst) the coarse
+    envelope picks wrong lags and errors grow far beyond the bound.
     """
     if not isinstance(profile, PathProfile):
         raise EstimatorInputError("must be a PathProfile", "profile")
@@ -281,7 +282,7 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
     if peak_methods and grid.size == 0:
         raise EstimatorInputError("the burst holds no whole carrier period away from its edges for the "
                                   "peak methods", "waveform.duration_s")
-    tx_crests = segment_crests(tx[None, :], fs, fc, grid[None, :])[0]
+    tx_crests = segment_crests(tx[None, :], fs, fc, grid[None, :])[0] if peak_methods else grid
 
     est = {m: np.empty(n_trials) for m in methods}
     chunk = max(1, _CHUNK_ELEMENTS // scipy.fft.next_fast_len(2 * n))
