@@ -156,9 +156,9 @@ def install_error_handlers(app: FastAPI, retry_after_s: int) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         msg = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
-        loc: list[str | int] = ["path"] if exc.status_code in (404, 405) else []
+        loc: list[str | int] = ["path"] if exc.status_code in (404, 405) else ["body"] if exc.status_code == 400 else []
         return JSONResponse(
-            error_body(loc, msg, {404: "not_found", 405: "method_not_allowed"}.get(exc.status_code, "http_error")),
+            error_body(loc, msg, {400: "malformed_body", 404: "not_found", 405: "method_not_allowed"}.get(exc.status_code, "http_error")),
             status_code=exc.status_code,
             headers=getattr(exc, "headers", None),
         )

@@ -127,8 +127,11 @@ class ChannelRequest(Strict):
                     "phantom": "torso",
                     "frequency_hz": 402e6,
                     "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 5},
-                    "transmitter": {"site": "small_intestine"},
-                    "receivers": [{"name": "s1", "site": "front"}],
+                    "transmitter": {"site": "small_intestine_1"},
+                    "receivers": [
+                        {"name": "s1", "site": "belt_anterior"},
+                        {"name": "s2", "position_m": [0.0984, -0.1005, 0.0], "polarization": [0, 0, 1], "pattern": "dipole"},
+                    ],
                     "max_interactions": 3,
                     "rays": 20000,
                     "dynamic_range_db": 80,

@@ -417,3 +417,26 @@ def test_channel_profiles_declare_their_gain_convention_for_ranging(api):
     assert b["distance_m"] == pytest.approx(a["distance_m"], rel=1e-9)
     # The flag without its frequency is a schema error naming the profile.
     assert_field(api.post("/v1/ranging/toa", json={**common, "profile": {"paths": phased, "gains_include_delay_phase": True}}), 422, "body", "profile")
+
+
+def test_every_request_example_of_the_docs_works(make_settings):
+    """The /docs examples are a tutorial: each one must succeed against the default limits."""
+    from fastapi.testclient import TestClient
+
+    from service import schemas as s
+    from service.app import create_app
+
+    routes = {
+        s.ChannelRequest: "/v1/channel",
+        s.ToaRequest: "/v1/ranging/toa",
+        s.PdoaRequest: "/v1/ranging/pdoa",
+        s.RssRequest: "/v1/ranging/rss",
+        s.ToaBoundRequest: "/v1/bounds/toa",
+        s.PdoaBoundRequest: "/v1/bounds/pdoa",
+        s.RssBoundRequest: "/v1/bounds/rss",
+    }
+    with TestClient(create_app(make_settings(max_rays=1_000_000))) as api:
+        for model, path in routes.items():
+            for example in model.model_config["json_schema_extra"]["examples"]:
+                r = api.post(path, json=example)
+                assert r.status_code == 200, (path, example, r.text)

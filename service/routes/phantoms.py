@@ -125,7 +125,7 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
     operation_id="upload_phantom",
     summary="Upload a phantom: multipart `mesh` (.glb) + `manifest` (JSON)",
     openapi_extra=_UPLOAD_BODY,
-    responses=error_responses(413, 422, 503, 504, 507),
+    responses=error_responses(400, 413, 422, 503, 504, 507),
 )
 async def upload_phantom(request: Request) -> JSONResponse:
     """Validated like a built-in (closed, outward-oriented, non-intersecting organs;

@@ -12,7 +12,7 @@ from service.schemas import PdoaRequest, RangingResponse, RssRequest, ToaRequest
 
 router = APIRouter(prefix="/v1/ranging", tags=["ranging"])
 
-_ERRORS = error_responses(422, 503, 504)
+_ERRORS = error_responses(400, 422, 503, 504)
 
 
 async def _run(request: Request, fn, req) -> RangingResponse:

@@ -1,0 +1,88 @@
+"""openapi.json at the repo root is generated from the app and must equal it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from service.app import create_app
+from service.cli import main, openapi_text
+from service.settings import Settings
+
+ROOT = Path(__file__).resolve().parent.parent
+
+OPERATIONS = {
+    ("post", "/v1/channel"): "compute_channel",
+    ("post", "/v1/ranging/toa"): "ranging_toa",
+    ("post", "/v1/ranging/pdoa"): "ranging_pdoa",
+    ("post", "/v1/ranging/rss"): "ranging_rss",
+    ("post", "/v1/bounds/toa"): "bound_toa",
+    ("post", "/v1/bounds/pdoa"): "bound_pdoa",
+    ("post", "/v1/bounds/rss"): "bound_rss",
+    ("get", "/v1/tissues"): "list_tissues",
+    ("get", "/v1/scenarios"): "list_scenarios",
+    ("get", "/v1/phantoms"): "list_phantoms",
+    ("post", "/v1/phantoms"): "upload_phantom",
+    ("get", "/v1/phantoms/{phantom_id}"): "get_phantom",
+    ("delete", "/v1/phantoms/{phantom_id}"): "delete_phantom",
+    ("get", "/v1/phantoms/{phantom_id}/mesh"): "get_phantom_mesh",
+    ("get", "/healthz"): "healthz",
+    ("get", "/readyz"): "readyz",
+    ("get", "/metrics"): "metrics",
+}
+
+
+def test_committed_openapi_json_equals_the_app_schema():
+    committed = (ROOT / "openapi.json").read_text()
+    assert committed == openapi_text(), "openapi.json is stale: run `capsule-rt openapi`"
+    app_schema = create_app(Settings(load_builtins=False)).openapi()
+    assert json.loads(committed) == json.loads(json.dumps(app_schema))
+    assert committed.endswith("}\n")
+
+
+def test_openapi_command_writes_and_checks(tmp_path, capsys):
+    out = tmp_path / "openapi.json"
+    assert main(["openapi", "--output", str(out)]) == 0
+    assert out.read_text() == openapi_text()
+    assert main(["openapi", "--output", str(out), "--check"]) == 0
+    out.write_text("{}\n")
+    assert main(["openapi", "--output", str(out), "--check"]) == 1
+
+
+def test_operation_ids_are_stable_and_errors_declared():
+    schema = json.loads((ROOT / "openapi.json").read_text())
+    found = {(m, p): op["operationId"] for p, item in schema["paths"].items() for m, op in item.items()}
+    assert found == OPERATIONS
+    for (method, path), op_id in OPERATIONS.items():
+        op = schema["paths"][path][method]
+        codes = set(op["responses"])
+        if method == "post":
+            assert {"400", "422"} <= codes, op_id
+        if path.startswith("/v1/phantoms/"):
+            assert {"404", "422"} <= codes, op_id
+        if op_id in ("compute_channel", "ranging_toa", "ranging_pdoa", "ranging_rss", "upload_phantom"):
+            assert {"503", "504"} <= codes, op_id
+    assert "413" in schema["paths"]["/v1/phantoms"]["post"]["responses"]
+
+
+def test_request_models_are_strict_documented_and_have_examples():
+    schema = json.loads((ROOT / "openapi.json").read_text())["components"]["schemas"]
+    for name in ("ChannelRequest", "ToaRequest", "PdoaRequest", "RssRequest", "ToaBoundRequest", "PdoaBoundRequest", "RssBoundRequest"):
+        model = schema[name]
+        assert model["additionalProperties"] is False, name
+        assert model.get("examples"), name
+        for field, prop in model["properties"].items():
+            if field.endswith(("_hz", "_s", "_m", "_db", "_s_per_m", "_dbm")):
+                assert "[" in prop.get("description", ""), (name, field)  # unit in brackets
+    channel = schema["ChannelRequest"]["properties"]
+    assert channel["rays"]["anyOf"][0]["maximum"] == 1_000_000
+    assert channel["max_interactions"]["anyOf"][0]["maximum"] == 10
+    assert channel["receivers"]["anyOf"][0]["maxItems"] == 64
+
+
+def test_request_examples_validate_against_their_models():
+    from service import schemas as s
+
+    for model in (s.ChannelRequest, s.ToaRequest, s.PdoaRequest, s.RssRequest, s.ToaBoundRequest, s.PdoaBoundRequest, s.RssBoundRequest):
+        for example in model.model_config["json_schema_extra"]["examples"]:
+            model.model_validate(example)
