@@ -195,9 +195,9 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
     width = float(f[-1] - f[0])
     t0 = 1.0 / width if duration_s is None else finite_float(duration_s, "duration_s", positive=True)
 
-    h = profile.frequency_response(f)
+    h = profile.frequency_response(f, normalise=True)  # scale-free: immune to extreme gains
     power = float(np.sum(np.abs(h) ** 2))
-    if power <= 0.0:
+    if not power > 0.0:
         raise EstimatorInputError("the channel response is zero at every tone (paths cancel exactly)",
                                   "profile.paths.gain")
     sigma = None if snr is None else math.sqrt(power / (10.0 ** (snr / 10.0) * width * t0) / 2.0)

@@ -149,11 +149,25 @@ class PathProfile:
         return float(self.delays_s.min())
 
     @property
-    def path_gain_db(self) -> float:
-        """Total power gain 10 log10(sum_k |a_k|^2) (incoherent sum); path loss is its negative."""
-        return float(10.0 * np.log10(np.sum(np.abs(self.gains) ** 2)))
+    def gain_scale(self) -> float:
+        """Largest |gain| over paths (and band gains): divide by it to work at unit scale."""
+        scale = float(np.max(np.abs(self.baseband_gains)))
+        if self.baseband_band_gains is not None:
+            scale = max(scale, float(np.max(np.abs(self.baseband_band_gains))))
+        return scale
 
-    def frequency_response(self, frequencies_hz) -> np.ndarray:
+    @property
+    def path_gain_db(self) -> float:
+        """Total power gain 10 log10(sum_k |a_k|^2) (incoherent sum); path loss is its negative.
+
+        Computed as 20 log10(max |a|) + 10 log10(sum (|a| / max |a|)^2), so gains
+        near the float limits (1e-300, 1e300) neither underflow nor overflow.
+        """
+        mag = np.abs(self.gains)
+        peak = float(mag.max())
+        return float(20.0 * np.log10(peak) + 10.0 * np.log10(np.sum((mag / peak) ** 2)))
+
+    def frequency_response(self, frequencies_hz, normalise: bool = False) -> np.ndarray:
         """Channel transfer function H(f) at ``frequencies_hz`` (complex, same shape).
 
         Without band gains: H(f) = sum_k a_k exp(-j 2 pi f tau_k) (a_k in the
@@ -161,6 +175,8 @@ class PathProfile:
         where b_k(f) (default convention, i.e. with the fast delay phase removed,
         so it varies slowly with f) is linearly interpolated between the band
         frequencies; asking outside the band raises EstimatorInputError.
+        ``normalise`` divides every gain by :attr:`gain_scale` first (for
+        scale-free estimators, immune to overflow/underflow).
         """
         f = _as_array(frequencies_hz, "frequencies_hz", float)
         if not np.all(np.isfinite(f)) or np.any(f <= 0):
@@ -168,8 +184,9 @@ class PathProfile:
         shape = f.shape
         f = f.reshape(-1)
         phase = np.exp(-2j * np.pi * f[None, :] * self.delays_s[:, None])  # (K, F)
+        scale = self.gain_scale if normalise else 1.0
         if self.baseband_band_gains is None:
-            h = self.baseband_gains @ phase
+            h = (self.baseband_gains / scale) @ phase
         else:
             bf = self.band_frequencies_hz
             tol = 1e-9 * bf[-1]
@@ -177,13 +194,14 @@ class PathProfile:
                 raise EstimatorInputError(
                     f"outside the profile's band [{bf[0]:.6g}, {bf[-1]:.6g}] Hz (per-frequency gains are "
                     "only known inside it)", "frequencies_hz")
+            band = self.baseband_band_gains / scale
             if bf.size == 1:
-                b = np.repeat(self.baseband_band_gains, f.size, axis=1)
+                b = np.repeat(band, f.size, axis=1)
             else:
                 hi = np.clip(np.searchsorted(bf, f, side="left"), 1, bf.size - 1)
                 lo = hi - 1
                 w = np.clip((f - bf[lo]) / (bf[hi] - bf[lo]), 0.0, 1.0)
-                b = self.baseband_band_gains[:, lo] * (1.0 - w) + self.baseband_band_gains[:, hi] * w
+                b = band[:, lo] * (1.0 - w) + band[:, hi] * w
             h = np.sum(b * phase, axis=0)
         return h.reshape(shape)
 

@@ -274,10 +274,11 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         raise EstimatorInputError(
             f"{n_trials} trials x {n} samples exceeds the work cap of {MAX_TOTAL_SAMPLES} samples", "trials")
     tx = transmitted(wf, n)
-    clean = received(wf, profile, n)
+    clean = received(wf, profile, n, normalise=True)
     power = signal_power(clean, wf)
-    if power <= 0.0:
-        raise EstimatorInputError("the received waveform is identically zero", "profile.paths.gain")
+    if not power > 0.0:
+        raise EstimatorInputError("the paths cancel: the received waveform is identically zero",
+                                  "profile.paths.gain")
     grid = crest_grid(wf)
     if peak_methods and grid.size == 0:
         raise EstimatorInputError("the burst holds no whole carrier period away from its edges for the "

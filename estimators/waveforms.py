@@ -174,16 +174,19 @@ def transmitted(waveform: Waveform, n_samples: int) -> np.ndarray:
     return analytic(waveform, sample_times(waveform, n_samples)).real
 
 
-def received(waveform: Waveform, profile: PathProfile, n_samples: int, *, complex_output: bool = False) -> np.ndarray:
+def received(waveform: Waveform, profile: PathProfile, n_samples: int, *, complex_output: bool = False,
+             normalise: bool = False) -> np.ndarray:
     """Noiseless received samples sum_k Re{a_k s_a(t_n - tau_k)} (exact fractional delays).
 
     Returns shape (n_samples,), real (or the complex sum when ``complex_output``).
-    Paths are evaluated in chunks of bounded memory (vectorised within a chunk).
+    ``normalise`` divides the gains by the largest |a_k| (TOA is scale-free;
+    this keeps extreme gains from overflowing). Paths are evaluated in chunks
+    of bounded memory (vectorised within a chunk).
     """
     t = sample_times(waveform, n_samples)
     out = np.zeros(n_samples, dtype=complex)
     chunk = max(1, _PATH_CHUNK_ELEMENTS // n_samples)
-    a = profile.baseband_gains
+    a = profile.baseband_gains / (np.max(np.abs(profile.baseband_gains)) if normalise else 1.0)
     tau = profile.delays_s
     for start in range(0, tau.size, chunk):
         sl = slice(start, start + chunk)

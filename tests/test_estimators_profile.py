@@ -80,3 +80,23 @@ def test_invalid_profiles_raise_naming_the_field(kwargs, field):
     assert exc.value.field == field
     assert isinstance(exc.value, ValueError)
     assert field in str(exc.value)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-150, 1.0, 1e150, 1e300])
+def test_extreme_gain_scales_neither_overflow_nor_underflow(scale):
+    import warnings
+
+    from estimators import estimate_pdoa, estimate_rss, estimate_toa
+
+    p = PathProfile([1.338e-9, 1.6e-9], [scale, 0.5 * scale])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow / invalid-value RuntimeWarning either
+        assert p.path_gain_db == pytest.approx(20 * math.log10(scale) + 10 * math.log10(1.25), rel=1e-12)
+        toa = estimate_toa(p, method="gcc", snr_db=30.0, trials=20, seed=1)[0]
+        ref = estimate_toa(PathProfile([1.338e-9, 1.6e-9], [1.0, 0.5]), method="gcc", snr_db=30.0, trials=20,
+                           seed=1)[0]
+        assert toa.distance_m == pytest.approx(ref.distance_m, rel=1e-9)  # TOA is scale-free
+        pd = estimate_pdoa(p, frequencies_hz=[400e6, 420e6], snr_db=30.0, trials=20, seed=1)
+        assert math.isfinite(pd.distance_m)
+        rss = estimate_rss(p, trials=5, seed=1)
+        assert math.isfinite(rss.path_loss_db)
