@@ -329,13 +329,22 @@ def refine(
             break
         d0 = dirs[act]
         rx = rx_m[act]
-        base = run(act, d0)
+        u, v = tangent_basis(d0)
+        m = len(act)
+        # base ray and the two finite-difference neighbours in one batch
+        trio = run(np.concatenate([act, act, act]), np.concatenate([d0, _normalize(d0 + h * u), _normalize(d0 + h * v)]))
+        parts = [
+            FollowResult(ok=trio.ok[k * m:(k + 1) * m], last_point=trio.last_point[k * m:(k + 1) * m],
+                         last_dir=trio.last_dir[k * m:(k + 1) * m], last_med=trio.last_med[k * m:(k + 1) * m],
+                         segments=0)
+            for k in range(3)
+        ]
+        base = parts[0]
         db = np.where(base.ok[:, None], base.last_dir, np.array([0.0, 0.0, 1.0]))
         e1, e2 = tangent_basis(db)
         r0, ok0 = _landing(base, rx, db, e1, e2)
-        u, v = tangent_basis(d0)
-        ra, oka = _landing(run(act, _normalize(d0 + h * u)), rx, db, e1, e2)
-        rb, okb = _landing(run(act, _normalize(d0 + h * v)), rx, db, e1, e2)
+        ra, oka = _landing(parts[1], rx, db, e1, e2)
+        rb, okb = _landing(parts[2], rx, db, e1, e2)
         jac = np.stack([(ra - r0) / h, (rb - r0) / h], axis=2)  # (n, 2, 2)
         det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
         good = ok0 & oka & okb & np.isfinite(det) & (np.abs(det) > 0.0)
