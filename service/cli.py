@@ -142,6 +142,9 @@ def _table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:
     return "\n".join(out)
 
 
+_KIND = {"reflection": "R", "refraction": "T", "total_internal_reflection": "TIR"}
+
+
 def _demo_case(title: str, payload: dict) -> None:
     from service import ranging
     from service.schemas import PdoaRequest, ToaRequest
@@ -158,10 +161,10 @@ def _demo_case(title: str, payload: dict) -> None:
               f"path gain {prof['path_gain_db']:.1f} dB, rms delay spread {prof['rms_delay_spread_s'] * 1e12:.1f} ps")
         rows = []
         for k, p in enumerate(prof["paths"]):
-            kinds = ",".join(i["kind"][:4] for i in p["interactions"]) or "-"
-            rows.append((k, f"{p['delay_s'] * 1e9:.4f}", f"{p['gain_db']:.1f}", f"{p['length_m'] * 1e3:.2f}", len(p["interactions"]), kinds))
+            kinds = "-".join(_KIND[i["kind"]] for i in p["interactions"]) or "direct"
+            rows.append((k, f"{p['delay_s'] * 1e9:.4f}", f"{p['gain_db']:.1f}", f"{p['length_m'] * 1e3:.2f}", kinds))
         if rows:
-            print(_table(rows, ["path", "delay [ns]", "gain [dB]", "length [mm]", "interactions", "kinds"]))
+            print(_table(rows, ["path", "delay [ns]", "gain [dB]", "length [mm]", "interactions (R/T/TIR)"]))
         else:
             print("  (no path found)")
             continue
@@ -188,10 +191,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     cases = []
     if "thesis-fig-5-6" in registry.scenarios:
         cases.append(("thesis-fig-5-6 (thesis Fig 5.5/5.6)", {"scenario": "thesis-fig-5-6", "rays": args.rays}))
-    if "torso" in registry.builtins:
+    if "torso-small-intestine" in registry.scenarios:
+        cases.append(("default torso, capsule in the small intestine (scenario torso-small-intestine)",
+                      {"scenario": "torso-small-intestine", "rays": args.rays}))
+    elif "torso" in registry.builtins:
         torso = registry.builtins["torso"]
         capsule = next((n for n, s in torso.sites.items() if s.kind == "capsule"), None)
-        sensors = [n for n, s in torso.sites.items() if s.kind == "sensor"][:3]
+        sensors = [n for n, s in torso.sites.items() if s.kind == "sensor"][:4]
         if capsule and sensors:
             cases.append((
                 f"default torso, capsule at {capsule}",
