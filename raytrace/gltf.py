@@ -1,0 +1,634 @@
+"""Phantoms to and from binary glTF 2.0 (.glb) plus a JSON manifest.
+
+Upload contract (``shared/design/api.md``, "POST /v1/phantoms"): a .glb whose
+mesh nodes are named after organs, and a manifest::
+
+    {"name": "my phantom",                     # 1-128 printable characters
+     "description": "...",                      # optional
+     "units": "m" | "mm",                       # required: unit of the mesh coordinates
+     "organs": {"<node name>": {"tissue": "muscle"}
+                            | {"relative_permittivity": 50.0, "conductivity_s_per_m": 0.0}},
+     "sites": {"<name>": [x, y, z]                                   # in `units`
+               | {"kind": "capsule" | "sensor", "position_m": [x, y, z]}}}   # metres
+
+Site kinds: the bare-list form has no kind; it is inferred from where the
+point lies: in air -> ``sensor`` (a skin-worn receiver), inside any organ ->
+``capsule``. The object form states it (``kind`` optional there too, same
+inference) and, as its field name says, is always in metres. Names of
+organs and sites match ``^[A-Za-z0-9_.-]{1,64}$``; unknown keys anywhere in
+the manifest are rejected.
+
+Loading is all-or-nothing: any defect raises
+:class:`~raytrace.errors.PhantomValidationError` (or
+:class:`~raytrace.errors.UnknownTissueError`, both ``InputError``) whose
+``field`` names the manifest entry, organ or mesh node and whose message
+says what is wrong; no partially built phantom escapes.
+
+The .glb is decoded here, not by ``trimesh.load``: the container and every
+accessor are bounds-checked against the byte and triangle caps *before*
+any array is allocated, only POSITION and indices of triangle primitives
+are read (textures are never decoded, so no image decompression bombs),
+multi-primitive meshes keep their node name (trimesh renames such nodes),
+and node transforms (matrix or TRS, composed down the hierarchy, winding
+flipped under a mirroring transform as the glTF spec requires) are applied
+exactly once. Identical vertex positions are then merged so that meshes
+exported with split vertices (per-face normals/UVs) can still be watertight.
+Besides :meth:`Phantom.build` validation (watertight, oriented, nested,
+no vertex of one organ on both sides of another), uploads get an
+edge-crossing test that catches two surfaces crossing with every vertex
+outside the other.
+
+Export (:func:`export_glb`) writes one node and one mesh per organ named
+after it, float32 positions and uint32 indices, in metres, with the
+manifest (:func:`export_manifest`) embedded in ``scenes[0].extras`` for
+viewers; it round-trips through :func:`load_phantom`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import struct
+from typing import Any, Mapping
+
+import numpy as np
+import trimesh
+
+from raytrace.errors import InvalidGeometryError, PhantomValidationError, UnknownTissueError
+from raytrace.phantom import AIR_INDEX, Material, Organ, Phantom, Site
+
+__all__ = [
+    "DEFAULT_MAX_BYTES",
+    "DEFAULT_MAX_TRIANGLES",
+    "MAX_ORGANS",
+    "MAX_SITES",
+    "NAME_PATTERN",
+    "export_glb",
+    "export_manifest",
+    "load_phantom",
+    "validate_manifest",
+]
+
+DEFAULT_MAX_BYTES = 64 * 2**20
+DEFAULT_MAX_TRIANGLES = 2_000_000
+MAX_ORGANS = 256
+MAX_SITES = 1024
+MAX_PERMITTIVITY = 1000.0
+MAX_CONDUCTIVITY_S_PER_M = 1000.0
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_UNITS = {"m": 1.0, "mm": 1e-3}
+
+_GLB_MAGIC = b"glTF"
+_CHUNK_JSON = 0x4E4F534A
+_CHUNK_BIN = 0x004E4942
+_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+_DTYPES = {5121: np.dtype("<u1"), 5123: np.dtype("<u2"), 5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
+_TRIANGLES = 4
+
+
+def _fail(reason: str, field: str) -> PhantomValidationError:
+    return PhantomValidationError(reason, field=field)
+
+
+# ================================================================ manifest
+def validate_manifest(manifest: Any) -> dict:
+    """Check a manifest strictly and return a normalised copy.
+
+    Normalised form: ``{"name", "description", "units", "organs": {name:
+    Material}, "sites": {name: (kind | None, position_in_units | None,
+    position_m | None)}}``.
+    """
+    if not isinstance(manifest, Mapping):
+        raise _fail("the manifest must be a JSON object", "manifest")
+    allowed = {"name", "description", "units", "organs", "sites"}
+    unknown = sorted(set(manifest) - allowed)
+    if unknown:
+        raise _fail(f"unknown key {unknown[0]!r}; allowed: {', '.join(sorted(allowed))}",
+                    f"manifest.{unknown[0]}")
+    name = manifest.get("name")
+    if not isinstance(name, str) or not 1 <= len(name) <= 128 or not name.isprintable():
+        raise _fail("required: a name of 1-128 printable characters", "manifest.name")
+    description = manifest.get("description", "")
+    if not isinstance(description, str) or len(description) > 2000:
+        raise _fail("must be a string of at most 2000 characters", "manifest.description")
+    if "units" not in manifest:
+        raise _fail("required: the unit of the mesh coordinates, 'm' or 'mm'", "manifest.units")
+    units = manifest["units"]
+    if not isinstance(units, str) or units not in _UNITS:
+        raise _fail(f"must be 'm' or 'mm', got {units!r}", "manifest.units")
+
+    organs_in = manifest.get("organs")
+    if not isinstance(organs_in, Mapping) or not organs_in:
+        raise _fail("required: a non-empty object mapping mesh node names to media", "manifest.organs")
+    if len(organs_in) > MAX_ORGANS:
+        raise _fail(f"{len(organs_in)} organs exceed the cap of {MAX_ORGANS}", "manifest.organs")
+    organs: dict[str, Material] = {}
+    for organ_name, spec in organs_in.items():
+        where = f"manifest.organs.{organ_name}"
+        _check_name(organ_name, where)
+        organs[organ_name] = _material(spec, where)
+
+    sites_in = manifest.get("sites", {})
+    if not isinstance(sites_in, Mapping):
+        raise _fail("must be an object mapping site names to positions", "manifest.sites")
+    if len(sites_in) > MAX_SITES:
+        raise _fail(f"{len(sites_in)} sites exceed the cap of {MAX_SITES}", "manifest.sites")
+    sites: dict[str, tuple[str | None, np.ndarray | None, np.ndarray | None]] = {}
+    for site_name, spec in sites_in.items():
+        where = f"manifest.sites.{site_name}"
+        _check_name(site_name, where)
+        if isinstance(spec, Mapping):
+            extra = sorted(set(spec) - {"kind", "position_m"})
+            if extra:
+                raise _fail(f"unknown key {extra[0]!r}; allowed: kind, position_m", f"{where}.{extra[0]}")
+            kind = spec.get("kind")
+            if kind is not None and kind not in ("capsule", "sensor"):
+                raise _fail(f"must be 'capsule' or 'sensor', got {kind!r}", f"{where}.kind")
+            if "position_m" not in spec:
+                raise _fail("required: [x, y, z] in metres", f"{where}.position_m")
+            sites[site_name] = (kind, None, _vec3(spec["position_m"], f"{where}.position_m"))
+        else:
+            sites[site_name] = (None, _vec3(spec, where), None)
+    return {"name": name, "description": description, "units": units, "organs": organs, "sites": sites}
+
+
+def _check_name(name: Any, where: str) -> None:
+    if not isinstance(name, str) or not NAME_PATTERN.match(name):
+        raise _fail(f"name {name!r} must match {NAME_PATTERN.pattern}", where)
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise _fail(f"must be a finite number, got {value!r}", where)
+    return float(value)
+
+
+def _vec3(value: Any, where: str) -> np.ndarray:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise _fail(f"must be [x, y, z] (three numbers), got {value!r}", where)
+    return np.array([_number(v, where) for v in value])
+
+
+def _material(spec: Any, where: str) -> Material:
+    if not isinstance(spec, Mapping):
+        raise _fail('must be {"tissue": name} or {"relative_permittivity": x, '
+                    '"conductivity_s_per_m": y}', where)
+    keys = set(spec)
+    if "tissue" in keys:
+        if keys != {"tissue"}:
+            extra = sorted(keys - {"tissue"})[0]
+            raise _fail("give either tissue or relative_permittivity (+ conductivity_s_per_m), not both",
+                        f"{where}.{extra}")
+        tissue = spec["tissue"]
+        if not isinstance(tissue, str):
+            raise _fail(f"must be a tissue name (string), got {tissue!r}", f"{where}.tissue")
+        try:
+            return Material(tissue=tissue)
+        except UnknownTissueError as exc:
+            raise UnknownTissueError(exc.reason, field=f"{where}.tissue") from None
+    extra = sorted(keys - {"relative_permittivity", "conductivity_s_per_m"})
+    if extra:
+        raise _fail(f"unknown key {extra[0]!r}", f"{where}.{extra[0]}")
+    if "relative_permittivity" not in keys:
+        raise _fail("required: tissue, or relative_permittivity (+ conductivity_s_per_m)", where)
+    eps = _number(spec["relative_permittivity"], f"{where}.relative_permittivity")
+    sigma = _number(spec.get("conductivity_s_per_m", 0.0), f"{where}.conductivity_s_per_m")
+    if not 1.0 <= eps <= MAX_PERMITTIVITY:
+        raise _fail(f"must be in [1, {MAX_PERMITTIVITY:g}], got {eps:g}", f"{where}.relative_permittivity")
+    if not 0.0 <= sigma <= MAX_CONDUCTIVITY_S_PER_M:
+        raise _fail(f"must be in [0, {MAX_CONDUCTIVITY_S_PER_M:g}], got {sigma:g}",
+                    f"{where}.conductivity_s_per_m")
+    return Material(relative_permittivity=eps, conductivity_s_per_m=sigma)
+
+
+# ================================================================ GLB decode
+def _split_glb(data: bytes) -> tuple[dict, bytes]:
+    """GLB container -> (JSON document, BIN chunk). Every length is checked."""
+    if len(data) < 20:
+        raise _fail(f"not a binary glTF: {len(data)} bytes is shorter than the 20-byte header", "mesh")
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    if magic != _GLB_MAGIC:
+        raise _fail("not a binary glTF (.glb): bad magic bytes", "mesh")
+    if version != 2:
+        raise _fail(f"glTF container version {version} is not supported (need 2)", "mesh")
+    if length != len(data):
+        raise _fail(f"truncated or padded .glb: header says {length} bytes, got {len(data)}", "mesh")
+    offset = 12
+    chunks: list[tuple[int, bytes]] = []
+    while offset < length:
+        if offset + 8 > length:
+            raise _fail("truncated chunk header", "mesh")
+        chunk_len, chunk_type = struct.unpack_from("<II", data, offset)
+        start = offset + 8
+        if start + chunk_len > length:
+            raise _fail(f"chunk of {chunk_len} bytes runs past the end of the file", "mesh")
+        chunks.append((chunk_type, data[start:start + chunk_len]))
+        offset = start + chunk_len
+    if not chunks or chunks[0][0] != _CHUNK_JSON:
+        raise _fail("the first chunk must be the JSON chunk", "mesh")
+    try:
+        document = json.loads(chunks[0][1].decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise _fail(f"the JSON chunk is not valid JSON: {exc}", "mesh") from None
+    if not isinstance(document, dict):
+        raise _fail("the JSON chunk must be an object", "mesh")
+    binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == _CHUNK_BIN else b""
+    return document, binary
+
+
+def _list(document: dict, key: str) -> list:
+    value = document.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise _fail(f"glTF '{key}' must be an array of objects", f"mesh.{key}")
+    return value
+
+
+def _index(value: Any, size: int, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < size:
+        raise _fail(f"index {value!r} out of range (0..{size - 1})", where)
+    return value
+
+
+class _Reader:
+    """Bounds-checked accessor reads from the BIN chunk."""
+
+    def __init__(self, document: dict, binary: bytes) -> None:
+        self.accessors = _list(document, "accessors")
+        self.views = _list(document, "bufferViews")
+        buffers = _list(document, "buffers")
+        for i, buffer in enumerate(buffers):
+            if "uri" in buffer:
+                raise _fail("external or data-URI buffers are not accepted; embed geometry in the "
+                            ".glb binary chunk", f"mesh.buffers[{i}]")
+        if buffers:
+            declared = buffers[0].get("byteLength")
+            if not isinstance(declared, int) or declared > len(binary):
+                raise _fail(f"buffer 0 declares {declared!r} bytes, the binary chunk has {len(binary)}",
+                            "mesh.buffers[0]")
+        self.binary = binary
+
+    def count(self, index: int, where: str) -> int:
+        accessor = self.accessors[_index(index, len(self.accessors), where)]
+        count = accessor.get("count")
+        if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+            raise _fail(f"accessor count {count!r} is invalid", where)
+        return count
+
+    def read(self, index: int, where: str, *, type_: str, component_types: tuple[int, ...]) -> np.ndarray:
+        accessor = self.accessors[_index(index, len(self.accessors), where)]
+        if "sparse" in accessor:
+            raise _fail("sparse accessors are not supported", where)
+        if accessor.get("type") != type_ or accessor.get("componentType") not in component_types:
+            raise _fail(f"accessor must be {type_} of componentType {component_types}, got "
+                        f"{accessor.get('type')!r}/{accessor.get('componentType')!r}", where)
+        if accessor.get("normalized", False):
+            raise _fail("normalized accessors are not supported", where)
+        count = self.count(index, where)
+        dtype = _DTYPES[accessor["componentType"]]
+        n_comp = _COMPONENTS[type_]
+        element = dtype.itemsize * n_comp
+        if "bufferView" not in accessor:
+            raise _fail("accessor without a bufferView", where)
+        view = self.views[_index(accessor["bufferView"], len(self.views), f"{where}.bufferView")]
+        if view.get("buffer", 0) != 0:
+            raise _fail("only buffer 0 (the .glb binary chunk) is accepted", f"{where}.bufferView")
+        view_offset = view.get("byteOffset", 0)
+        view_length = view.get("byteLength")
+        stride = view.get("byteStride", element)
+        acc_offset = accessor.get("byteOffset", 0)
+        for value, what in ((view_offset, "byteOffset"), (view_length, "byteLength"),
+                            (stride, "byteStride"), (acc_offset, "accessor byteOffset")):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise _fail(f"bufferView {what} {value!r} is invalid", where)
+        if stride < element:
+            raise _fail(f"byteStride {stride} is smaller than the element size {element}", where)
+        if view_offset + view_length > len(self.binary):
+            raise _fail("bufferView runs past the end of the binary chunk", where)
+        if count == 0:
+            return np.zeros((0, n_comp), dtype.newbyteorder("="))
+        needed = acc_offset + stride * (count - 1) + element
+        if needed > view_length:
+            raise _fail(f"accessor needs {needed} bytes, its bufferView has {view_length}", where)
+        raw = np.frombuffer(self.binary, np.uint8, count=needed - acc_offset,
+                            offset=view_offset + acc_offset)
+        rows = np.lib.stride_tricks.as_strided(raw, shape=(count, element), strides=(stride, 1))
+        return np.ascontiguousarray(rows).view(dtype).reshape(count, n_comp).astype(
+            dtype.newbyteorder("="))
+
+
+def _node_matrix(node: dict, where: str) -> np.ndarray:
+    if "matrix" in node:
+        m = node["matrix"]
+        if not isinstance(m, list) or len(m) != 16:
+            raise _fail("matrix must have 16 numbers", where)
+        matrix = np.array([_number(v, f"{where}.matrix") for v in m]).reshape(4, 4).T  # column-major
+        if not np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0]):
+            raise _fail("matrix must be affine (last row 0, 0, 0, 1)", f"{where}.matrix")
+        return matrix
+    translation = np.array([_number(v, f"{where}.translation") for v in node.get("translation", [0, 0, 0])])
+    rotation = np.array([_number(v, f"{where}.rotation") for v in node.get("rotation", [0, 0, 0, 1])])
+    scale = np.array([_number(v, f"{where}.scale") for v in node.get("scale", [1, 1, 1])])
+    if translation.shape != (3,) or rotation.shape != (4,) or scale.shape != (3,):
+        raise _fail("translation/rotation/scale must have 3/4/3 numbers", where)
+    norm = np.linalg.norm(rotation)
+    if not 0.9 < norm < 1.1:
+        raise _fail("rotation must be a unit quaternion [x, y, z, w]", f"{where}.rotation")
+    x, y, z, w = rotation / norm
+    r = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+    matrix = np.eye(4)
+    matrix[:3, :3] = r * scale[None, :]
+    matrix[:3, 3] = translation
+    return matrix
+
+
+def _mesh_nodes(document: dict) -> list[tuple[str, int, np.ndarray, str]]:
+    """(node name, mesh index, world matrix, field) of every mesh node in the default scene."""
+    nodes = _list(document, "nodes")
+    meshes = _list(document, "meshes")
+    scenes = _list(document, "scenes")
+    for i, node in enumerate(nodes):
+        if "skin" in node or "weights" in node:
+            raise _fail("skinned / morphed nodes are not supported", f"mesh.nodes[{i}]")
+        children = node.get("children", [])
+        if not isinstance(children, list):
+            raise _fail("children must be an array", f"mesh.nodes[{i}].children")
+        for c in children:
+            _index(c, len(nodes), f"mesh.nodes[{i}].children")
+    if scenes:
+        scene_index = _index(document.get("scene", 0), len(scenes), "mesh.scene")
+        roots = scenes[scene_index].get("nodes", [])
+        if not isinstance(roots, list):
+            raise _fail("scene nodes must be an array", f"mesh.scenes[{scene_index}].nodes")
+    else:  # no scene: every node that is nobody's child
+        child_set = {c for n in nodes for c in n.get("children", [])}
+        roots = [i for i in range(len(nodes)) if i not in child_set]
+    out: list[tuple[str, int, np.ndarray, str]] = []
+    visited: set[int] = set()
+    # Depth-first in document order (a stack of reversed lists).
+    stack = [(_index(r, len(nodes), "mesh.scenes.nodes"), np.eye(4)) for r in reversed(roots)]
+    while stack:
+        i, parent = stack.pop()
+        where = f"mesh.nodes[{i}]"
+        if i in visited:
+            raise _fail("node is reachable twice (a cycle or a node with two parents)", where)
+        visited.add(i)
+        node = nodes[i]
+        world = parent @ _node_matrix(node, where)
+        if "mesh" in node:
+            mesh_index = _index(node["mesh"], len(meshes), f"{where}.mesh")
+            name = node.get("name")
+            if not isinstance(name, str) or not NAME_PATTERN.match(name):
+                raise _fail(f"mesh node name {name!r} must match {NAME_PATTERN.pattern} (it names "
+                            "the organ in the manifest)", f"{where}.name")
+            out.append((name, mesh_index, world, where))
+        stack.extend((c, world) for c in reversed(node.get("children", [])))
+    names = [n for n, *_ in out]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise _fail(f"mesh node name {duplicates[0]!r} is used by more than one node", "mesh.nodes")
+    return out
+
+
+def _primitives(mesh: dict, where: str) -> list[dict]:
+    primitives = mesh.get("primitives")
+    if not isinstance(primitives, list) or not primitives or not all(isinstance(p, dict) for p in primitives):
+        raise _fail("mesh needs a non-empty primitives array", f"{where}.primitives")
+    for k, p in enumerate(primitives):
+        if p.get("mode", _TRIANGLES) != _TRIANGLES:
+            raise _fail(f"primitive mode {p.get('mode')!r} is not supported: only triangles (4)",
+                        f"{where}.primitives[{k}].mode")
+        if "targets" in p:
+            raise _fail("morph targets are not supported", f"{where}.primitives[{k}]")
+        attributes = p.get("attributes")
+        if not isinstance(attributes, dict) or "POSITION" not in attributes:
+            raise _fail("primitive has no POSITION attribute", f"{where}.primitives[{k}]")
+        ext = p.get("extensions", {})
+        if isinstance(ext, dict) and ext:
+            raise _fail(f"primitive extension(s) {sorted(ext)} are not supported",
+                        f"{where}.primitives[{k}].extensions")
+    return primitives
+
+
+def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+    """node name -> (vertices (V, 3) float64 in file units, faces (F, 3), node field)."""
+    if len(data) > max_bytes:
+        raise _fail(f"the .glb is {len(data)} bytes, over the cap of {max_bytes}", "mesh")
+    document, binary = _split_glb(data)
+    required = document.get("extensionsRequired", [])
+    if required:
+        raise _fail(f"required glTF extension(s) {required} are not supported "
+                    "(e.g. Draco/meshopt compression): export uncompressed", "mesh.extensionsRequired")
+    reader = _Reader(document, binary)
+    meshes = _list(document, "meshes")
+    nodes = _mesh_nodes(document)
+    # Triangle cap from the declared accessor counts, before decoding anything.
+    total = 0
+    for name, mesh_index, _, where in nodes:
+        for k, p in enumerate(_primitives(meshes[mesh_index], f"mesh.meshes[{mesh_index}]")):
+            pw = f"mesh.meshes[{mesh_index}].primitives[{k}]"
+            n = reader.count(p["indices"], f"{pw}.indices") if "indices" in p else \
+                reader.count(p["attributes"]["POSITION"], f"{pw}.attributes.POSITION")
+            if n % 3:
+                raise _fail(f"{n} indices is not a multiple of 3 (triangles)", pw)
+            total += n // 3
+    if total > max_triangles:
+        raise _fail(f"{total} triangles exceed the cap of {max_triangles}", "mesh")
+    out: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+    for name, mesh_index, world, where in nodes:
+        all_v, all_f, base = [], [], 0
+        for k, p in enumerate(meshes[mesh_index]["primitives"]):
+            pw = f"mesh.meshes[{mesh_index}].primitives[{k}]"
+            vertices = reader.read(p["attributes"]["POSITION"], f"{pw}.attributes.POSITION",
+                                   type_="VEC3", component_types=(5126,)).astype(float)
+            if not np.isfinite(vertices).all():
+                raise _fail("non-finite vertex coordinates", f"{pw}.attributes.POSITION")
+            if "indices" in p:
+                idx = reader.read(p["indices"], f"{pw}.indices", type_="SCALAR",
+                                  component_types=(5121, 5123, 5125)).ravel().astype(np.int64)
+            else:
+                idx = np.arange(len(vertices), dtype=np.int64)
+            if len(idx) and idx.max() >= len(vertices):
+                raise _fail(f"index {int(idx.max())} out of range of {len(vertices)} vertices",
+                            f"{pw}.indices")
+            all_v.append(vertices)
+            all_f.append(idx.reshape(-1, 3) + base)
+            base += len(vertices)
+        vertices = np.concatenate(all_v)
+        faces = np.concatenate(all_f)
+        vertices = vertices @ world[:3, :3].T + world[:3, 3]
+        if np.linalg.det(world[:3, :3]) < 0:  # mirroring transform: glTF flips the winding
+            faces = faces[:, ::-1]
+        out[name] = (vertices, faces, where)
+    return out
+
+
+# ================================================================ load
+def load_phantom(
+    glb_bytes: bytes,
+    manifest: Mapping[str, Any],
+    *,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    max_triangles: int = DEFAULT_MAX_TRIANGLES,
+    check_crossings: bool = True,
+) -> Phantom:
+    """Validate an upload (.glb + manifest) and build its :class:`Phantom` (see module doc)."""
+    if not isinstance(glb_bytes, (bytes, bytearray, memoryview)):
+        raise _fail("the mesh must be the bytes of a .glb file", "mesh")
+    spec = validate_manifest(manifest)
+    scale = _UNITS[spec["units"]]
+    decoded = _decode(bytes(glb_bytes), max_bytes=max_bytes, max_triangles=max_triangles)
+    missing = [n for n in spec["organs"] if n not in decoded]
+    if missing:
+        raise _fail(f"organ {missing[0]!r} is in the manifest but the .glb has no mesh node of "
+                    f"that name (mesh nodes: {', '.join(sorted(decoded)) or 'none'})",
+                    f"manifest.organs.{missing[0]}")
+    extra = [n for n in decoded if n not in spec["organs"]]
+    if extra:
+        raise _fail(f"mesh node {extra[0]!r} is not named in the manifest's organs; every mesh "
+                    "node must be an organ", f"{decoded[extra[0]][2]}.name")
+    organs = []
+    for name, material in spec["organs"].items():
+        vertices, faces, _ = decoded[name]
+        # process=True merges identical positions (split vertices of exporters).
+        mesh = trimesh.Trimesh(vertices * scale, faces, process=True, validate=False)
+        organs.append(Organ(name, material, mesh))
+    phantom = Phantom.build(spec["name"], organs, sites={}, description=spec["description"],
+                            max_triangles=max_triangles)
+    if check_crossings:
+        _check_no_crossings(phantom)
+    _add_sites(phantom, spec["sites"], scale)
+    phantom.metadata.update({"source": "upload", "units": spec["units"]})
+    return phantom
+
+
+def _add_sites(phantom: Phantom, sites: dict, scale: float) -> None:
+    if not sites:
+        return
+    names = list(sites)
+    points = np.array([s[2] if s[2] is not None else s[1] * scale for s in sites.values()])
+    media = np.empty(len(names), dtype=np.int64)
+    for k, name in enumerate(names):  # one lookup per site names the offending one
+        try:
+            media[k] = phantom.medium_index(points[k][None, :], field=f"manifest.sites.{name}")[0]
+        except InvalidGeometryError as exc:
+            raise PhantomValidationError(exc.reason, field=exc.field) from None
+    for k, name in enumerate(names):
+        kind = sites[name][0] or ("sensor" if media[k] == AIR_INDEX else "capsule")
+        phantom.sites[name] = Site(name, kind, points[k].copy(), phantom.medium_name(int(media[k])))
+
+
+def _check_no_crossings(phantom: Phantom) -> None:
+    """Reject two organ surfaces that cross. Two closed triangle surfaces
+    intersect iff an edge of one crosses a triangle of the other: cast every
+    edge of every organ (inside the target's bounding box) as a ray against
+    each other organ (Embree) and look for a hit within the edge's length."""
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    boxes = [o.mesh.bounds for o in phantom.organs]
+    edges = []
+    for organ in phantom.organs:
+        v = np.asarray(organ.mesh.vertices)
+        e = np.asarray(organ.mesh.edges_unique)
+        edges.append((v[e[:, 0]], v[e[:, 1]]))
+    for j, target in enumerate(phantom.organs):
+        lo, hi = boxes[j]
+        intersector = None
+        for i, other in enumerate(phantom.organs):
+            if i == j:
+                continue
+            a, b = edges[i]
+            keep = np.all((np.maximum(a, b) >= lo) & (np.minimum(a, b) <= hi), axis=1)
+            if not keep.any():
+                continue
+            a, b = a[keep], b[keep]
+            length = np.linalg.norm(b - a, axis=1)
+            intersector = intersector or RayMeshIntersector(target.mesh)
+            _, ray, loc = intersector.intersects_id(a, (b - a) / length[:, None],
+                                                    multiple_hits=False, return_locations=True)
+            crossing = np.linalg.norm(loc - a[ray], axis=1) <= length[ray]
+            if crossing.any():
+                raise _fail(f"surface of organ {other.name!r} intersects organ {target.name!r} "
+                            f"({int(crossing.sum())} of its edges cross it); organs must nest "
+                            "or be disjoint, never touch", f"organs.{other.name}")
+
+
+# ================================================================ export
+def export_manifest(phantom: Phantom) -> dict:
+    """The manifest that, with :func:`export_glb`, reloads ``phantom`` (units m,
+    sites in the object form with their kinds)."""
+    organs = {}
+    for organ in phantom.organs:
+        m = organ.material
+        organs[organ.name] = (
+            {"tissue": m.tissue} if m.tissue is not None
+            else {"relative_permittivity": float(m.relative_permittivity),
+                  "conductivity_s_per_m": float(m.conductivity_s_per_m)}
+        )
+    manifest = {
+        "name": phantom.name,
+        "units": "m",
+        "organs": organs,
+        "sites": {
+            name: {"kind": site.kind, "position_m": [float(x) for x in site.position_m]}
+            for name, site in phantom.sites.items()
+        },
+    }
+    if phantom.description:
+        manifest["description"] = phantom.description[:2000]
+    return manifest
+
+
+def export_glb(phantom: Phantom) -> bytes:
+    """The phantom as a .glb: one node + mesh per organ named after it, metres."""
+    chunks: list[bytes] = []
+    offset = 0
+    accessors, views, meshes, nodes = [], [], [], []
+
+    def add_view(payload: bytes) -> int:
+        nonlocal offset
+        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(payload)})
+        chunks.append(payload)
+        offset += len(payload)
+        return len(views) - 1
+
+    for organ in phantom.organs:
+        vertices = np.asarray(organ.mesh.vertices, dtype="<f4")
+        faces = np.asarray(organ.mesh.faces, dtype="<u4")
+        v_view = add_view(vertices.tobytes())
+        accessors.append({"bufferView": v_view, "componentType": 5126, "count": len(vertices),
+                          "type": "VEC3", "min": vertices.min(axis=0).astype(float).tolist(),
+                          "max": vertices.max(axis=0).astype(float).tolist()})
+        f_view = add_view(faces.tobytes())
+        accessors.append({"bufferView": f_view, "componentType": 5125, "count": faces.size,
+                          "type": "SCALAR"})
+        meshes.append({"name": organ.name, "primitives": [
+            {"attributes": {"POSITION": len(accessors) - 2}, "indices": len(accessors) - 1,
+             "mode": _TRIANGLES}]})
+        nodes.append({"name": organ.name, "mesh": len(meshes) - 1,
+                      "extras": {"medium": organ.material.label}})
+    binary = b"".join(chunks)
+    document = {
+        "asset": {"version": "2.0", "generator": "CapsuleRT raytrace.gltf"},
+        "scene": 0,
+        "scenes": [{"name": phantom.name, "nodes": list(range(len(nodes))),
+                    "extras": {"capsule_rt_manifest": export_manifest(phantom)}}],
+        "nodes": nodes,
+        "meshes": meshes,
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": [{"byteLength": len(binary)}],
+    }
+    json_bytes = json.dumps(document, separators=(",", ":")).encode("utf-8")
+    json_bytes += b" " * (-len(json_bytes) % 4)
+    binary += b"\x00" * (-len(binary) % 4)
+    total = 12 + 8 + len(json_bytes) + 8 + len(binary)
+    return b"".join([
+        struct.pack("<4sII", _GLB_MAGIC, 2, total),
+        struct.pack("<II", len(json_bytes), _CHUNK_JSON), json_bytes,
+        struct.pack("<II", len(binary), _CHUNK_BIN), binary,
+    ])
