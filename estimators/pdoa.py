@@ -5,8 +5,9 @@ The measured quantity is the channel's phasor at each tone, H(f_i) from
 so a single path of delay tau has phase -2 pi f tau (Eq 5.2, up to whole
 cycles and the gain's own phase, which cancels in differences).
 
-Two tones (Eq 5.3-5.5): d = v / (2 pi) * (phi1 - phi2) / (f2 - f1), with the
-phase difference taken in [0, 2 pi); the estimate lies in [0, v / (f2 - f1)),
+Two tones (Eq 5.3-5.5): with phi_i = -arg H(f_i) the phase lag of tone i
+(Eq 5.2), d = v / (2 pi) * (phi2 - phi1) / (f2 - f1), the phase difference
+taken in [0, 2 pi); the estimate lies in [0, v / (f2 - f1)),
 the maximum unambiguous range (2.84 m for 20 MHz at eps_r 27.9). A true
 distance beyond it WRAPS (aliases to d mod v / (f2 - f1)); the result says so.
 
