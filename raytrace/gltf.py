@@ -489,8 +489,8 @@ def load_phantom(
                     f"manifest.organs.{missing[0]}")
     extra = [n for n in decoded if n not in spec["organs"]]
     if extra:
-        raise _fail(f"mesh node {extra[0]!r} is not named in the manifest's organs; every mesh "
-                    "node must be an organ", f"{decoded[extra[0]][2]}.name")
+        raise _fail(f"mesh node {extra[0]!r} ({decoded[extra[0]][2]}) is not named in the "
+                    "manifest's organs; every mesh node must be an organ", "manifest.organs")
     organs = []
     for name, material in spec["organs"].items():
         vertices, faces, _ = decoded[name]

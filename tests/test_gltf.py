@@ -205,7 +205,7 @@ def test_manifest_node_mismatch_rejected() -> None:
     extra = copy.deepcopy(manifest)
     del extra["organs"]["organ"]
     del extra["sites"]["inside"]
-    error = rejected(glb, extra, "mesh.nodes", "'organ'", "not named in the manifest")
+    error = rejected(glb, extra, "manifest.organs", "'organ'", "mesh.nodes[1]", "not named in the manifest")
     assert "organ" in str(error)
 
 
