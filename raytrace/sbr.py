@@ -153,57 +153,62 @@ def shoot(
         valid = (m_from == mk) & (wk >= threshold)
         transparent = media.face_transparent[f]
 
-        parts = []  # (origin, dir, med, w, rad, ang, nint, hist, src)
-        ps = np.flatnonzero(valid & transparent)
-        if len(ps):
-            parts.append((pt[ps] + (sg[ps] * off)[:, None] * fn[ps], dk[ps], m_to[ps], wk[ps], radk[ps],
-                          ang[keep][ps], nint[keep][ps], hist[keep][ps], src[keep][ps]))
-        ev = np.flatnonzero(valid & ~transparent & (nint[keep] < kmax))
-        if len(ev):
-            dj, fj, pj, fnj, sgj = dk[ev], f[ev], pt[ev], fn[ev], sg[ev]
-            ns = scene.smooth_normals_uv(fj, uv[keep][ev])
-            flip = np.einsum("ij,ij->i", ns, fnj) <= 0.0
-            ns[flip] = fnj[flip]
-            mf, mt = m_from[ev], m_to[ev]
-            dns = np.einsum("ij,ij->i", dj, ns)
-            dt, tir, ci, ct = _refract(dj, ns, dns, n_re[mf + 1] / n_re[mt + 1])
-            # pruning weight only: lossless Fresnel power reflectance from Re n (mean of TE, TM)
-            n1c, n2c = n_re[mf + 1] * ci, n_re[mt + 1] * ct
-            n1t, n2i = n_re[mf + 1] * ct, n_re[mt + 1] * ci
-            r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-300)
-            r_tm = (n2i - n1t) / np.maximum(n2i + n1t, 1e-300)
-            refl_p = np.where(tir, 1.0, np.clip(0.5 * (r_te * r_te + r_tm * r_tm), 0.0, 1.0))
-            wj, radj, angj = wk[ev], radk[ev], ang[keep][ev]
-            nj, srcj = nint[keep][ev], src[keep][ev]
-            base = logged
-            log_parent.append(np.concatenate([hist[keep][ev], hist[keep][ev]]))
-            log_code.append(np.concatenate([encode(organ[ev], leaving[ev], 1), encode(organ[ev], leaving[ev], 0)]))
-            log_face.append(np.concatenate([fj, fj]))
-            logged += 2 * len(ev)
-            ids = np.arange(len(ev))
-            # reflected
-            dr = dj - (2.0 * dns)[:, None] * ns
-            wr = wj * refl_p
-            okr = (np.einsum("ij,ij->i", dr, fnj) * sgj < 0.0) & (wr >= threshold)
-            if okr.any():
-                k = np.flatnonzero(okr)
-                parts.append((pj[k] - (sgj[k] * off)[:, None] * fnj[k], dr[k], mf[k], wr[k], radj[k], angj[k],
-                              nj[k] + 1, base + ids[k], srcj[k]))
-            # transmitted
-            wt = wj * (1.0 - refl_p)
-            okt = ~tir & (wt >= threshold)
-            okt &= np.einsum("ij,ij->i", dt, fnj) * sgj > 0.0
-            if okt.any():
-                k = np.flatnonzero(okt)
-                n1, n2 = n_re[mf[k] + 1], n_re[mt[k] + 1]
-                mag = np.maximum(np.maximum(n1 * ci[k] / np.maximum(n2 * ct[k], 1e-3), n1 / n2), 1.0)
-                parts.append((pj[k] + (sgj[k] * off)[:, None] * fnj[k], dt[k], mt[k], wt[k], radj[k],
-                              angj[k] * np.minimum(mag, 50.0), nj[k] + 1, base + len(ev) + ids[k], srcj[k]))
-        if not parts:
+        nk, angk = nint[keep], ang[keep]
+        ev = valid & ~transparent & (nk < kmax)
+        p_mask = valid & transparent
+        # interaction physics over every hit at once (masks, no per-kind gathers)
+        ns = scene.smooth_normals_uv(f, uv[keep])
+        flip = np.einsum("ij,ij->i", ns, fn) <= 0.0
+        ns[flip] = fn[flip]
+        n1, n2 = n_re[m_from + 1], n_re[m_to + 1]
+        dns = np.einsum("ij,ij->i", dk, ns)
+        dt, tir, ci, ct = _refract(dk, ns, dns, n1 / n2)
+        # pruning weight only: lossless Fresnel power reflectance from Re n (mean of TE, TM)
+        n1c, n2c, n1t, n2i = n1 * ci, n2 * ct, n1 * ct, n2 * ci
+        r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-300)
+        r_tm = (n2i - n1t) / np.maximum(n2i + n1t, 1e-300)
+        refl_p = np.where(tir, 1.0, np.clip(0.5 * (r_te * r_te + r_tm * r_tm), 0.0, 1.0))
+        dr = dk - (2.0 * dns)[:, None] * ns
+        wr = wk * refl_p
+        wt = wk - wr
+        r_mask = ev & (np.einsum("ij,ij->i", dr, fn) * sg < 0.0) & (wr >= threshold)
+        t_mask = ev & ~tir & (wt >= threshold) & (np.einsum("ij,ij->i", dt, fn) * sg > 0.0)
+        mag = np.minimum(np.maximum(np.maximum(n1 * ci / np.maximum(n2 * ct, 1e-3), n1 / n2), 1.0), 50.0)
+        # event log (interacting rays only): reflected entry at base + e, transmitted at base + E + e
+        ev_idx = np.flatnonzero(ev)
+        n_ev = len(ev_idx)
+        evpos = np.cumsum(ev) - 1
+        base = logged
+        if n_ev:
+            hk = hist[keep][ev_idx]
+            log_parent.append(np.concatenate([hk, hk]))
+            log_code.append(np.concatenate([encode(organ[ev_idx], leaving[ev_idx], 1),
+                                            encode(organ[ev_idx], leaving[ev_idx], 0)]))
+            log_face.append(np.concatenate([f[ev_idx], f[ev_idx]]))
+            logged += 2 * n_ev
+        n_r, n_t, n_p = int(r_mask.sum()), int(t_mask.sum()), int(p_mask.sum())
+        total = n_r + n_t + n_p
+        if total == 0:
             break
-        o, d, med, w, rad, ang, nint, hist, src = (
-            np.concatenate(a) if len(parts) > 1 else a[0] for a in zip(*parts)
-        )
+        a, b = n_r, n_r + n_t
+        push = (sg * off)[:, None] * fn
+        o = np.empty((total, 3))
+        np.compress(r_mask, pt - push, axis=0, out=o[:a])
+        o_tp = pt + push
+        np.compress(t_mask, o_tp, axis=0, out=o[a:b])
+        np.compress(p_mask, o_tp, axis=0, out=o[b:])
+        d = np.empty((total, 3))
+        np.compress(r_mask, dr, axis=0, out=d[:a])
+        np.compress(t_mask, dt, axis=0, out=d[a:b])
+        np.compress(p_mask, dk, axis=0, out=d[b:])
+        med = np.concatenate([m_from[r_mask], m_to[t_mask], m_to[p_mask]])
+        w = np.concatenate([wr[r_mask], wt[t_mask], wk[p_mask]])
+        rad = np.concatenate([radk[r_mask], radk[t_mask], radk[p_mask]])
+        ang = np.concatenate([angk[r_mask], (angk * mag)[t_mask], angk[p_mask]])
+        nint = np.concatenate([nk[r_mask] + 1, nk[t_mask] + 1, nk[p_mask]])
+        hist = np.concatenate([base + evpos[r_mask], base + n_ev + evpos[t_mask], hist[keep][p_mask]])
+        src = src[keep]
+        src = np.concatenate([src[r_mask], src[t_mask], src[p_mask]])
         if len(o) > MAX_LIVE_RAYS:
             order = np.sort(np.argpartition(-w, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
             o, d, med, w, rad, ang, nint, hist, src = (

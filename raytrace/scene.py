@@ -141,10 +141,11 @@ class TracerScene:
 
     def smooth_normals_uv(self, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Smooth unit normals from Embree barycentrics (cheaper, float32-accurate: for shooting)."""
-        cn = self.corner_normals[face]
-        u, v = uv[:, 0:1], uv[:, 1:2]
-        nrm = (1.0 - u - v) * cn[:, 0] + u * cn[:, 1] + v * cn[:, 2]
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        weights = np.empty((len(face), 3))
+        weights[:, 0] = 1.0 - uv[:, 0] - uv[:, 1]
+        weights[:, 1:] = uv
+        nrm = np.einsum("nc,ncj->nj", weights, self.corner_normals[face])
+        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None]
         return nrm
 
     def smooth_normals(self, face: np.ndarray, points_m: np.ndarray) -> np.ndarray:

@@ -319,3 +319,19 @@ def test_budget_stops_the_trace():
     rx = Antenna(np.array([0.19, 0.0, 0.02]))
     with pytest.raises(BudgetExceededError):
         trace_channel(ph, tx, [rx], F0, rays=5000, max_interactions=4, budget=Budget(max_ray_segments=1000))
+
+
+def test_antenna_patterns_and_polarization():
+    """Dipole along z seen at angle theta from its axis: |a| = sin(theta) * lambda0 / (4 pi n d)
+    (api.md: dipole weights by sin theta); crossed polarizations on a line of sight couple nothing."""
+    ph = homogeneous_sphere(27.9)
+    n = np.sqrt(27.9)
+    tx = Antenna(np.zeros(3), polarization=Z, pattern="dipole")
+    theta = np.deg2rad(35.0)
+    d = 0.07
+    rx = Antenna(d * np.array([np.sin(theta), 0.0, np.cos(theta)]), polarization=Z)
+    p = first_path(trace_channel(ph, tx, [rx], F0, rays=2000, max_interactions=1))
+    assert abs(abs(p.gain) / (np.sin(theta) * LAMBDA0 / (4 * np.pi * n * d)) - 1) < 5e-3
+    crossed = trace_channel(ph, Antenna(np.zeros(3), polarization=Z), [Antenna(np.array([0.05, 0.0, 0.0]), polarization=Y)],
+                            F0, rays=2000, max_interactions=1)
+    assert abs(first_path(crossed).gain) < 1e-12
