@@ -6,14 +6,12 @@ plain data classes goes through here, so an interface change is one edit.
 
 from __future__ import annotations
 
-import io
 import logging
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from raytrace.errors import PhantomValidationError
 from raytrace.phantom import Phantom
 
 log = logging.getLogger("capsule_rt.adapters")
@@ -123,11 +121,9 @@ def scenario_spec(sid: str, s: Any) -> ScenarioSpec:
 
 # --------------------------------------------------------------- glTF
 def load_glb(glb: bytes, manifest: dict, *, max_bytes: int | None = None, max_triangles: int | None = None) -> Phantom:
-    """Parse and validate an uploaded phantom (raises PhantomValidationError / InputError)."""
-    try:
-        from raytrace.gltf import load_phantom  # type: ignore[import-not-found]
-    except ImportError:
-        return _fallback_load_glb(glb, manifest, max_triangles=max_triangles)
+    """Parse and validate an uploaded phantom (raises PhantomValidationError / InputError naming the field)."""
+    from raytrace.gltf import load_phantom
+
     kwargs: dict[str, Any] = {}
     if max_bytes is not None:
         kwargs["max_bytes"] = max_bytes
@@ -137,62 +133,12 @@ def load_glb(glb: bytes, manifest: dict, *, max_bytes: int | None = None, max_tr
 
 
 def export_glb(phantom: Phantom) -> bytes:
-    try:
-        from raytrace.gltf import export_glb as _export  # type: ignore[import-not-found]
-    except ImportError:
-        return _fallback_export_glb(phantom)
+    from raytrace.gltf import export_glb as _export
+
     return _export(phantom)
 
 
-def _fallback_export_glb(phantom: Phantom) -> bytes:
-    import trimesh
+def export_manifest(phantom: Phantom) -> dict:
+    from raytrace.gltf import export_manifest as _export
 
-    scene = trimesh.Scene()
-    for organ in phantom.organs:
-        scene.add_geometry(organ.mesh.copy(), node_name=organ.name, geom_name=organ.name)
-    return scene.export(file_type="glb")
-
-
-def _fallback_load_glb(glb: bytes, manifest: dict, *, max_triangles: int | None = None) -> Phantom:
-    """Minimal loader used until ``raytrace.gltf`` exists: nodes named after organs."""
-    import trimesh
-
-    from raytrace.phantom import Material, Organ
-
-    try:
-        scene = trimesh.load(io.BytesIO(glb), file_type="glb", force="scene", process=False)
-    except Exception as exc:  # trimesh raises many types for broken files
-        raise PhantomValidationError(f"cannot parse the .glb: {exc}", field="mesh") from exc
-    scale = 1e-3 if manifest.get("units", "m") == "mm" else 1.0
-    meshes: dict[str, trimesh.Trimesh] = {}
-    for node in scene.graph.nodes_geometry:
-        transform, geom_name = scene.graph[node]
-        mesh = scene.geometry[geom_name].copy()
-        mesh.apply_transform(transform)
-        mesh.apply_scale(scale)
-        meshes[str(node)] = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True, validate=False)
-    organs_spec = manifest.get("organs", {})
-    missing = sorted(set(organs_spec) - set(meshes))
-    extra = sorted(set(meshes) - set(organs_spec))
-    if missing:
-        raise PhantomValidationError(f"manifest organ(s) {missing} have no mesh node in the .glb", field=f"manifest.organs.{missing[0]}")
-    if extra:
-        raise PhantomValidationError(f"mesh node(s) {extra} are not named in the manifest", field="manifest.organs")
-    organs = []
-    for name, spec in organs_spec.items():
-        material = Material(
-            tissue=spec.get("tissue"),
-            relative_permittivity=spec.get("relative_permittivity"),
-            conductivity_s_per_m=spec.get("conductivity_s_per_m"),
-        )
-        organs.append(Organ(name, material, meshes[name]))
-    sites = {}
-    for name, pos in manifest.get("sites", {}).items():
-        sites[name] = ("capsule", [float(x) * scale for x in pos])
-    phantom = Phantom.build(manifest.get("name", "uploaded"), organs, {}, description=manifest.get("description", ""), max_triangles=max_triangles)
-    for name, (_, pos) in sites.items():
-        idx = phantom.medium_index(np.asarray(pos)[None, :], field=f"manifest.sites.{name}")[0]
-        from raytrace.phantom import Site
-
-        phantom.sites[name] = Site(name, "sensor" if idx < 0 else "capsule", np.asarray(pos), phantom.medium_name(idx))
-    return phantom
+    return _export(phantom)

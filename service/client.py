@@ -73,6 +73,8 @@ def _parse(call: _Call, response: httpx.Response):
         return response.content if call.model is None else response.text
     if call.model is None:
         return None
+    if call.model is dict:
+        return response.json()
     return call.model.model_validate(response.json())
 
 
@@ -110,6 +112,10 @@ class _Endpoints:
     @staticmethod
     def phantom_mesh(phantom_id: str) -> _Call:
         return _Call("GET", f"/v1/phantoms/{phantom_id}/mesh", None, {}, raw=True)
+
+    @staticmethod
+    def phantom_manifest(phantom_id: str) -> _Call:
+        return _Call("GET", f"/v1/phantoms/{phantom_id}/manifest", dict, {})  # type: ignore[arg-type]
 
     @staticmethod
     def delete_phantom(phantom_id: str) -> _Call:
@@ -198,6 +204,9 @@ class Client:
     def phantom_mesh(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> bytes:
         return self._do(_Endpoints.phantom_mesh(phantom_id), headers)
 
+    def phantom_manifest(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> dict:
+        return self._do(_Endpoints.phantom_manifest(phantom_id), headers)
+
     def delete_phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> None:
         return self._do(_Endpoints.delete_phantom(phantom_id), headers)
 
@@ -267,6 +276,9 @@ class AsyncClient:
 
     async def phantom_mesh(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> bytes:
         return await self._do(_Endpoints.phantom_mesh(phantom_id), headers)
+
+    async def phantom_manifest(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> dict:
+        return await self._do(_Endpoints.phantom_manifest(phantom_id), headers)
 
     async def delete_phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> None:
         return await self._do(_Endpoints.delete_phantom(phantom_id), headers)

@@ -144,6 +144,14 @@ class Registry:
             return self.store.load(phantom_id).mesh
         raise NotFound(self._unknown(phantom_id), loc=["path", "phantom_id"])
 
+    def manifest(self, phantom_id: str) -> dict:
+        """The manifest that reloads :meth:`mesh_glb` through POST /v1/phantoms."""
+        if phantom_id in self.builtins:
+            return adapters.export_manifest(self.builtins[phantom_id])
+        if is_upload_id(phantom_id) and self.store.exists(phantom_id):
+            return self.store.load(phantom_id).manifest
+        raise NotFound(self._unknown(phantom_id), loc=["path", "phantom_id"])
+
     def forget(self, phantom_id: str) -> None:
         with self._lock:
             self._cache.pop(phantom_id, None)

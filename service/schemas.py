@@ -555,14 +555,23 @@ class ManifestOrgan(Strict):
         return self
 
 
+class ManifestSite(Strict):
+    kind: Literal["capsule", "sensor"] | None = Field(None, description="Default: sensor in air, else capsule.")
+    position_m: Vec3 = Field(description="Position [m] (always metres, whatever `units`).")
+
+
 class Manifest(Strict):
-    """The JSON part of an upload (api.md "POST /v1/phantoms")."""
+    """The JSON part of an upload (api.md "POST /v1/phantoms"); checked again, strictly, by the loader."""
 
     name: str = Field(min_length=1, max_length=128, description="Human name of the phantom.")
     description: str = Field("", max_length=2000)
-    units: Literal["m", "mm"] = Field("m", description="Unit of the mesh coordinates.")
-    organs: dict[Name, ManifestOrgan] = Field(min_length=1, max_length=256, description="Node name -> medium.")
-    sites: dict[Name, Vec3] = Field(default_factory=dict, max_length=1024, description="Site name -> position [manifest units].")
+    units: Literal["m", "mm"] = Field(description="Unit of the mesh coordinates (and of `[x, y, z]` sites).")
+    organs: dict[Name, ManifestOrgan] = Field(min_length=1, max_length=256, description="Mesh node name -> medium.")
+    sites: dict[Name, Vec3 | ManifestSite] = Field(
+        default_factory=dict,
+        max_length=1024,
+        description="Site name -> [x, y, z] in `units`, or {kind, position_m} with the position in metres.",
+    )
 
 
 class UploadResponse(PhantomOut):

@@ -26,6 +26,7 @@ OPERATIONS = {
     ("get", "/v1/phantoms/{phantom_id}"): "get_phantom",
     ("delete", "/v1/phantoms/{phantom_id}"): "delete_phantom",
     ("get", "/v1/phantoms/{phantom_id}/mesh"): "get_phantom_mesh",
+    ("get", "/v1/phantoms/{phantom_id}/manifest"): "get_phantom_manifest",
     ("get", "/healthz"): "healthz",
     ("get", "/readyz"): "readyz",
     ("get", "/metrics"): "metrics",

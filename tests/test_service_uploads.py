@@ -276,3 +276,25 @@ def test_the_reader_stops_pulling_the_body_at_the_cap(glb_phantom):
     assert err.loc == ["body", "mesh"] and "1000000" in err.reason
     # Stopped within one chunk of the mesh cap, not after 640 MB.
     assert pulled["bytes"] <= 1_000_000 + 10_000 + 16 * 1024 + 2 * len(chunk)
+
+
+def test_builtin_phantom_round_trips_through_mesh_and_manifest(client, settings):
+    """GET /mesh + GET /manifest of a built-in re-upload as the same organs, sites and media."""
+    mesh = client.get("/v1/phantoms/thesis-fig-5-6/mesh").content
+    manifest = client.get("/v1/phantoms/thesis-fig-5-6/manifest").json()
+    big = TestClient(create_app(settings.model_copy(update={"max_upload_bytes": 20 * 2**20})))
+    with big:
+        r = upload(big, mesh, manifest)
+        assert r.status_code == 201, r.text
+        original = client.get("/v1/phantoms/thesis-fig-5-6").json()
+        copy = r.json()
+        # .glb stores float32 coordinates: geometry agrees to float32 precision, the rest exactly.
+        strip = lambda organs: [{k: v for k, v in o.items() if k != "bounds_m"} for o in organs]
+        assert strip(copy["organs"]) == strip(original["organs"])
+        for a, b in zip(copy["organs"], original["organs"]):
+            assert a["bounds_m"] == pytest.approx(b["bounds_m"], abs=1e-6)
+        assert copy["sites"].keys() == original["sites"].keys()
+        for name, site in copy["sites"].items():
+            assert (site["kind"], site["medium"]) == (original["sites"][name]["kind"], original["sites"][name]["medium"])
+            assert site["position_m"] == pytest.approx(original["sites"][name]["position_m"], abs=1e-6)
+        assert_field(big.get("/v1/phantoms/up-0000000000000000/manifest"), 404, "path", "phantom_id")

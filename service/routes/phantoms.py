@@ -96,6 +96,21 @@ async def get_phantom_mesh(request: Request, phantom_id: str = PhantomIdPath) ->
     )
 
 
+@router.get(
+    "/{phantom_id}/manifest",
+    operation_id="get_phantom_manifest",
+    summary="The manifest that, with the .glb of /mesh, re-uploads the phantom",
+    responses={
+        200: {"content": {"application/json": {"schema": {"type": "object"}}}, "description": "The manifest (schema `Manifest`)."},
+        **error_responses(404, 422),
+    },
+)
+async def get_phantom_manifest(request: Request, phantom_id: str = PhantomIdPath) -> JSONResponse:
+    reg = state(request).registry
+    manifest = await anyio.to_thread.run_sync(reg.manifest, phantom_id)
+    return JSONResponse(manifest)
+
+
 @router.delete(
     "/{phantom_id}",
     status_code=204,
@@ -147,13 +162,13 @@ async def upload_phantom(request: Request) -> JSONResponse:
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise Unprocessable(f"manifest is not valid JSON: {exc}", loc=["body", "manifest"]) from exc
     try:
-        manifest = Manifest.model_validate(raw_manifest)
+        Manifest.model_validate(raw_manifest)
     except ValidationError as exc:
         err = exc.errors()[0]
         raise Unprocessable(
             f"manifest: {err['msg']}", loc=["body", "manifest", *err.get("loc", ())]
         ) from exc
-    manifest_dict = manifest.model_dump(exclude_none=True)
+    manifest_dict = raw_manifest  # the loader re-validates it strictly; stored as sent
 
     def build(budget: Budget):
         phantom = adapters.load_glb(
