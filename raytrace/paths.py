@@ -55,6 +55,8 @@ class Segment:
 
     medium: str
     length_m: float
+    start_m: np.ndarray | None = None  # segment end points (the tracer fills them)
+    end_m: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

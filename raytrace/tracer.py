@@ -364,7 +364,8 @@ def _make_path(phantom, steps, fields, row, tx_m, rx_m, tx_medium, band) -> Path
     points.append(np.asarray(rx_m, float))
     media.append(med)
     segments = tuple(
-        Segment(phantom.medium_name(m), float(np.linalg.norm(points[i + 1] - points[i])))
+        Segment(phantom.medium_name(m), float(np.linalg.norm(points[i + 1] - points[i])),
+                start_m=points[i].copy(), end_m=points[i + 1].copy())
         for i, m in enumerate(media)
     )
     return Path(
