@@ -19,7 +19,7 @@ SMALL_CHANNEL = {
     "transmitter": {"site": "small_intestine_1"},
     "receivers": [{"site": "belt_anterior"}, {"name": "side", "site": "belt_left"}],
     "rays": 2000,
-    "max_interactions": 2,
+    "max_interactions": 6,  # small intestine -> cavity -> muscle -> fat -> skin -> air: 5 refractions
 }
 
 PROFILE = {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}, {"delay_s": 2.0e-9, "gain": {"re": -2e-4, "im": 1e-4}}]}
