@@ -238,16 +238,31 @@ class ChannelResponse(Out):
 
 
 # ----------------------------------------------------------------- ranging
+#: Bound on each component of an input path gain [-]: a passive channel has |a| <= 1 (caustics
+#: are capped at +20 dB); the margin keeps |a|^2 sums far from float overflow.
+MAX_GAIN_COMPONENT = 1e6
+
+
+class GainIn(Strict):
+    re: float = Field(ge=-MAX_GAIN_COMPONENT, le=MAX_GAIN_COMPONENT, description="Real part [-].")
+    im: float = Field(ge=-MAX_GAIN_COMPONENT, le=MAX_GAIN_COMPONENT, description="Imaginary part [-].")
+
+
+class BandGainIn(Strict):
+    frequency_hz: FrequencyHz = Field(description="Frequency [Hz].")
+    gain: GainIn = Field(description="Complex path gain at that frequency [-].")
+
+
 class PathIn(Strict):
     """A path of a profile: at least delay and complex gain; the other channel fields are accepted and ignored."""
 
     delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute delay [s].")
-    gain: Complex = Field(description="Complex gain [-].")
+    gain: GainIn = Field(description="Complex gain [-].")
     gain_db: float | None = None
     length_m: float | None = None
     interactions: list[Interaction] | None = Field(None, max_length=64)
     segments: list[Segment] | None = Field(None, max_length=128)
-    band_gains: list[BandGain] | None = Field(None, max_length=MAX_BAND_POINTS)
+    band_gains: list[BandGainIn] | None = Field(None, max_length=MAX_BAND_POINTS)
 
 
 class ProfileIn(Strict):

@@ -63,7 +63,7 @@ class Settings(BaseSettings):
         2, ge=1, le=256, description="Heavy computations (channel, ranging) running at once per worker process."
     )
     max_queue: int = Field(
-        0,
+        8,
         ge=0,
         le=1024,
         description="Heavy requests allowed to wait for a slot; beyond it the server answers 503 + Retry-After.",
