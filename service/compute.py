@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable, TypeVar
+from typing import Awaitable, Callable, TypeVar
 
 import anyio
 import anyio.to_thread
@@ -24,6 +24,9 @@ from service.errors import ServerSaturated
 from service.metrics import Metrics
 
 T = TypeVar("T")
+
+#: How often a running computation checks whether its client is still there [s].
+DISCONNECT_POLL_S = 0.25
 
 
 class ComputeGate:
@@ -53,8 +56,17 @@ class ComputeGate:
             for b in list(self._budgets.values()):
                 b.cancel()
 
-    async def run(self, fn: Callable[[Budget], T], budget: Budget) -> T:
-        """Run ``fn(budget)`` in a worker thread, or raise :class:`ServerSaturated` at once."""
+    async def run(
+        self,
+        fn: Callable[[Budget], T],
+        budget: Budget,
+        disconnected: Callable[[], Awaitable[bool]] | None = None,
+    ) -> T:
+        """Run ``fn(budget)`` in a worker thread, or raise :class:`ServerSaturated` at once.
+
+        ``disconnected`` (e.g. ``request.is_disconnected``) is polled while the
+        thread runs; when the client has gone the budget is cancelled, so the
+        computation stops at its next budget check instead of running on."""
         with self._lock:
             if self._admitted >= self.max_concurrency + self.max_queue:
                 self.metrics.rejected.inc()
@@ -82,8 +94,28 @@ class ComputeGate:
                     self._running -= 1
                     self._update_gauges()
 
+        async def watch() -> None:
+            while True:
+                await anyio.sleep(DISCONNECT_POLL_S)
+                if await disconnected():
+                    budget.cancel()
+                    return
+
         try:
-            return await anyio.to_thread.run_sync(work, limiter=self.limiter)
+            if disconnected is None:
+                return await anyio.to_thread.run_sync(work, limiter=self.limiter)
+            outcome: dict[str, object] = {}
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(watch)
+                try:
+                    outcome["value"] = await anyio.to_thread.run_sync(work, limiter=self.limiter)
+                except Exception as exc:  # re-raised below, outside the task group (no ExceptionGroup)
+                    outcome["error"] = exc
+                finally:
+                    tg.cancel_scope.cancel()
+            if "error" in outcome:
+                raise outcome["error"]  # type: ignore[misc]
+            return outcome["value"]  # type: ignore[return-value]
         except BudgetExceededError as exc:
             self.metrics.budget_exceeded.labels(exc.kind).inc()
             raise

@@ -100,3 +100,37 @@ def test_excess_heavy_requests_get_503_and_health_stays_up(held_server):
     assert gate.admitted == 0
     # Capacity is back: a new request is admitted.
     assert httpx.post(f"{url}/v1/channel", json=SMALL_CHANNEL, timeout=120).status_code == 200
+
+
+def test_a_client_that_goes_away_cancels_its_computation(make_settings, monkeypatch):
+    """The budget of a computation whose client disconnected is cancelled (the tracer then stops itself)."""
+    seen = {}
+    cancelled = threading.Event()
+
+    def watching_run(resolved, budget=None):
+        seen["budget"] = budget
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if budget._cancelled.is_set():
+                cancelled.set()
+                budget.charge(0)  # raises BudgetExceededError(kind="cancelled"), as the tracer would
+            time.sleep(0.01)
+        raise AssertionError("never cancelled")
+
+    monkeypatch.setattr(channel_ops, "run", watching_run)
+    app = create_app(make_settings())
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    _wait(lambda: server.started, "server start")
+    try:
+        with pytest.raises(httpx.TimeoutException):
+            httpx.post(f"http://127.0.0.1:{port}/v1/channel", json=SMALL_CHANNEL, timeout=0.5)
+        assert cancelled.wait(30), "the computation was not cancelled after the client left"
+        _wait(lambda: app.state.capsule.gate.admitted == 0, "slot released")
+        metrics = httpx.get(f"http://127.0.0.1:{port}/metrics").text
+        assert 'capsule_rt_budget_exceeded_total{kind="cancelled"} 1.0' in metrics
+    finally:
+        server.should_exit = True
+        thread.join(30)

@@ -39,7 +39,7 @@ async def compute_channel(req: ChannelRequest, request: Request) -> ChannelRespo
         return channel_ops.result_to_dict(result, resolved)
 
     budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments)
-    out = await st.gate.run(work, budget)
+    out = await st.gate.run(work, budget, disconnected=request.is_disconnected)
     st.metrics.rays.inc(out["stats"]["rays_launched"])
     st.metrics.segments.inc(out["stats"]["ray_segments_traced"])
     st.metrics.paths.inc(out["stats"]["paths_found"])

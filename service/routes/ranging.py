@@ -17,7 +17,11 @@ _ERRORS = error_responses(400, 422, 503, 504)
 
 async def _run(request: Request, fn, req) -> RangingResponse:
     st = state(request)
-    out = await st.gate.run(lambda budget: fn(req, st.settings), Budget(deadline_s=st.settings.request_deadline_s))
+    out = await st.gate.run(
+        lambda budget: fn(req, st.settings),
+        Budget(deadline_s=st.settings.request_deadline_s),
+        disconnected=request.is_disconnected,
+    )
     return RangingResponse.model_validate(out)
 
 
