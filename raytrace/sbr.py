@@ -19,7 +19,7 @@ only seeds: :func:`raytrace.refine.refine` makes every kept path exact.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -59,6 +59,180 @@ def _refract(d: np.ndarray, ns: np.ndarray, dns: np.ndarray, eta: np.ndarray):
     return t, tir, ci, ct
 
 
+#: Rays processed per Embree batch inside one bounce (bounds the temporaries' memory).
+CHUNK_RAYS = 1 << 18
+
+
+@dataclass
+class _Context:
+    scene: TracerScene
+    n_re: np.ndarray
+    alpha: np.ndarray
+    parent: np.ndarray
+    transparent: np.ndarray
+    threshold: float
+    kmax: int
+    rx_m: np.ndarray
+    rx_medium: np.ndarray
+
+
+@dataclass
+class _State:
+    """Live rays: origin (already pushed off the surface), direction, medium, power factor,
+    tube radius and angle, unfolded length, events so far, event-log pointer, launch index."""
+
+    o: np.ndarray
+    d: np.ndarray
+    med: np.ndarray
+    w: np.ndarray
+    rad: np.ndarray
+    ang: np.ndarray
+    length: np.ndarray
+    nint: np.ndarray
+    hist: np.ndarray
+    src: np.ndarray
+
+    def take(self, index) -> "_State":
+        return _State(*(getattr(self, f)[index] for f in _STATE_FIELDS))
+
+    @staticmethod
+    def concat(parts: list["_State"]) -> "_State | None":
+        if not parts:
+            return None
+        if len(parts) == 1:
+            return parts[0]
+        return _State(*(np.concatenate([getattr(p, f) for p in parts]) for f in _STATE_FIELDS))
+
+
+_STATE_FIELDS = ("o", "d", "med", "w", "rad", "ang", "length", "nint", "hist", "src")
+
+
+@dataclass
+class _Log:
+    """Event log: one entry per (interacting ray, kind); rays point at their last entry."""
+
+    parent: list = field(default_factory=list)
+    code: list = field(default_factory=list)
+    face: list = field(default_factory=list)
+    size: int = 0
+
+
+@dataclass
+class _Found:
+    rx: list = field(default_factory=list)
+    hist: list = field(default_factory=list)
+    n: list = field(default_factory=list)
+    src: list = field(default_factory=list)
+    close: list = field(default_factory=list)
+
+
+def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | None":
+    """Cast one chunk of live rays, record receptions, and spawn the next generation."""
+    scene = ctx.scene
+    off = scene.offset_m
+    n_re = ctx.n_re
+    threshold = ctx.threshold
+    o, d, med = s.o, s.d, s.med
+    face, t, uv = scene.first_hit(o, d, barycentric=True, exact=False)
+    # reception (rays in the receiver's medium only)
+    for r in range(len(ctx.rx_m)):
+        i = np.flatnonzero(med == ctx.rx_medium[r])
+        if len(i) == 0:
+            continue
+        vec = ctx.rx_m[r] - o[i]
+        di = d[i]
+        tt = np.einsum("ij,ij->i", vec, di)
+        sel = (tt > 0.0) & (tt < t[i])
+        i, vec, di, tt = i[sel], vec[sel], di[sel], tt[sel]
+        perp = np.linalg.norm(vec - tt[:, None] * di, axis=1)
+        radius = RECEPTION_FACTOR * (s.rad[i] + tt * s.ang[i])
+        got = perp <= radius
+        if got.any():
+            i = i[got]
+            found.rx.append(np.full(len(i), r))
+            found.hist.append(s.hist[i])
+            found.n.append(s.nint[i])
+            found.src.append(s.src[i])
+            found.close.append(perp[got] / np.maximum(radius[got], 1e-300))
+    keep = np.flatnonzero(face >= 0)
+    if len(keep) == 0:
+        return None
+    f = face[keep]
+    tk = t[keep]
+    dk, mk = d[keep], med[keep]
+    pt = o[keep] + tk[:, None] * dk
+    wk = s.w[keep] * np.exp(-2.0 * ctx.alpha[mk + 1] * tk)
+    radk = s.rad[keep] + tk * s.ang[keep]
+    lengthk = s.length[keep] + tk
+    fn = scene.face_normals[f]
+    dn = np.einsum("ij,ij->i", dk, fn)
+    leaving = dn > 0.0
+    organ = scene.face_organ[f]
+    parent = ctx.parent[organ]
+    m_from = np.where(leaving, organ, parent)
+    m_to = np.where(leaving, parent, organ)
+    sg = np.where(leaving, 1.0, -1.0)
+    valid = (m_from == mk) & (wk >= threshold)
+    transparent = ctx.transparent[f]
+
+    nk, angk = s.nint[keep], s.ang[keep]
+    ev = valid & ~transparent & (nk < ctx.kmax)
+    p_mask = valid & transparent
+    # interaction physics over every hit at once (masks, no per-kind gathers)
+    ns = scene.smooth_normals_uv(f, uv[keep])
+    flip = np.einsum("ij,ij->i", ns, fn) <= 0.0
+    ns[flip] = fn[flip]
+    n1, n2 = n_re[m_from + 1], n_re[m_to + 1]
+    dns = np.einsum("ij,ij->i", dk, ns)
+    dt, tir, ci, ct = _refract(dk, ns, dns, n1 / n2)
+    # pruning weight only: lossless Fresnel power reflectance from Re n (mean of TE, TM)
+    n1c, n2c, n1t, n2i = n1 * ci, n2 * ct, n1 * ct, n2 * ci
+    r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-300)
+    r_tm = (n2i - n1t) / np.maximum(n2i + n1t, 1e-300)
+    refl_p = np.where(tir, 1.0, np.clip(0.5 * (r_te * r_te + r_tm * r_tm), 0.0, 1.0))
+    dr = dk - (2.0 * dns)[:, None] * ns
+    wr = wk * refl_p
+    wt = wk - wr
+    r_mask = ev & (np.einsum("ij,ij->i", dr, fn) * sg < 0.0) & (wr >= threshold)
+    t_mask = ev & ~tir & (wt >= threshold) & (np.einsum("ij,ij->i", dt, fn) * sg > 0.0)
+    mag = np.minimum(np.maximum(np.maximum(n1 * ci / np.maximum(n2 * ct, 1e-3), n1 / n2), 1.0), 50.0)
+    # event log: one int32 entry per spawned reflected / transmitted ray
+    base = log.size
+    r_idx, t_idx = np.flatnonzero(r_mask), np.flatnonzero(t_mask)
+    hk = s.hist[keep]
+    if len(r_idx) or len(t_idx):
+        log.parent.append(np.concatenate([hk[r_idx], hk[t_idx]]).astype(np.int32))
+        log.code.append(np.concatenate([encode(organ[r_idx], leaving[r_idx], 1),
+                                        encode(organ[t_idx], leaving[t_idx], 0)]).astype(np.int32))
+        log.face.append(np.concatenate([f[r_idx], f[t_idx]]).astype(np.int32))
+        log.size += len(r_idx) + len(t_idx)
+    n_r, n_t, n_p = int(r_mask.sum()), int(t_mask.sum()), int(p_mask.sum())
+    total = n_r + n_t + n_p
+    if total == 0:
+        return None
+    a, b = n_r, n_r + n_t
+    push = (sg * off)[:, None] * fn
+    o = np.empty((total, 3))
+    np.compress(r_mask, pt - push, axis=0, out=o[:a])
+    o_tp = pt + push
+    np.compress(t_mask, o_tp, axis=0, out=o[a:b])
+    np.compress(p_mask, o_tp, axis=0, out=o[b:])
+    d = np.empty((total, 3))
+    np.compress(r_mask, dr, axis=0, out=d[:a])
+    np.compress(t_mask, dt, axis=0, out=d[a:b])
+    np.compress(p_mask, dk, axis=0, out=d[b:])
+    med = np.concatenate([m_from[r_mask], m_to[t_mask], m_to[p_mask]])
+    w = np.concatenate([wr[r_mask], wt[t_mask], wk[p_mask]])
+    rad = np.concatenate([radk[r_mask], radk[t_mask], radk[p_mask]])
+    ang = np.concatenate([angk[r_mask], (angk * mag)[t_mask], angk[p_mask]])
+    nint = np.concatenate([nk[r_mask] + 1, nk[t_mask] + 1, nk[p_mask]])
+    hist = np.concatenate([base + np.arange(len(r_idx) + len(t_idx)), hk[p_mask]])
+    src = s.src[keep]
+    src = np.concatenate([src[r_mask], src[t_mask], src[p_mask]])
+    length = np.concatenate([lengthk[r_mask], lengthk[t_mask], lengthk[p_mask]])
+    return _State(o=o, d=d, med=med, w=w, rad=rad, ang=ang, length=length, nint=nint, hist=hist, src=src)
+
+
 def shoot(
     scene: TracerScene,
     media: MediaTable,
@@ -81,139 +255,54 @@ def shoot(
     kmax = int(max_interactions)
     width = max(kmax, 1)
     launch = fibonacci_sphere(rays)
-    spacing = angular_spacing_rad(rays)
-    n_re = media.n_real
-    n_c = media.n[0]
-    alpha = (2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -n_c.imag  # (M+1,) Np/m
-    threshold = 10.0 ** (-dynamic_range_db / 10.0)
-    off = scene.offset_m
-    rx_m = np.asarray(rx_m, float)
-
-    o = np.broadcast_to(np.asarray(tx_m, float), (rays, 3)).copy()
-    d = launch.copy()
-    med = np.full(rays, tx_medium, np.int64)
-    w = np.ones(rays)
-    rad = np.zeros(rays)
-    ang = np.full(rays, spacing)
-    nint = np.zeros(rays, np.int64)
-    hist = np.full(rays, -1, np.int64)
-    src = np.arange(rays)
-    log_parent: list[np.ndarray] = []
-    log_code: list[np.ndarray] = []
-    log_face: list[np.ndarray] = []
-    logged = 0
-
-    out_rx, out_hist, out_n, out_src, out_close = [], [], [], [], []
+    ctx = _Context(
+        scene=scene,
+        n_re=media.n_real,
+        alpha=(2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -media.n[0].imag,  # Np/m
+        parent=media.parent,
+        transparent=media.face_transparent,
+        threshold=10.0 ** (-dynamic_range_db / 10.0),
+        kmax=kmax,
+        rx_m=np.asarray(rx_m, float),
+        rx_medium=np.asarray(rx_medium),
+    )
+    state = _State(
+        o=np.broadcast_to(np.asarray(tx_m, float), (rays, 3)).copy(),
+        d=launch.copy(),
+        med=np.full(rays, tx_medium, np.int64),
+        w=np.ones(rays),
+        rad=np.zeros(rays),
+        ang=np.full(rays, angular_spacing_rad(rays)),
+        length=np.zeros(rays),
+        nint=np.zeros(rays, np.int64),
+        hist=np.full(rays, -1, np.int64),
+        src=np.arange(rays),
+    )
+    log = _Log()
+    found = _Found()
     segments = 0
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
     for _ in range(max_steps):
-        if len(o) == 0:
+        n_live = len(state.o)
+        if n_live == 0:
             break
-        face, t, uv = scene.first_hit(o, d, barycentric=True, exact=False)
-        segments += len(o)
+        children = [
+            _bounce(ctx, state.take(slice(a, a + CHUNK_RAYS)), log, found)
+            for a in range(0, n_live, CHUNK_RAYS)
+        ]
+        segments += n_live
         if budget is not None:
-            budget.charge(len(o))
-        # reception (rays in the receiver's medium only)
-        for r in range(len(rx_m)):
-            i = np.flatnonzero(med == rx_medium[r])
-            if len(i) == 0:
-                continue
-            vec = rx_m[r] - o[i]
-            di = d[i]
-            tt = np.einsum("ij,ij->i", vec, di)
-            sel = (tt > 0.0) & (tt < t[i])
-            i, vec, di, tt = i[sel], vec[sel], di[sel], tt[sel]
-            perp = np.linalg.norm(vec - tt[:, None] * di, axis=1)
-            radius = RECEPTION_FACTOR * (rad[i] + tt * ang[i])
-            got = perp <= radius
-            if got.any():
-                i = i[got]
-                out_rx.append(np.full(len(i), r))
-                out_hist.append(hist[i])
-                out_n.append(nint[i])
-                out_src.append(src[i])
-                out_close.append(perp[got] / np.maximum(radius[got], 1e-300))
-        keep = np.flatnonzero(face >= 0)
-        if len(keep) == 0:
+            budget.charge(n_live)
+        state = _State.concat([c for c in children if c is not None])
+        if state is None:
             break
-        f = face[keep]
-        tk = t[keep]
-        dk, mk = d[keep], med[keep]
-        pt = o[keep] + tk[:, None] * dk
-        wk = w[keep] * np.exp(-2.0 * alpha[mk + 1] * tk)
-        radk = rad[keep] + tk * ang[keep]
-        fn = scene.face_normals[f]
-        dn = np.einsum("ij,ij->i", dk, fn)
-        leaving = dn > 0.0
-        organ = scene.face_organ[f]
-        parent = media.parent[organ]
-        m_from = np.where(leaving, organ, parent)
-        m_to = np.where(leaving, parent, organ)
-        sg = np.where(leaving, 1.0, -1.0)
-        valid = (m_from == mk) & (wk >= threshold)
-        transparent = media.face_transparent[f]
-
-        nk, angk = nint[keep], ang[keep]
-        ev = valid & ~transparent & (nk < kmax)
-        p_mask = valid & transparent
-        # interaction physics over every hit at once (masks, no per-kind gathers)
-        ns = scene.smooth_normals_uv(f, uv[keep])
-        flip = np.einsum("ij,ij->i", ns, fn) <= 0.0
-        ns[flip] = fn[flip]
-        n1, n2 = n_re[m_from + 1], n_re[m_to + 1]
-        dns = np.einsum("ij,ij->i", dk, ns)
-        dt, tir, ci, ct = _refract(dk, ns, dns, n1 / n2)
-        # pruning weight only: lossless Fresnel power reflectance from Re n (mean of TE, TM)
-        n1c, n2c, n1t, n2i = n1 * ci, n2 * ct, n1 * ct, n2 * ci
-        r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-300)
-        r_tm = (n2i - n1t) / np.maximum(n2i + n1t, 1e-300)
-        refl_p = np.where(tir, 1.0, np.clip(0.5 * (r_te * r_te + r_tm * r_tm), 0.0, 1.0))
-        dr = dk - (2.0 * dns)[:, None] * ns
-        wr = wk * refl_p
-        wt = wk - wr
-        r_mask = ev & (np.einsum("ij,ij->i", dr, fn) * sg < 0.0) & (wr >= threshold)
-        t_mask = ev & ~tir & (wt >= threshold) & (np.einsum("ij,ij->i", dt, fn) * sg > 0.0)
-        mag = np.minimum(np.maximum(np.maximum(n1 * ci / np.maximum(n2 * ct, 1e-3), n1 / n2), 1.0), 50.0)
-        # event log (interacting rays only): reflected entry at base + e, transmitted at base + E + e
-        ev_idx = np.flatnonzero(ev)
-        n_ev = len(ev_idx)
-        evpos = np.cumsum(ev) - 1
-        base = logged
-        if n_ev:
-            hk = hist[keep][ev_idx]
-            log_parent.append(np.concatenate([hk, hk]))
-            log_code.append(np.concatenate([encode(organ[ev_idx], leaving[ev_idx], 1),
-                                            encode(organ[ev_idx], leaving[ev_idx], 0)]))
-            log_face.append(np.concatenate([f[ev_idx], f[ev_idx]]))
-            logged += 2 * n_ev
-        n_r, n_t, n_p = int(r_mask.sum()), int(t_mask.sum()), int(p_mask.sum())
-        total = n_r + n_t + n_p
-        if total == 0:
-            break
-        a, b = n_r, n_r + n_t
-        push = (sg * off)[:, None] * fn
-        o = np.empty((total, 3))
-        np.compress(r_mask, pt - push, axis=0, out=o[:a])
-        o_tp = pt + push
-        np.compress(t_mask, o_tp, axis=0, out=o[a:b])
-        np.compress(p_mask, o_tp, axis=0, out=o[b:])
-        d = np.empty((total, 3))
-        np.compress(r_mask, dr, axis=0, out=d[:a])
-        np.compress(t_mask, dt, axis=0, out=d[a:b])
-        np.compress(p_mask, dk, axis=0, out=d[b:])
-        med = np.concatenate([m_from[r_mask], m_to[t_mask], m_to[p_mask]])
-        w = np.concatenate([wr[r_mask], wt[t_mask], wk[p_mask]])
-        rad = np.concatenate([radk[r_mask], radk[t_mask], radk[p_mask]])
-        ang = np.concatenate([angk[r_mask], (angk * mag)[t_mask], angk[p_mask]])
-        nint = np.concatenate([nk[r_mask] + 1, nk[t_mask] + 1, nk[p_mask]])
-        hist = np.concatenate([base + evpos[r_mask], base + n_ev + evpos[t_mask], hist[keep][p_mask]])
-        src = src[keep]
-        src = np.concatenate([src[r_mask], src[t_mask], src[p_mask]])
-        if len(o) > MAX_LIVE_RAYS:
-            order = np.sort(np.argpartition(-w, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
-            o, d, med, w, rad, ang, nint, hist, src = (
-                a[order] for a in (o, d, med, w, rad, ang, nint, hist, src)
-            )
+        if len(state.o) > MAX_LIVE_RAYS:
+            # keep the rays most likely to matter: power factor over squared unfolded length
+            priority = state.w / np.maximum(state.length, 1e-3) ** 2
+            keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
+            state = state.take(keep)
+    out_rx, out_hist, out_n, out_src, out_close = found.rx, found.hist, found.n, found.src, found.close
+    log_parent, log_code, log_face = log.parent, log.code, log.face
     if not out_rx:
         return Candidates(
             receiver=np.zeros(0, np.int64), codes=np.zeros((0, width), np.int64),
