@@ -82,7 +82,28 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (channel, ranging, bounds, catalogue, phantoms, ops):
         app.include_router(module.router)
     app.add_middleware(RequestContextMiddleware, metrics=metrics)
+    _document_manifest(app)
     return app
+
+
+def _document_manifest(app: FastAPI) -> None:
+    """Add the upload manifest's schema to the OpenAPI components (the multipart
+    part is JSON text, so no route references the model directly)."""
+    from service.schemas import Manifest
+
+    generate = app.openapi
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            schema = generate()
+            model = Manifest.model_json_schema(ref_template="#/components/schemas/{model}")
+            components = schema.setdefault("components", {}).setdefault("schemas", {})
+            components.update(model.pop("$defs", {}))
+            components["Manifest"] = model
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def _default_app() -> FastAPI:

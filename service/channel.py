@@ -159,17 +159,17 @@ def run(resolved: ResolvedChannel, budget: Budget | None = None) -> ChannelResul
     from raytrace.tracer import trace_channel
 
     return trace_channel(
-            resolved.phantom,
-            resolved.transmitter,
-            resolved.receivers,
-            resolved.frequency_hz,
-            band_frequencies_hz=resolved.band_frequencies_hz,
-            max_interactions=resolved.max_interactions,
-            rays=resolved.rays,
-            dynamic_range_db=resolved.dynamic_range_db,
-            homogeneous=resolved.homogeneous,
-            budget=budget,
-        )
+        resolved.phantom,
+        resolved.transmitter,
+        resolved.receivers,
+        resolved.frequency_hz,
+        band_frequencies_hz=resolved.band_frequencies_hz,
+        max_interactions=resolved.max_interactions,
+        rays=resolved.rays,
+        dynamic_range_db=resolved.dynamic_range_db,
+        homogeneous=resolved.homogeneous,
+        budget=budget,
+    )
 
 
 # ------------------------------------------------------------------ conversion

@@ -578,6 +578,24 @@ class ManifestSite(Strict):
 class Manifest(Strict):
     """The JSON part of an upload (api.md "POST /v1/phantoms"); checked again, strictly, by the loader."""
 
+    model_config = ConfigDict(
+        extra="forbid",
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "name": "box with a sphere",
+                    "units": "m",
+                    "organs": {
+                        "body": {"tissue": "muscle"},
+                        "organ": {"relative_permittivity": 11.6, "conductivity_s_per_m": 0.08},
+                    },
+                    "sites": {"capsule": [0.0, 0.0, 0.01], "sensor": {"kind": "sensor", "position_m": [0.0, -0.15, 0.0]}},
+                }
+            ]
+        },
+    )
+
     name: str = Field(min_length=1, max_length=128, description="Human name of the phantom.")
     description: str = Field("", max_length=2000)
     units: Literal["m", "mm"] = Field(description="Unit of the mesh coordinates (and of `[x, y, z]` sites).")

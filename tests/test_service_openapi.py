@@ -87,3 +87,13 @@ def test_request_examples_validate_against_their_models():
     for model in (s.ChannelRequest, s.ToaRequest, s.PdoaRequest, s.RssRequest, s.ToaBoundRequest, s.PdoaBoundRequest, s.RssBoundRequest):
         for example in model.model_config["json_schema_extra"]["examples"]:
             model.model_validate(example)
+
+
+def test_upload_manifest_schema_is_documented():
+    schema = json.loads((ROOT / "openapi.json").read_text())
+    manifest = schema["components"]["schemas"]["Manifest"]
+    assert set(manifest["required"]) == {"name", "units", "organs"}
+    assert manifest["additionalProperties"] is False and manifest["examples"]
+    assert "ManifestOrgan" in schema["components"]["schemas"]
+    body = schema["paths"]["/v1/phantoms"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
+    assert body["required"] == ["mesh", "manifest"]

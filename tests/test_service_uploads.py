@@ -298,3 +298,13 @@ def test_builtin_phantom_round_trips_through_mesh_and_manifest(client, settings)
             assert (site["kind"], site["medium"]) == (original["sites"][name]["kind"], original["sites"][name]["medium"])
             assert site["position_m"] == pytest.approx(original["sites"][name]["position_m"], abs=1e-6)
         assert_field(big.get("/v1/phantoms/up-0000000000000000/manifest"), 404, "path", "phantom_id")
+
+
+def test_the_documented_manifest_example_uploads(client, glb_phantom):
+    from service.schemas import Manifest
+
+    glb, _ = glb_phantom()
+    example = Manifest.model_config["json_schema_extra"]["examples"][0]
+    r = upload(client, glb, example)
+    assert r.status_code == 201, r.text
+    assert r.json()["sites"]["sensor"]["kind"] == "sensor"

@@ -43,7 +43,9 @@ _UPLOAD_BODY = {
                         },
                         "manifest": {
                             "type": "string",
-                            "description": "JSON manifest (schema `Manifest`): name, units, organs, sites.",
+                            "contentMediaType": "application/json",
+                            "description": "JSON text of a manifest (schema `#/components/schemas/Manifest`): "
+                            "name, units, organs (mesh node name -> tissue or explicit medium), sites.",
                         },
                     },
                 },
