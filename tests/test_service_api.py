@@ -440,3 +440,12 @@ def test_every_request_example_of_the_docs_works(make_settings):
             for example in model.model_config["json_schema_extra"]["examples"]:
                 r = api.post(path, json=example)
                 assert r.status_code == 200, (path, example, r.text)
+
+
+def test_metric_labels_stay_bounded_whatever_the_client_sends(api):
+    for i in range(5):
+        api.request(f"BREW{i}", "/v1/nothing/{i}")
+        api.get(f"/v1/random/path/{i}")
+    text = api.get("/metrics").text
+    assert "BREW" not in text and "/v1/random" not in text
+    assert 'method="OTHER",route="unmatched"' in text
