@@ -92,6 +92,8 @@ def test_phantoms_and_scenarios(api):
     assert api.phantom_mesh("torso")[:4] == b"glTF"
     expect_error(404, "path", "phantom_id", call=lambda: api.phantom("no-such-phantom"))
     expect_error(404, "path", "phantom_id", call=lambda: api.phantom_mesh("no-such-phantom"))
+    expect_error(404, "path", "phantom_id", call=lambda: api.phantom_manifest("no-such-phantom"))
+    assert set(api.phantom_manifest("torso")["organs"]) == {o.name for o in torso.organs}
     expect_error(409, "path", "phantom_id", call=lambda: api.delete_phantom("torso"))
     scenarios = {sc.id: sc for sc in api.scenarios().scenarios}
     assert "thesis-fig-5-6" in scenarios
@@ -106,6 +108,7 @@ def test_upload_lifecycle(api):
         assert api.phantom(info.id).organs == info.organs
         mesh = api.phantom_mesh(info.id)
         assert mesh[:4] == b"glTF"
+        assert api.phantom_manifest(info.id)["organs"] == manifest["organs"]
         ch = api.channel({"phantom": info.id, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}], "rays": 1000, "max_interactions": 2})
         assert ch.profiles[0].medium == "air"
     finally:

@@ -97,3 +97,9 @@ def test_upload_manifest_schema_is_documented():
     assert "ManifestOrgan" in schema["components"]["schemas"]
     body = schema["paths"]["/v1/phantoms"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
     assert body["required"] == ["mesh", "manifest"]
+
+
+def test_docs_settings_table_is_current():
+    from service.settings import settings_table_markdown
+
+    assert settings_table_markdown() in (ROOT / "docs" / "service.md").read_text(), "regenerate the table in docs/service.md"

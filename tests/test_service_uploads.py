@@ -308,3 +308,14 @@ def test_the_documented_manifest_example_uploads(client, glb_phantom):
     r = upload(client, glb, example)
     assert r.status_code == 201, r.text
     assert r.json()["sites"]["sensor"]["kind"] == "sensor"
+
+
+def test_antenna_on_an_organ_surface_is_422_naming_it(client, glb_phantom):
+    glb, manifest = glb_phantom()
+    pid = upload(client, glb, manifest).json()["id"]
+    on_face = {"phantom": pid, "transmitter": {"position_m": [0.1, 0.0, 0.0]}, "receivers": [{"site": "sensor"}], "rays": 500}
+    body = assert_field(client.post("/v1/channel", json=on_face), 422, "body", "transmitter", "position_m")
+    assert "surface" in body["detail"][0]["msg"]
+    on_sphere = {"phantom": pid, "transmitter": {"site": "capsule"}, "receivers": [{"name": "s", "position_m": [0.0, 0.0, 0.04]}], "rays": 500}
+    # 0.04 m is the icosphere's vertex radius: a vertex lies exactly there.
+    assert_field(client.post("/v1/channel", json=on_sphere), 422, "body", "receivers", 0, "position_m")
