@@ -29,7 +29,9 @@ from raytrace.media import MediaTable
 from raytrace.refine import encode
 from raytrace.scene import TracerScene
 
-#: Live rays are capped at this many (strongest kept).
+#: Launch directions traced together (their whole bounce tree at once).
+LAUNCH_BATCH = 50_000
+#: Safety cap on the live rays of one launch batch (highest priority kept).
 MAX_LIVE_RAYS = 2_000_000
 #: Reception radius in units of the local ray-tube half-width.
 RECEPTION_FACTOR = 1.0
@@ -79,7 +81,8 @@ class _Context:
 @dataclass
 class _State:
     """Live rays: origin (already pushed off the surface), direction, medium, power factor,
-    tube radius and angle, unfolded length, events so far, event-log pointer, launch index."""
+    tube radius and angle, reduced length sum L_i / Re n_i, events so far, event-log pointer,
+    launch index."""
 
     o: np.ndarray
     d: np.ndarray
@@ -124,6 +127,8 @@ class _Found:
     n: list = field(default_factory=list)
     src: list = field(default_factory=list)
     close: list = field(default_factory=list)
+    codes: list = field(default_factory=list)  # resolved per launch batch
+    faces: list = field(default_factory=list)
 
 
 def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | None":
@@ -163,7 +168,7 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     pt = o[keep] + tk[:, None] * dk
     wk = s.w[keep] * np.exp(-2.0 * ctx.alpha[mk + 1] * tk)
     radk = s.rad[keep] + tk * s.ang[keep]
-    lengthk = s.length[keep] + tk
+    lengthk = s.length[keep] + tk / n_re[mk + 1]  # reduced length sum L_i / Re n_i
     fn = scene.face_normals[f]
     dn = np.einsum("ij,ij->i", dk, fn)
     leaving = dn > 0.0
@@ -266,75 +271,95 @@ def shoot(
         rx_m=np.asarray(rx_m, float),
         rx_medium=np.asarray(rx_medium),
     )
-    state = _State(
-        o=np.broadcast_to(np.asarray(tx_m, float), (rays, 3)).copy(),
-        d=launch.copy(),
-        med=np.full(rays, tx_medium, np.int64),
-        w=np.ones(rays),
-        rad=np.zeros(rays),
-        ang=np.full(rays, angular_spacing_rad(rays)),
-        length=np.zeros(rays),
-        nint=np.zeros(rays, np.int64),
-        hist=np.full(rays, -1, np.int64),
-        src=np.arange(rays),
-    )
     log = _Log()
     found = _Found()
     segments = 0
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
-    for _ in range(max_steps):
-        n_live = len(state.o)
-        if n_live == 0:
-            break
-        children = [
-            _bounce(ctx, state.take(slice(a, a + CHUNK_RAYS)), log, found)
-            for a in range(0, n_live, CHUNK_RAYS)
-        ]
-        segments += n_live
-        if budget is not None:
-            budget.charge(n_live)
-        state = _State.concat([c for c in children if c is not None])
-        if state is None:
-            break
-        if len(state.o) > MAX_LIVE_RAYS:
-            # keep the rays most likely to matter: power factor over squared unfolded length
-            priority = state.w / np.maximum(state.length, 1e-3) ** 2
-            keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
-            state = state.take(keep)
-    out_rx, out_hist, out_n, out_src, out_close = found.rx, found.hist, found.n, found.src, found.close
-    log_parent, log_code, log_face = log.parent, log.code, log.face
-    if not out_rx:
+    spacing = angular_spacing_rad(rays)
+    for first in range(0, rays, LAUNCH_BATCH):
+        # launch batches: the whole bounce tree of one batch at a time bounds memory
+        # without culling branches (the candidates of every batch are merged)
+        count = min(LAUNCH_BATCH, rays - first)
+        state = _State(
+            o=np.broadcast_to(np.asarray(tx_m, float), (count, 3)).copy(),
+            d=launch[first:first + count].copy(),
+            med=np.full(count, tx_medium, np.int64),
+            w=np.ones(count),
+            rad=np.zeros(count),
+            ang=np.full(count, spacing),
+            length=np.zeros(count),
+            nint=np.zeros(count, np.int64),
+            hist=np.full(count, -1, np.int64),
+            src=np.arange(first, first + count),
+        )
+        for _ in range(max_steps):
+            n_live = len(state.o)
+            if n_live == 0:
+                break
+            children = [
+                _bounce(ctx, state.take(slice(a, a + CHUNK_RAYS)), log, found)
+                for a in range(0, n_live, CHUNK_RAYS)
+            ]
+            segments += n_live
+            if budget is not None:
+                budget.charge(n_live)
+            state = _State.concat([c for c in children if c is not None])
+            if state is None:
+                break
+            if len(state.o) > MAX_LIVE_RAYS:
+                # safety cap: keep the rays most likely to matter, power factor over the squared
+                # reduced length sum L_i / n_i (the paraxial ray-tube spreading of layered media)
+                priority = state.w / np.maximum(state.length, 1e-4) ** 2
+                keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
+                state = state.take(keep)
+        _resolve(found, log, width)  # signatures of this batch's candidates; the log is freed
+    if not found.codes:
         return Candidates(
             receiver=np.zeros(0, np.int64), codes=np.zeros((0, width), np.int64),
             faces=np.zeros((0, width), np.int64), nint=np.zeros(0, np.int64), launch_dir=np.zeros((0, 3)),
             closeness=np.zeros(0), rays_launched=rays, segments=segments,
         )
-    parent_log = np.concatenate(log_parent) if log_parent else np.zeros(0, np.int64)
-    code_log = np.concatenate(log_code) if log_code else np.zeros(0, np.int64)
-    face_log = np.concatenate(log_face) if log_face else np.zeros(0, np.int64)
-    h = np.concatenate(out_hist)
-    n = np.concatenate(out_n)
-    codes = np.full((len(h), width), -1, np.int64)
-    faces = np.full((len(h), width), -1, np.int64)
-    # walk the event log back from each candidate's last event
-    slot = n - 1
-    cur = h.copy()
-    while True:
-        live = cur >= 0
-        if not live.any():
-            break
-        rows = np.flatnonzero(live)
-        codes[rows, slot[rows]] = code_log[cur[rows]]
-        faces[rows, slot[rows]] = face_log[cur[rows]]
-        slot[rows] -= 1
-        cur[rows] = parent_log[cur[rows]]
     return Candidates(
-        receiver=np.concatenate(out_rx),
-        codes=codes,
-        faces=faces,
-        nint=n,
-        launch_dir=launch[np.concatenate(out_src)],
-        closeness=np.concatenate(out_close),
+        receiver=np.concatenate(found.rx),
+        codes=np.concatenate(found.codes),
+        faces=np.concatenate(found.faces),
+        nint=np.concatenate(found.n),
+        launch_dir=launch[np.concatenate(found.src)],
+        closeness=np.concatenate(found.close),
         rays_launched=rays,
         segments=segments,
     )
+
+
+def _resolve(found: _Found, log: _Log, width: int) -> None:
+    """Rebuild the signatures (codes, faces) of the candidates found since the last call by
+    walking the event log back from each one's last event, then empty the log."""
+    new = slice(len(found.codes), len(found.hist))
+    hist = found.hist[new]
+    if hist:
+        parent_log = np.concatenate(log.parent) if log.parent else np.zeros(0, np.int32)
+        code_log = np.concatenate(log.code) if log.code else np.zeros(0, np.int32)
+        face_log = np.concatenate(log.face) if log.face else np.zeros(0, np.int32)
+        h = np.concatenate(hist)
+        n = np.concatenate(found.n[new])
+        codes = np.full((len(h), width), -1, np.int64)
+        faces = np.full((len(h), width), -1, np.int64)
+        slot = n - 1
+        cur = h.astype(np.int64)
+        while True:
+            rows = np.flatnonzero(cur >= 0)
+            if len(rows) == 0:
+                break
+            codes[rows, slot[rows]] = code_log[cur[rows]]
+            faces[rows, slot[rows]] = face_log[cur[rows]]
+            slot[rows] -= 1
+            cur[rows] = parent_log[cur[rows]]
+        # one resolved block per found block, so later batches index consistently
+        sizes = [len(x) for x in hist]
+        cuts = np.cumsum(sizes)[:-1]
+        found.codes.extend(np.split(codes, cuts))
+        found.faces.extend(np.split(faces, cuts))
+    log.parent.clear()
+    log.code.clear()
+    log.face.clear()
+    log.size = 0
