@@ -165,11 +165,14 @@ def install_error_handlers(app: FastAPI, retry_after_s: int) -> None:
 
     @app.exception_handler(Exception)
     async def _bug(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error", extra={"path": request.url.path})
-        rid = request.scope.get("capsule_rt.request_id", "")
+        # Runs in Starlette's outermost middleware, after the request-id context
+        # has been reset: take the id from the scope.
+        rid = str(request.scope.get("capsule_rt.request_id", ""))
+        log.exception("unhandled error", extra={"path": request.url.path, "request_id": rid})
         return JSONResponse(
             error_body(["server"], f"internal error (request id {rid}); this is a bug, please report it", "internal"),
             status_code=500,
+            headers={"X-Request-ID": rid} if rid else None,
         )
 
 

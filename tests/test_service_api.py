@@ -449,3 +449,24 @@ def test_metric_labels_stay_bounded_whatever_the_client_sends(api):
     text = api.get("/metrics").text
     assert "BREW" not in text and "/v1/random" not in text
     assert 'method="OTHER",route="unmatched"' in text
+
+
+def test_an_unexpected_bug_is_a_json_500_with_the_request_id(make_settings):
+    """The last-resort handler: no traceback leaks, the request id ties the answer to the log."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    app = create_app(make_settings())
+
+    @app.get("/boom")
+    async def boom():
+        raise RuntimeError("secret internals")
+
+    with TestClient(app, raise_server_exceptions=False) as api:
+        r = api.get("/boom", headers={"X-Request-ID": "bug-1"})
+        assert r.status_code == 500
+        assert r.headers["x-request-id"] == "bug-1"
+        item = r.json()["detail"][0]
+        assert item["type"] == "internal" and "bug-1" in item["msg"] and "secret" not in item["msg"]
+        assert 'route="/boom",status="500"' in api.get("/metrics").text
