@@ -82,10 +82,14 @@ def ray_fresnel(n1: np.ndarray, n2: np.ndarray, cos_i: np.ndarray, tir: np.ndarr
 
 
 def antenna_vector(direction: np.ndarray, polarization: np.ndarray, pattern: str) -> np.ndarray:
-    """(P, 3) real vector an antenna couples to along each unit ray direction."""
-    pol = np.asarray(polarization, float)
-    pol = pol / np.linalg.norm(pol)
-    proj = pol[None, :] - np.einsum("ij,j->i", direction, pol)[:, None] * direction
+    """(P, 3) real vector an antenna couples to along each unit ray direction.
+
+    ``polarization`` is one vector (3,) or one per ray (P, 3). ``dipole``: its
+    projection on the plane normal to the ray (length sin theta); ``isotropic``:
+    that projection normalised, or a fixed perpendicular where it vanishes."""
+    pol = np.broadcast_to(np.asarray(polarization, float), direction.shape)
+    pol = pol / np.linalg.norm(pol, axis=1, keepdims=True)
+    proj = pol - np.einsum("ij,ij->i", direction, pol)[:, None] * direction
     if pattern == "dipole":
         return proj
     norm = np.linalg.norm(proj, axis=1, keepdims=True)
@@ -174,25 +178,10 @@ def path_gains(
     e_rx = np.zeros((p, 3))
     for pattern in np.unique(rx_pattern):
         sel = rx_pattern == pattern
-        e_rx[sel] = _rx_vectors(last_dir[sel], rx_polarization[sel], str(pattern))
+        e_rx[sel] = antenna_vector(last_dir[sel], rx_polarization[sel], str(pattern))
     response = np.einsum("pfj,pj->pf", field, e_rx)
     tube = np.maximum(tube_m2_per_sr, (TUBE_FLOOR * length) ** 2)
     lam0 = C0 / freqs
     n_norm = np.sqrt(n[:, tx_medium + 1].real[None, :] * n[:, rx_medium + 1].T.real)  # (P, F)
     gains = (lam0 / (4.0 * np.pi))[None, :] * response * np.exp(-1j * k0[None, :] * optical) / np.sqrt(tube)[:, None] / n_norm
     return PathFields(gains=gains, delay_s=delay_len / C0, length_m=length, reflect_tir=tir_flags)
-
-
-def _rx_vectors(direction: np.ndarray, polarization: np.ndarray, pattern: str) -> np.ndarray:
-    pol = polarization / np.linalg.norm(polarization, axis=1, keepdims=True)
-    proj = pol - np.einsum("ij,ij->i", direction, pol)[:, None] * direction
-    if pattern == "dipole":
-        return proj
-    norm = np.linalg.norm(proj, axis=1, keepdims=True)
-    ref = np.where(np.abs(direction[:, 0:1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-    fallback = np.cross(direction, ref)
-    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
-    return np.where(norm > 1e-9, proj / np.maximum(norm, 1e-300), fallback)
-
-
-KIND_NAMES = {KIND_REFRACTION: "refraction", KIND_REFLECTION: "reflection"}

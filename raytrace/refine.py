@@ -154,7 +154,10 @@ def follow(
             is_final = k[j] >= nint[j]
             # record-mode last leg: a real surface before the receiver blocks the path
             blocked = ~transparent & is_final
-            expected = np.where(is_final, -1, np.take_along_axis(codes[j], np.minimum(k[j], codes.shape[1] - 1)[:, None], 1)[:, 0] if codes.shape[1] else -1)
+            expected = np.full(len(j), -1, np.int64)
+            if codes.shape[1]:
+                slot = np.minimum(k[j], codes.shape[1] - 1)
+                expected = np.where(is_final, -1, codes[j, slot])
             reflect = (expected & 1).astype(bool)
             code = encode(organ, leaving, reflect)
             event = ~transparent & ~is_final

@@ -18,6 +18,31 @@ Pipeline (``shared/design/tracer.md``):
    at the centre frequency and every band frequency (geometry traced once at
    the centre frequency, tissue properties re-evaluated per frequency).
 
+Design choices (where this departs from or sharpens ``shared/design/tracer.md``):
+
+* Refinement is Newton on the two launch angles with the signature traced
+  physically (first hit in the full scene must be the named surface), not a
+  Fermat minimisation over interaction points: every vertex then obeys
+  Snell / reflection with *smooth* normals on faceted organs (so Fermat holds
+  on the smoothed surface), blocking is detected by construction, and the
+  finite-difference Jacobian is the numerical ray tube at no extra cost.
+* Direct paths whose straight launch would be totally reflected (a capsule
+  deep in muscle, a sensor in air) are found by homotopy on the indices
+  (``n_i^s``, s: 0 -> 1), starting from the exact straight line at s = 0.
+  The direct path is refined whatever ``max_interactions`` is (it may need
+  more refractions than that); it can only be missing when geometric optics
+  has no refraction-only path (shadow of a critical angle, e.g. a sensor in
+  air far to the side of a capsule behind fat).
+* Several seeds per signature (distinct face sequences) are refined, and
+  converged duplicates are merged only when delay *and* launch direction
+  agree: the walls of one organ share a signature but are distinct paths.
+* Fresnel coefficients for rays leaving a lossy tissue use the forward
+  branch of the complex ``cos_t`` (:func:`raytrace.field.ray_fresnel`).
+* Shooting runs in launch batches (bounded memory, no culling of branches).
+* Limits of geometric optics: the caustic field is capped (tube floor) and the
+  caustic phase shift is not applied; diffraction and surface (lateral)
+  waves are absent.
+
 Ray geometry (Snell directions, total internal reflection, delays) uses
 ``Re n`` of the complex refractive index at the centre frequency; Fresnel
 coefficients use the complex indices and the complex ``cos_t``; delays are
@@ -85,17 +110,18 @@ def trace_channel(
     tx, rx, tx_pol, rx_pol, rx_pattern = _validate(
         phantom, transmitter, receivers, frequency_hz, rays, max_interactions, dynamic_range_db
     )
-    freqs = [float(frequency_hz)]
+    # frequency checks first (each names its own field), then one table for all frequencies
+    media = MediaTable.build(phantom, np.array([float(frequency_hz)]), homogeneous)
     band = None
     if band_frequencies_hz is not None:
-        band = np.asarray(band_frequencies_hz, dtype=float).ravel()
+        try:
+            band = np.asarray(band_frequencies_hz, dtype=float).ravel()
+        except (TypeError, ValueError) as exc:
+            raise InputError("band frequencies must be numbers of hertz", field="band_frequencies_hz") from exc
         if band.size == 0:
             raise InputError("band needs at least one frequency", field="band_frequencies_hz")
         MediaTable.build(phantom, band, homogeneous, field="band_frequencies_hz")
-        freqs += band.tolist()
-    media = MediaTable.build(phantom, np.array([float(frequency_hz)]), homogeneous)  # validates f0
-    if band is not None:
-        media = MediaTable.build(phantom, np.array(freqs), homogeneous)
+        media = MediaTable.build(phantom, np.concatenate([[float(frequency_hz)], band]), homogeneous)
 
     tx_medium = int(phantom.medium_index(tx[None, :], field="transmitter.position_m")[0])
     rx_medium = np.array(
