@@ -30,7 +30,11 @@ class ScenarioSpec:
 
 
 # --------------------------------------------------------------- built-ins
-def builtin_phantoms_and_scenarios() -> tuple[dict[str, Phantom], dict[str, ScenarioSpec]]:
+def builtin_phantoms_and_scenarios(errors: list[str] | None = None) -> tuple[dict[str, Phantom], dict[str, ScenarioSpec]]:
+    """Build every built-in phantom and list the scenarios. A phantom whose
+    factory fails is logged and reported in ``errors`` (with the scenarios
+    that need it) instead of taking the whole service down."""
+    errors = [] if errors is None else errors
     phantoms: dict[str, Phantom] = {}
     scenarios: dict[str, ScenarioSpec] = {}
     try:
@@ -39,7 +43,11 @@ def builtin_phantoms_and_scenarios() -> tuple[dict[str, Phantom], dict[str, Scen
         sc = None
     if sc is not None and hasattr(sc, "builtin_phantoms"):
         for pid, factory in sc.builtin_phantoms().items():
-            phantoms[pid] = factory() if callable(factory) else factory
+            try:
+                phantoms[pid] = factory() if callable(factory) else factory
+            except Exception as exc:  # a broken built-in must not stop the others
+                log.exception("built-in phantom failed to build", extra={"phantom": pid})
+                errors.append(f"built-in phantom {pid!r} failed to build: {exc}")
     else:
         try:
             from raytrace.torso import default_torso  # type: ignore[import-not-found]
@@ -49,7 +57,11 @@ def builtin_phantoms_and_scenarios() -> tuple[dict[str, Phantom], dict[str, Scen
             log.warning("no built-in phantoms available (raytrace.torso / raytrace.scenarios missing)")
     if sc is not None and hasattr(sc, "SCENARIOS"):
         for sid, s in dict(sc.SCENARIOS).items():
-            scenarios[sid] = scenario_spec(sid, s)
+            spec = scenario_spec(sid, s)
+            if spec.phantom in phantoms:
+                scenarios[sid] = spec
+            else:
+                errors.append(f"scenario {sid!r} unavailable: its phantom {spec.phantom!r} is missing")
     return phantoms, scenarios
 
 

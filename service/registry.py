@@ -77,12 +77,13 @@ class Registry:
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _glb_cache: dict[str, bytes] = field(default_factory=dict)
     ready: bool = False
+    errors: list[str] = field(default_factory=list)
 
     # ------------------------------------------------------------ lifecycle
     def load_builtins(self, enabled: bool = True) -> None:
         self.store.init()
         if enabled:
-            phantoms, scenarios = adapters.builtin_phantoms_and_scenarios()
+            phantoms, scenarios = adapters.builtin_phantoms_and_scenarios(self.errors)
             for pid, phantom in phantoms.items():
                 self.add_builtin(pid, phantom)
             self.scenarios.update(scenarios)

@@ -620,3 +620,4 @@ class Readiness(Out):
     phantoms: int
     scenarios: int
     ray_engine: str
+    errors: list[str] = Field(default_factory=list, description="Built-ins that failed to load (the rest is served).")

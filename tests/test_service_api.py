@@ -470,3 +470,31 @@ def test_an_unexpected_bug_is_a_json_500_with_the_request_id(make_settings):
         item = r.json()["detail"][0]
         assert item["type"] == "internal" and "bug-1" in item["msg"] and "secret" not in item["msg"]
         assert 'route="/boom",status="500"' in api.get("/metrics").text
+
+
+def test_a_broken_builtin_is_reported_not_fatal(make_settings, monkeypatch):
+    from fastapi.testclient import TestClient
+
+    import raytrace.scenarios as sc
+    from service.app import create_app
+
+    real = sc.builtin_phantoms
+
+    def with_a_broken_one():
+        factories = dict(real())
+
+        def broken():
+            raise RuntimeError("mesh generator exploded")
+
+        factories["half-space"] = broken
+        return factories
+
+    monkeypatch.setattr(sc, "builtin_phantoms", with_a_broken_one)
+    with TestClient(create_app(make_settings())) as api:
+        ready = api.get("/readyz").json()
+        assert ready["status"] == "ready"
+        assert any("half-space" in e and "exploded" in e for e in ready["errors"])
+        assert any("scenario 'half-space' unavailable" in e for e in ready["errors"])
+        ids = [p["id"] for p in api.get("/v1/phantoms").json()["phantoms"]]
+        assert "torso" in ids and "half-space" not in ids
+        assert "half-space" not in [s["id"] for s in api.get("/v1/scenarios").json()["scenarios"]]

@@ -35,6 +35,7 @@ async def readyz(request: Request):
         phantoms=len(st.registry.builtins) + st.registry.upload_count(),
         scenarios=len(st.registry.scenarios),
         ray_engine=engine,
+        errors=list(st.registry.errors),
     )
     if not ready:
         return JSONResponse(body.model_dump(), status_code=503, headers={"Retry-After": "1"})
