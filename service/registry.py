@@ -105,7 +105,7 @@ class Registry:
             return self.builtin_info[phantom_id]
         if is_upload_id(phantom_id) and self.store.exists(phantom_id):
             return self.store.meta(phantom_id)
-        raise NotFound(self._unknown(phantom_id), loc=field_loc or ["path", "phantom_id"])
+        raise NotFound(self.unknown_message(phantom_id), loc=field_loc or ["path", "phantom_id"])
 
     def summaries(self) -> list[dict[str, Any]]:
         out = []
@@ -123,7 +123,7 @@ class Registry:
             return self.builtins[phantom_id]
         loc = field_loc or ["path", "phantom_id"]
         if not (is_upload_id(phantom_id) and self.store.exists(phantom_id)):
-            raise NotFound(self._unknown(phantom_id), loc=loc)
+            raise NotFound(self.unknown_message(phantom_id), loc=loc)
         with self._lock:
             if phantom_id in self._cache:
                 self._cache.move_to_end(phantom_id)
@@ -143,7 +143,7 @@ class Registry:
             return self._glb_cache[phantom_id]
         if is_upload_id(phantom_id) and self.store.exists(phantom_id):
             return self.store.load(phantom_id).mesh
-        raise NotFound(self._unknown(phantom_id), loc=["path", "phantom_id"])
+        raise NotFound(self.unknown_message(phantom_id), loc=["path", "phantom_id"])
 
     def manifest(self, phantom_id: str) -> dict:
         """The manifest that reloads :meth:`mesh_glb` through POST /v1/phantoms."""
@@ -151,12 +151,19 @@ class Registry:
             return adapters.export_manifest(self.builtins[phantom_id])
         if is_upload_id(phantom_id) and self.store.exists(phantom_id):
             return self.store.load(phantom_id).manifest
-        raise NotFound(self._unknown(phantom_id), loc=["path", "phantom_id"])
+        raise NotFound(self.unknown_message(phantom_id), loc=["path", "phantom_id"])
+
+    def remember(self, phantom_id: str, phantom: Phantom) -> None:
+        """Cache a freshly uploaded phantom (saves re-parsing its .glb on first use)."""
+        with self._lock:
+            self._cache[phantom_id] = phantom
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
 
     def forget(self, phantom_id: str) -> None:
         with self._lock:
             self._cache.pop(phantom_id, None)
 
-    def _unknown(self, phantom_id: str) -> str:
+    def unknown_message(self, phantom_id: str) -> str:
         known = ", ".join(self.ids()[:20]) or "none"
         return f"unknown phantom {phantom_id!r}; known phantoms: {known} (GET /v1/phantoms)"

@@ -127,11 +127,11 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
     if phantom_id in reg.builtins:
         raise Conflict(f"phantom {phantom_id!r} is built in and cannot be deleted", loc=["path", "phantom_id"])
     if not is_upload_id(phantom_id):
-        raise NotFound(reg._unknown(phantom_id), loc=["path", "phantom_id"])
+        raise NotFound(reg.unknown_message(phantom_id), loc=["path", "phantom_id"])
     removed = await anyio.to_thread.run_sync(reg.store.delete, phantom_id)
     reg.forget(phantom_id)
     if not removed:
-        raise NotFound(reg._unknown(phantom_id), loc=["path", "phantom_id"])
+        raise NotFound(reg.unknown_message(phantom_id), loc=["path", "phantom_id"])
     return Response(status_code=204)
 
 
@@ -187,8 +187,7 @@ async def upload_phantom(request: Request) -> JSONResponse:
 
     budget = Budget(deadline_s=settings.request_deadline_s)
     phantom_id, phantom, info = await st.gate.run(build, budget)
-    with st.registry._lock:
-        st.registry._cache[phantom_id] = phantom
+    st.registry.remember(phantom_id, phantom)
     return JSONResponse(
         UploadResponse(**info).model_dump(), status_code=201, headers={"Location": f"/v1/phantoms/{phantom_id}"}
     )
