@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from raytrace.budget import Budget
-from raytrace.em import refract_direction
 from raytrace.media import MediaTable
 from raytrace.scene import TracerScene
 
@@ -177,7 +176,9 @@ def follow(
                 bad[np.flatnonzero(r_sel)[wrong]] = True
             t_sel = event & ~reflect & ~bad
             if t_sel.any():
-                dt, tir = refract_direction(dj[t_sel], ns[t_sel], n_re[m_from[t_sel] + 1], n_re[m_to[t_sel] + 1])
+                d_in, n_in = dj[t_sel], ns[t_sel]
+                dt, tir, _, _ = snell_refract(d_in, n_in, np.einsum("ij,ij->i", d_in, n_in),
+                                              n_re[m_from[t_sel] + 1] / n_re[m_to[t_sel] + 1])
                 dt = np.where(tir[:, None], dj[t_sel], dt)
                 new_d[t_sel] = dt
                 new_med[t_sel] = m_to[t_sel]
@@ -211,6 +212,20 @@ def follow(
     else:
         d_last = d
     return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps)
+
+
+def snell_refract(d: np.ndarray, ns: np.ndarray, dns: np.ndarray, eta: np.ndarray):
+    """Vector Snell law ``t = eta (d - ci nf) + ct nf`` (``nf`` the normal oriented along
+    ``d``, ``eta = Re n1 / Re n2``): the formula of :func:`raytrace.em.refract_direction`
+    without its input checks (hot loop). Returns ``(t, tir, cos_i, cos_t)``."""
+    sgn = np.where(dns < 0.0, -1.0, 1.0)
+    ci = np.abs(dns)
+    sin2 = eta * eta * (1.0 - ci * ci)
+    tir = sin2 > 1.0
+    ct = np.sqrt(np.clip(1.0 - sin2, 0.0, None))
+    t = eta[:, None] * (d - (ci * sgn)[:, None] * ns) + (ct * sgn)[:, None] * ns
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    return t, tir, ci, ct
 
 
 def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,7 @@ import numpy as np
 from raytrace.budget import Budget
 from raytrace.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.media import MediaTable
-from raytrace.refine import encode
+from raytrace.refine import encode, snell_refract
 from raytrace.scene import TracerScene
 
 #: Launch directions traced together (their whole bounce tree at once).
@@ -47,18 +47,6 @@ class Candidates:
     closeness: np.ndarray  # (C,) miss distance / reception radius
     rays_launched: int
     segments: int
-
-
-def _refract(d: np.ndarray, ns: np.ndarray, dns: np.ndarray, eta: np.ndarray):
-    """Vector Snell law (same formula as :func:`raytrace.em.refract_direction`, no input checks)."""
-    sgn = np.where(dns < 0.0, -1.0, 1.0)
-    ci = np.abs(dns)
-    sin2 = eta * eta * (1.0 - ci * ci)
-    tir = sin2 > 1.0
-    ct = np.sqrt(np.clip(1.0 - sin2, 0.0, None))
-    t = eta[:, None] * (d - (ci * sgn)[:, None] * ns) + (ct * sgn)[:, None] * ns
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    return t, tir, ci, ct
 
 
 #: Rays processed per Embree batch inside one bounce (bounds the temporaries' memory).
@@ -189,7 +177,7 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     ns[flip] = fn[flip]
     n1, n2 = n_re[m_from + 1], n_re[m_to + 1]
     dns = np.einsum("ij,ij->i", dk, ns)
-    dt, tir, ci, ct = _refract(dk, ns, dns, n1 / n2)
+    dt, tir, ci, ct = snell_refract(dk, ns, dns, n1 / n2)
     # pruning weight only: lossless Fresnel power reflectance from Re n (mean of TE, TM)
     n1c, n2c, n1t, n2i = n1 * ci, n2 * ct, n1 * ct, n2 * ci
     r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-300)
