@@ -29,6 +29,7 @@ class MediaTable:
     materials: tuple[Material, ...]  # (M + 1,) air first
     face_transparent: np.ndarray  # (F_tri,) bool
     parent: np.ndarray  # (M,) organ -> parent medium index
+    material_class: np.ndarray  # (M + 1,) same id <=> same material (medium m at m + 1)
 
     @property
     def n_real(self) -> np.ndarray:
@@ -64,10 +65,12 @@ class MediaTable:
             [materials[i + 1] == materials[int(parent[i]) + 1] for i in range(len(phantom.organs))],
             dtype=bool,
         )
+        classes = np.array([materials.index(m) for m in materials], dtype=np.int64)
         return cls(
             frequencies_hz=f,
             n=n,
             materials=materials,
             face_transparent=same[organ] if len(organ) else np.zeros(0, bool),
             parent=parent,
+            material_class=classes,
         )

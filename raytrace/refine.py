@@ -148,7 +148,8 @@ def follow(
             m_from = np.where(leaving, organ, parent)
             m_to = np.where(leaving, parent, organ)
             sgn = np.where(leaving, 1.0, -1.0)[:, None]
-            consistent = m_from == med[j]
+            cls = media.material_class
+            consistent = cls[m_from + 1] == cls[med[j] + 1]
             transparent = media.face_transparent[f]
             is_final = k[j] >= nint[j]
             # record-mode last leg: a real surface before the receiver blocks the path
@@ -165,7 +166,7 @@ def follow(
             kind = np.where(transparent, KIND_PASS, np.where(reflect, KIND_REFLECTION, KIND_REFRACTION))
             ns = scene.smooth_normals(f, pt)
             new_d = dj.copy()
-            new_med = np.where(transparent, m_to, med[j])
+            new_med = np.where(transparent | ~reflect, m_to, m_from)
             new_push = sgn * fn * off
             r_sel = event & reflect & ~bad
             if r_sel.any():
@@ -181,7 +182,6 @@ def follow(
                                               n_re[m_from[t_sel] + 1] / n_re[m_to[t_sel] + 1])
                 dt = np.where(tir[:, None], dj[t_sel], dt)
                 new_d[t_sel] = dt
-                new_med[t_sel] = m_to[t_sel]
                 wrong = tir | (np.einsum("ij,ij->i", dt, fn[t_sel]) * sgn[t_sel, 0] <= 0.0)
                 bad[np.flatnonzero(t_sel)[wrong]] = True
             ok[j[bad]] = False

@@ -64,6 +64,7 @@ class _Context:
     kmax: int
     rx_m: np.ndarray
     rx_medium: np.ndarray
+    cls: np.ndarray  # material class per medium (index m + 1)
 
 
 @dataclass
@@ -129,7 +130,7 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     face, t, uv = scene.first_hit(o, d, barycentric=True, exact=False)
     # reception (rays in the receiver's medium only)
     for r in range(len(ctx.rx_m)):
-        i = np.flatnonzero(med == ctx.rx_medium[r])
+        i = np.flatnonzero(ctx.cls[med + 1] == ctx.cls[ctx.rx_medium[r] + 1])
         if len(i) == 0:
             continue
         vec = ctx.rx_m[r] - o[i]
@@ -165,7 +166,7 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     m_from = np.where(leaving, organ, parent)
     m_to = np.where(leaving, parent, organ)
     sg = np.where(leaving, 1.0, -1.0)
-    valid = (m_from == mk) & (wk >= threshold)
+    valid = (ctx.cls[m_from + 1] == ctx.cls[mk + 1]) & (wk >= threshold)
     transparent = ctx.transparent[f]
 
     nk, angk = s.nint[keep], s.ang[keep]
@@ -258,6 +259,7 @@ def shoot(
         kmax=kmax,
         rx_m=np.asarray(rx_m, float),
         rx_medium=np.asarray(rx_medium),
+        cls=media.material_class,
     )
     log = _Log()
     found = _Found()

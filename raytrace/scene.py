@@ -51,20 +51,25 @@ class TracerScene:
     corner_normals: np.ndarray  # (F, 3, 3) per-corner smooth normals (creased)
     scale_m: float  # bounding-box diagonal
     offset_m: float  # spawn offset
+    face_map: np.ndarray | None = None  # Embree primitive -> phantom face (None: identity)
 
     @classmethod
-    def build(cls, phantom: Phantom) -> "TracerScene":
+    def build(cls, phantom: Phantom, visible: np.ndarray | None = None) -> "TracerScene":
+        """Scene of all triangles, or only of ``visible`` ones (surfaces between identical
+        materials are invisible to propagation; face indices stay the phantom's)."""
         vertices = np.asarray(phantom.vertices, dtype=float)
         faces = np.asarray(phantom.faces, dtype=np.int64)
         lo, hi = vertices.min(axis=0), vertices.max(axis=0)
         center = 0.5 * (lo + hi)
         centred = vertices - center
+        face_map = None if visible is None else np.flatnonzero(visible)
         embree = rtcore_scene.EmbreeScene()
-        TriangleMesh(
-            scene=embree,
-            vertices=centred.astype(np.float32),
-            indices=faces.astype(np.int32),
-        )
+        if face_map is None or len(face_map):
+            TriangleMesh(
+                scene=embree,
+                vertices=centred.astype(np.float32),
+                indices=(faces if face_map is None else faces[face_map]).astype(np.int32),
+            )
         fn = np.asarray(phantom.face_normals, dtype=float)
         fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
         corners = np.asarray(phantom.vertex_normals, dtype=float)[faces]  # (F, 3, 3)
@@ -84,6 +89,7 @@ class TracerScene:
             corner_normals=corners,
             scale_m=float(np.linalg.norm(hi - lo)),
             offset_m=float(OFFSET_ULPS * ulp),
+            face_map=face_map,
         )
 
     # ----------------------------------------------------------- queries
@@ -108,9 +114,9 @@ class TracerScene:
         distance from the query origin; the shooting phase only needs seeds).
         """
         n = len(origins_m)
-        if n == 0:
-            empty = (np.zeros(0, np.int64), np.zeros(0))
-            return empty + (np.zeros((0, 2)),) if barycentric else empty
+        if n == 0 or (self.face_map is not None and len(self.face_map) == 0):
+            empty = (np.full(n, -1, np.int64), np.full(n, np.inf))
+            return empty + (np.zeros((n, 2)),) if barycentric else empty
         q = origins_m - self.center
         if push is not None:
             q = q + push
@@ -121,6 +127,8 @@ class TracerScene:
         )
         face = res["primID"].astype(np.int64)
         hit = face >= 0
+        if self.face_map is not None:
+            face[hit] = self.face_map[face[hit]]
         t = np.full(n, np.inf)
         if not exact:
             t[hit] = res["tfar"][hit]
@@ -173,18 +181,22 @@ class TracerScene:
         return np.where(flip[:, None], fallback, nrm)
 
 
-_CACHE: dict[int, tuple[weakref.ref, TracerScene]] = {}
+_CACHE: dict[tuple, tuple[weakref.ref, TracerScene]] = {}
 _LOCK = threading.Lock()
 
 
-def scene_for(phantom: Phantom) -> TracerScene:
-    """The :class:`TracerScene` of a phantom, built once and cached while the phantom lives."""
-    key = id(phantom)
+def scene_for(phantom: Phantom, visible: np.ndarray | None = None) -> TracerScene:
+    """The :class:`TracerScene` of a phantom (optionally of its ``visible`` triangles only),
+    built once and cached while the phantom lives."""
+    mask_key = None if visible is None or bool(np.all(visible)) else np.packbits(visible).tobytes()
+    if mask_key is None:
+        visible = None
+    key = (id(phantom), mask_key)
     with _LOCK:
         entry = _CACHE.get(key)
         if entry is not None and entry[0]() is phantom:
             return entry[1]
-    scene = TracerScene.build(phantom)
+    scene = TracerScene.build(phantom, visible)
     with _LOCK:
         _CACHE[key] = (weakref.ref(phantom, lambda _r, k=key: _CACHE.pop(k, None)), scene)
     return scene

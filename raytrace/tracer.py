@@ -128,7 +128,10 @@ def trace_channel(
         [int(phantom.medium_index(r[None, :], field=f"receivers[{i}].position_m")[0]) for i, r in enumerate(rx)],
         dtype=np.int64,
     )
-    scene = scene_for(phantom)
+    full_scene = scene_for(phantom)
+    # surfaces between identical materials are invisible to propagation: shoot and refine in
+    # a scene without them; the final re-trace uses every surface to split the segments
+    scene = scene_for(phantom, ~media.face_transparent)
     segments = 0
 
     # --- seeds: direct (straight-line signature) + shooting and bouncing
@@ -160,7 +163,7 @@ def trace_channel(
         refined.converged[retry] = again.converged
         refined.tube_m2_per_sr[retry] = again.tube_m2_per_sr
     conv = np.flatnonzero(refined.converged)
-    rec = follow(scene, media, tx, tx_medium, refined.dirs[conv], seed_codes[conv], seed_n[conv],
+    rec = follow(full_scene, media, tx, tx_medium, refined.dirs[conv], seed_codes[conv], seed_n[conv],
                  targets_m=rx[seed_rx[conv]])
     segments += rec.segments
     if budget is not None:
