@@ -77,8 +77,10 @@ from raytrace.scene import TracerScene, scene_for
 
 #: Receivers closer than this to the transmitter are rejected [m].
 MIN_SEPARATION_M = 1e-4
-#: Candidate seeds refined per (receiver, signature) group (distinct face sequences first).
+#: Candidate seeds refined per (receiver, signature) group, at most.
 SEEDS_PER_SIGNATURE = 8
+#: Seeds of one group must be this many launch spacings apart.
+SEED_SEPARATION = 2.0
 #: Two converged paths with the same signature and delays closer than this are one path [s].
 DUPLICATE_DELAY_S = 1e-15
 #: ... and launch directions closer than this [rad].
@@ -319,27 +321,36 @@ def _pad(a: np.ndarray, width: int) -> np.ndarray:
 
 
 def _select_seeds(c):
-    """Per (receiver, signature): the closest candidates with distinct face sequences, up to
-    :data:`SEEDS_PER_SIGNATURE`."""
+    """Seeds to refine: per (receiver, signature), candidates in order of closeness, each
+    kept only if its launch direction is at least :data:`SEED_SEPARATION` launch spacings
+    from the seeds already kept (neighbouring rays converge to the same path; distinct walls
+    of one organ sharing the signature are far apart), up to :data:`SEEDS_PER_SIGNATURE`.
+    Vectorised ranking; the greedy pass loops over at most 64 candidates per group."""
     if len(c.receiver) == 0:
         return c.receiver, c.codes, c.nint, c.launch_dir
     key = np.concatenate([c.receiver[:, None], c.codes], axis=1)
     _, group = np.unique(key, axis=0, return_inverse=True)
     group = group.ravel()
-    fkey = np.concatenate([group[:, None], c.faces], axis=1)
-    # best candidate per (group, face sequence)
-    order = np.lexsort((c.closeness, *fkey.T[::-1]))
-    fk_sorted = fkey[order]
-    first = np.ones(len(order), bool)
-    first[1:] = np.any(fk_sorted[1:] != fk_sorted[:-1], axis=1)
-    best = order[first]
-    # within each group, keep the closest few
-    order2 = best[np.lexsort((c.closeness[best], group[best]))]
-    g = group[order2]
-    start = np.ones(len(order2), bool)
+    order = np.lexsort((c.closeness, group))
+    g = group[order]
+    start = np.ones(len(order), bool)
     start[1:] = g[1:] != g[:-1]
-    rank = np.arange(len(order2)) - np.maximum.accumulate(np.where(start, np.arange(len(order2)), 0))
-    chosen = np.sort(order2[rank < SEEDS_PER_SIGNATURE])
+    rank = np.arange(len(order)) - np.maximum.accumulate(np.where(start, np.arange(len(order)), 0))
+    order = order[rank < 64]
+    g = group[order]
+    bounds = np.flatnonzero(np.r_[True, g[1:] != g[:-1], True])
+    min_cos = np.cos(SEED_SEPARATION * np.sqrt(4.0 * np.pi / max(c.rays_launched, 1)))
+    chosen = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        kept = []
+        for idx in order[a:b]:
+            d = c.launch_dir[idx]
+            if all(float(d @ c.launch_dir[k]) < min_cos for k in kept):
+                kept.append(idx)
+                if len(kept) == SEEDS_PER_SIGNATURE:
+                    break
+        chosen.extend(kept)
+    chosen = np.sort(np.array(chosen, dtype=np.int64))
     return c.receiver[chosen], c.codes[chosen], c.nint[chosen], c.launch_dir[chosen]
 
 
