@@ -218,7 +218,8 @@ def snell_refract(d: np.ndarray, ns: np.ndarray, dns: np.ndarray, eta: np.ndarra
     """Vector Snell law ``t = eta (d - ci nf) + ct nf`` (``nf`` the normal oriented along
     ``d``, ``eta = Re n1 / Re n2``): the formula of :func:`raytrace.em.refract_direction`
     without its input checks (hot loop). Returns ``(t, tir, cos_i, cos_t)``."""
-    sgn = np.where(dns < 0.0, -1.0, 1.0)
+    one = np.ones((), dtype=dns.dtype)  # keep the caller's precision (float32 when shooting)
+    sgn = np.where(dns < 0.0, -one, one)
     ci = np.abs(dns)
     sin2 = eta * eta * (1.0 - ci * ci)
     tir = sin2 > 1.0

@@ -127,7 +127,7 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     n_re = ctx.n_re
     threshold = ctx.threshold
     o, d, med = s.o, s.d, s.med
-    face, t, uv = scene.first_hit(o, d, barycentric=True, exact=False)
+    face, t, uv = scene.first_hit32(o, d)
     # reception (rays in the receiver's medium only)
     for r in range(len(ctx.rx_m)):
         i = np.flatnonzero(ctx.cls[med + 1] == ctx.cls[ctx.rx_medium[r] + 1])
@@ -147,7 +147,7 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
             found.hist.append(s.hist[i])
             found.n.append(s.nint[i])
             found.src.append(s.src[i])
-            found.close.append(perp[got] / np.maximum(radius[got], 1e-300))
+            found.close.append(perp[got] / np.maximum(radius[got], 1e-30))
     keep = np.flatnonzero(face >= 0)
     if len(keep) == 0:
         return None
@@ -158,14 +158,14 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     wk = s.w[keep] * np.exp(-2.0 * ctx.alpha[mk + 1] * tk)
     radk = s.rad[keep] + tk * s.ang[keep]
     lengthk = s.length[keep] + tk / n_re[mk + 1]  # reduced length sum L_i / Re n_i
-    fn = scene.face_normals[f]
+    fn = scene.face_normals32[f]
     dn = np.einsum("ij,ij->i", dk, fn)
     leaving = dn > 0.0
     organ = scene.face_organ[f]
     parent = ctx.parent[organ]
     m_from = np.where(leaving, organ, parent)
     m_to = np.where(leaving, parent, organ)
-    sg = np.where(leaving, 1.0, -1.0)
+    sg = np.where(leaving, np.float32(1.0), np.float32(-1.0))
     valid = (ctx.cls[m_from + 1] == ctx.cls[mk + 1]) & (wk >= threshold)
     transparent = ctx.transparent[f]
 
@@ -181,8 +181,8 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     dt, tir, ci, ct = snell_refract(dk, ns, dns, n1 / n2)
     # pruning weight only: lossless Fresnel power reflectance from Re n (mean of TE, TM)
     n1c, n2c, n1t, n2i = n1 * ci, n2 * ct, n1 * ct, n2 * ci
-    r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-300)
-    r_tm = (n2i - n1t) / np.maximum(n2i + n1t, 1e-300)
+    r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-30)
+    r_tm = (n2i - n1t) / np.maximum(n2i + n1t, 1e-30)
     refl_p = np.where(tir, 1.0, np.clip(0.5 * (r_te * r_te + r_tm * r_tm), 0.0, 1.0))
     dr = dk - (2.0 * dns)[:, None] * ns
     wr = wk * refl_p
@@ -205,13 +205,13 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     if total == 0:
         return None
     a, b = n_r, n_r + n_t
-    push = (sg * off)[:, None] * fn
-    o = np.empty((total, 3))
+    push = (sg * np.float32(off))[:, None] * fn
+    o = np.empty((total, 3), np.float32)
     np.compress(r_mask, pt - push, axis=0, out=o[:a])
     o_tp = pt + push
     np.compress(t_mask, o_tp, axis=0, out=o[a:b])
     np.compress(p_mask, o_tp, axis=0, out=o[b:])
-    d = np.empty((total, 3))
+    d = np.empty((total, 3), np.float32)
     np.compress(r_mask, dr, axis=0, out=d[:a])
     np.compress(t_mask, dt, axis=0, out=d[a:b])
     np.compress(p_mask, dk, axis=0, out=d[b:])
@@ -251,13 +251,13 @@ def shoot(
     launch = fibonacci_sphere(rays)
     ctx = _Context(
         scene=scene,
-        n_re=media.n_real,
-        alpha=(2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -media.n[0].imag,  # Np/m
+        n_re=media.n_real.astype(np.float32),
+        alpha=((2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -media.n[0].imag).astype(np.float32),
         parent=media.parent,
         transparent=media.face_transparent,
         threshold=10.0 ** (-dynamic_range_db / 10.0),
         kmax=kmax,
-        rx_m=np.asarray(rx_m, float),
+        rx_m=(np.asarray(rx_m, float) - scene.center).astype(np.float32),
         rx_medium=np.asarray(rx_medium),
         cls=media.material_class,
     )
@@ -271,13 +271,13 @@ def shoot(
         # without culling branches (the candidates of every batch are merged)
         count = min(LAUNCH_BATCH, rays - first)
         state = _State(
-            o=np.broadcast_to(np.asarray(tx_m, float), (count, 3)).copy(),
-            d=launch[first:first + count].copy(),
+            o=np.broadcast_to((np.asarray(tx_m, float) - scene.center).astype(np.float32), (count, 3)).copy(),
+            d=launch[first:first + count].astype(np.float32),
             med=np.full(count, tx_medium, np.int64),
-            w=np.ones(count),
-            rad=np.zeros(count),
-            ang=np.full(count, spacing),
-            length=np.zeros(count),
+            w=np.ones(count, np.float32),
+            rad=np.zeros(count, np.float32),
+            ang=np.full(count, spacing, np.float32),
+            length=np.zeros(count, np.float32),
             nint=np.zeros(count, np.int64),
             hist=np.full(count, -1, np.int64),
             src=np.arange(first, first + count),

@@ -24,6 +24,7 @@ from __future__ import annotations
 import threading
 import weakref
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from embreex import rtcore_scene
@@ -147,12 +148,35 @@ class TracerScene:
             return face, t, np.stack([res["u"], res["v"]], axis=1).astype(float)
         return face, t
 
+    @cached_property
+    def face_normals32(self) -> np.ndarray:
+        return self.face_normals.astype(np.float32)
+
+    @cached_property
+    def corner_normals32(self) -> np.ndarray:
+        return self.corner_normals.astype(np.float32)
+
+    def first_hit32(self, origins_c: np.ndarray, directions: np.ndarray):
+        """Shooting-phase query, all float32: ``origins_c`` already in the scene's centred
+        frame. Returns ``(face, t, uv)`` with ``face = -1``, ``t = inf`` on a miss."""
+        n = len(origins_c)
+        if n == 0 or (self.face_map is not None and len(self.face_map) == 0):
+            return np.full(n, -1, np.int64), np.full(n, np.inf, np.float32), np.zeros((n, 2), np.float32)
+        res = self.embree.run(np.ascontiguousarray(origins_c), np.ascontiguousarray(directions), output=1)
+        face = res["primID"].astype(np.int64)
+        hit = face >= 0
+        if self.face_map is not None:
+            face[hit] = self.face_map[face[hit]]
+        t = np.where(hit, res["tfar"], np.float32(np.inf))
+        return face, t, np.stack([res["u"], res["v"]], axis=1)
+
     def smooth_normals_uv(self, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Smooth unit normals from Embree barycentrics (cheaper, float32-accurate: for shooting)."""
-        weights = np.empty((len(face), 3))
+        weights = np.empty((len(face), 3), dtype=uv.dtype)
         weights[:, 0] = 1.0 - uv[:, 0] - uv[:, 1]
         weights[:, 1:] = uv
-        nrm = np.einsum("nc,ncj->nj", weights, self.corner_normals[face])
+        corners = self.corner_normals32 if uv.dtype == np.float32 else self.corner_normals
+        nrm = np.einsum("nc,ncj->nj", weights, corners[face])
         nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None]
         return nrm
 
