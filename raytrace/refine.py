@@ -43,6 +43,8 @@ FD_STEP_RAD = 1e-7
 MAX_STEP_RAD = 0.25
 MAX_ITERATIONS = 40
 LINE_SEARCH_HALVINGS = 10
+#: Step fractions evaluated per batched trace in the line search.
+LINE_SEARCH_BATCH = 4
 
 
 def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.ndarray:
@@ -385,20 +387,28 @@ def refine(
         du, dv = u[todo], v[todo]
         base_dir = d0[todo]
         old = miss[todo]
-        lam = np.ones(len(sel))
         pending = np.ones(len(sel), bool)
-        for _h in range(LINE_SEARCH_HALVINGS):
+        # backtracking in batches: step fractions 1, 1/2, ... tried several at once (one
+        # trace call per batch), the largest that reduces the miss is taken
+        for first in range(0, LINE_SEARCH_HALVINGS, LINE_SEARCH_BATCH):
             pi = np.flatnonzero(pending)
             if len(pi) == 0:
                 break
-            trial = _normalize(base_dir[pi] + lam[pi, None] * (step[pi, 0:1] * du[pi] + step[pi, 1:2] * dv[pi]))
-            res = run(sel[pi], trial)
+            fractions = 0.5 ** np.arange(first, min(first + LINE_SEARCH_BATCH, LINE_SEARCH_HALVINGS))
+            nf = len(fractions)
+            lam = np.repeat(fractions, len(pi))  # fraction-major: all seeds at 1, then at 1/2...
+            rows = np.tile(pi, nf)
+            trial = _normalize(base_dir[rows] + lam[:, None] * (step[rows, 0:1] * du[rows] + step[rows, 1:2] * dv[rows]))
+            res = run(sel[rows], trial)
             dd = np.where(res.ok[:, None], res.last_dir, np.array([0.0, 0.0, 1.0]))
             a1, a2 = tangent_basis(dd)
-            rt, okt = _landing(res, rx_m[sel[pi]], dd, a1, a2)
-            better = okt & (np.linalg.norm(rt, axis=1) < old[pi])
-            dirs[sel[pi[better]]] = trial[better]
-            pending[pi[better]] = False
-            lam[pi[~better]] *= 0.5
+            rt, okt = _landing(res, rx_m[sel[rows]], dd, a1, a2)
+            better = (okt & (np.linalg.norm(rt, axis=1) < old[rows])).reshape(nf, len(pi))
+            any_better = better.any(axis=0)
+            pick = np.argmax(better, axis=0)  # first (largest) improving fraction
+            chosen = pick * len(pi) + np.arange(len(pi))
+            won = np.flatnonzero(any_better)
+            dirs[sel[pi[won]]] = trial[chosen[won]]
+            pending[pi[won]] = False
         failed[sel[pending]] = True
     return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=segments)
