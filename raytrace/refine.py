@@ -45,6 +45,10 @@ MAX_ITERATIONS = 40
 LINE_SEARCH_HALVINGS = 10
 #: Step fractions evaluated per batched trace in the line search.
 LINE_SEARCH_BATCH = 4
+#: Batches of halvings: the full step alone first (usually accepted), then groups of four.
+_LINE_SEARCH_SCHEDULE = [(0, 1)] + [
+    (a, min(a + LINE_SEARCH_BATCH, LINE_SEARCH_HALVINGS)) for a in range(1, LINE_SEARCH_HALVINGS, LINE_SEARCH_BATCH)
+]
 
 
 def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.ndarray:
@@ -390,11 +394,11 @@ def refine(
         pending = np.ones(len(sel), bool)
         # backtracking in batches: step fractions 1, 1/2, ... tried several at once (one
         # trace call per batch), the largest that reduces the miss is taken
-        for first in range(0, LINE_SEARCH_HALVINGS, LINE_SEARCH_BATCH):
+        for first, last in _LINE_SEARCH_SCHEDULE:
             pi = np.flatnonzero(pending)
             if len(pi) == 0:
                 break
-            fractions = 0.5 ** np.arange(first, min(first + LINE_SEARCH_BATCH, LINE_SEARCH_HALVINGS))
+            fractions = 0.5 ** np.arange(first, last)
             nf = len(fractions)
             lam = np.repeat(fractions, len(pi))  # fraction-major: all seeds at 1, then at 1/2...
             rows = np.tile(pi, nf)
