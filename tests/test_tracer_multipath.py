@@ -191,3 +191,43 @@ def test_reciprocity_lossless_curved_organs():
     for p, q in _reciprocity_pairs(ph, np.array([0.06, 0.0, 0.01]), np.array([0.19, 0.05, 0.02]), pol):
         assert abs(abs(q) / abs(p) - 1) < 3e-2
         assert abs(np.angle(q / p)) < 1e-6  # phases: exact (same exact geometry both ways)
+
+
+def test_coherent_sum_through_lossy_slab_matches_transfer_matrix():
+    """Far antennas on the normal of a lossy slab: the coherent sum of the direct and the
+    multiply reflected paths (up to 8 interactions) equals the plane-wave transmission of
+    the stack from the independent ``tmm`` package (Byrnes), once the common free spreading
+    lambda0 / (4 pi n_a^2 S) (paraxial reduced distance S = 2h / n_a + D / Re n_b) and phase
+    are divided out. 1 %: the paraxial S_k grows by 0.6 % per round trip (weighted by the
+    round-trip factor ~0.2) and the series is truncated after k = 3 (0.2^4); 0.3 % measured."""
+    import tmm
+
+    eps_a, eps_b, sigma_b = 5.0, 57.0, 0.8
+    d_slab, h = 0.01, 0.5
+    outer = trimesh.creation.box(extents=[4.0, 4.0, 4.0])
+    slab = trimesh.creation.box(bounds=[[-1.5, -1.5, -d_slab], [1.5, 1.5, 0.0]])
+    ph = Phantom.build("lossy-slab", [
+        Organ("A", lossless(eps_a), outer),
+        Organ("B", Material(relative_permittivity=eps_b, conductivity_s_per_m=sigma_b), slab),
+    ])
+    tx = Antenna(np.array([0.0, 0.0, h]), polarization=Y)
+    rx = Antenna(np.array([0.0, 0.0, -d_slab - h]), polarization=Y)
+    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=8, dynamic_range_db=120)
+    total, orders = 0j, []
+    for p in res.profiles[0].paths:
+        k = kinds(p)
+        pts = np.array([i.point_m for i in p.interactions])
+        if (len(pts) and np.allclose(pts[:, :2], 0.0, atol=1e-7) and k[0] == k[-1] == "refraction"
+                and set(k[1:-1]) <= {"reflection"}):
+            total += p.gain
+            orders.append((len(k) - 2) // 2)
+    assert sorted(orders) == [0, 1, 2, 3]
+    w = 2 * np.pi * F0
+    n_a = np.sqrt(eps_a)
+    n_b = np.sqrt(eps_b - 1j * sigma_b / (w * 8.8541878128e-12))  # exp(+jwt): Im n < 0
+    s0 = 2 * h / n_a + d_slab / n_b.real
+    lam0 = C / F0
+    measured = total * 4 * np.pi * n_a**2 * s0 / lam0 * np.exp(1j * w / C * n_a * 2 * h)
+    # tmm uses exp(-iwt): pass conj(n) and conjugate its amplitude back
+    t_stack = np.conj(tmm.coh_tmm("s", [n_a, np.conj(n_b), n_a], [np.inf, d_slab, np.inf], 0.0, lam0)["t"])
+    assert abs(measured / t_stack - 1) < 1e-2
