@@ -128,29 +128,36 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     threshold = ctx.threshold
     o, d, med = s.o, s.d, s.med
     face, t, uv = scene.first_hit32(o, d)
-    # reception (rays in the receiver's medium only)
-    for r in range(len(ctx.rx_m)):
-        i = np.flatnonzero(ctx.cls[med + 1] == ctx.cls[ctx.rx_medium[r] + 1])
-        if len(i) == 0:
+    # reception (rays in the receiver's medium class only; one mask per class)
+    ray_cls = ctx.cls[med + 1]
+    rx_cls = ctx.cls[ctx.rx_medium + 1]
+    for c in np.unique(rx_cls):
+        i_c = np.flatnonzero(ray_cls == c)
+        if len(i_c) == 0:
             continue
-        vec = ctx.rx_m[r] - o[i]
-        di = d[i]
-        tt = np.einsum("ij,ij->i", vec, di)
-        sel = (tt > 0.0) & (tt < t[i])
-        i, vec, di, tt = i[sel], vec[sel], di[sel], tt[sel]
-        perp = np.linalg.norm(vec - tt[:, None] * di, axis=1)
-        radius = RECEPTION_FACTOR * (s.rad[i] + tt * s.ang[i])
-        got = perp <= radius
-        if got.any():
-            i = i[got]
-            found.rx.append(np.full(len(i), r))
-            found.hist.append(s.hist[i])
-            found.n.append(s.nint[i])
-            found.src.append(s.src[i])
-            found.close.append(perp[got] / np.maximum(radius[got], 1e-30))
+        o_c, d_c, t_c = o[i_c], d[i_c], t[i_c]
+        for r in np.flatnonzero(rx_cls == c):
+            vec = ctx.rx_m[r] - o_c
+            tt = np.einsum("ij,ij->i", vec, d_c)
+            sel = np.flatnonzero((tt > 0.0) & (tt < t_c))
+            if len(sel) == 0:
+                continue
+            i, vec, tt = i_c[sel], vec[sel], tt[sel]
+            perp = np.linalg.norm(vec - tt[:, None] * d_c[sel], axis=1)
+            radius = RECEPTION_FACTOR * (s.rad[i] + tt * s.ang[i])
+            got = perp <= radius
+            if got.any():
+                i = i[got]
+                found.rx.append(np.full(len(i), r))
+                found.hist.append(s.hist[i])
+                found.n.append(s.nint[i])
+                found.src.append(s.src[i])
+                found.close.append(perp[got] / np.maximum(radius[got], 1e-30))
     keep = np.flatnonzero(face >= 0)
     if len(keep) == 0:
         return None
+    if len(keep) == len(face):
+        keep = slice(None)  # every ray hit: views instead of gathers
     f = face[keep]
     tk = t[keep]
     dk, mk = d[keep], med[keep]
