@@ -33,6 +33,17 @@ arriving field vector on its own polarization (normalised projection for an
 isotropic receiver). Where an isotropic antenna's polarization is parallel to
 the ray the projection is undefined; a fixed perpendicular is used instead.
 
+Lossy media: the Fresnel coefficients are the plane-wave ones with complex
+indices and the complex ``cos_t`` of Snell's law at the real (geometric)
+incidence angle, as :mod:`raytrace.em` / ``tmm`` define them, while the
+ray geometry and tube use ``Re n``. This is exact for lossless media and at
+normal incidence (tested against ``tmm`` through a lossy slab), and exactly
+reciprocal for lossless media; at oblique incidence between media of
+different loss tangents the local-plane-wave model is approximate and the
+channel is reciprocal only to a few percent / about 0.1 rad per interface
+(the reverse ray sees the real refraction angle where the forward Fresnel
+formula used the complex one).
+
 Caustics: the tube cross-section is floored at ``(TUBE_FLOOR * L)^2`` (L the
 unfolded length) so geometric optics' infinite field at a caustic is capped;
 the caustic phase shift is not applied (geometric optics limitation).
