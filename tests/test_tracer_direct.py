@@ -375,3 +375,44 @@ def test_band_gains_equal_single_frequency_traces_when_geometry_is_frequency_ind
             q = min(single, key=lambda q: abs(q.delay_s - p.delay_s))
             assert abs(q.delay_s - p.delay_s) < 1e-16
             assert abs(p.band_gains[k] / q.gain - 1) < 1e-9
+
+
+@pytest.mark.parametrize("polarization,mode", [(Y, "te"), (Z, "tm")])
+@pytest.mark.parametrize("tx_m,rx_m", [
+    ([-0.01, 0.0, 0.04], [0.02, 0.0, 0.05]),  # 18 deg: below the muscle/fat critical angle (25 deg)
+    ([-0.03, 0.0, 0.02], [0.05, 0.0, 0.035]),  # 55 deg: total internal reflection
+])
+def test_reflection_at_a_tissue_interface_lossy_fresnel(polarization, mode, tx_m, rx_m):
+    """Muscle above fat (Gabriel tissues, lossy): the reflected path off the planar boundary
+    has |a| = |r| lambda0 / (4 pi Re(n_m) L) exp(-alpha L), r the complex-index Fresnel
+    coefficient at the image-method incidence angle (Born & Wolf 1.5.20-21), alpha =
+    k0 |Im n_m|. cos_t: the forward (principal) root below the critical angle, the root
+    decaying into the fat (Im(n2 cos_t) < 0) beyond it. 1 %: planar, exact spreading;
+    image delay 0.1 ps."""
+    from raytrace.tissues import complex_relative_permittivity as eps_of
+
+    a = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
+    b = trimesh.creation.box(bounds=[[-0.5, -0.5, -0.5], [0.5, 0.5, 0.0]])
+    ph = Phantom.build("tissue-interface", [Organ("muscle", Material("muscle"), a),
+                                            Organ("fat", Material("fat_average_infiltrated"), b)])
+    tx = Antenna(np.array(tx_m), polarization=polarization)
+    rx = Antenna(np.array(rx_m), polarization=polarization)
+    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    refl = [p for p in res.profiles[0].paths if len(p.interactions) == 1 and abs(p.interactions[0].point_m[2]) < 1e-9]
+    assert len(refl) == 1
+    n1 = np.sqrt(complex(eps_of("muscle", F0)))
+    n2 = np.sqrt(complex(eps_of("fat_average_infiltrated", F0)))
+    n1, n2 = (n if n.imag <= 0 else n.conjugate() for n in (n1, n2))
+    image = tx.position_m * np.array([1, 1, -1])
+    length = np.linalg.norm(rx.position_m - image)
+    ci = (tx.position_m[2] + rx.position_m[2]) / length
+    ct = np.sqrt(1 - (n1 / n2) ** 2 * (1 - ci**2))
+    beyond_critical = n1.real * np.sqrt(1 - ci**2) > n2.real
+    if beyond_critical and (n2 * ct).imag > 0:
+        ct = -ct
+    assert refl[0].interactions[0].kind == ("total_internal_reflection" if beyond_critical else "reflection")
+    r = (n1 * ci - n2 * ct) / (n1 * ci + n2 * ct) if mode == "te" else (n2 * ci - n1 * ct) / (n2 * ci + n1 * ct)
+    k0 = 2 * np.pi * F0 / C
+    expected = abs(r) * LAMBDA0 / (4 * np.pi * n1.real * length) * np.exp(-k0 * abs(n1.imag) * length)
+    assert abs(abs(refl[0].gain) / expected - 1) < 1e-2
+    assert abs(refl[0].delay_s - n1.real * length / C) < 1e-13
