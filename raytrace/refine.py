@@ -9,7 +9,8 @@ not events.
 
 :func:`follow` shoots rays from the transmitter along given launch
 directions and makes them obey a signature *physically*: at each hit (first
-hit in the full scene, so nothing can be skipped) the surface must be the one
+hit in the scene of every non-transparent surface, so nothing can be
+skipped) the surface must be the one
 the signature names, and the new direction follows the law of reflection or
 Snell's law (real parts of the indices, smooth normals). :func:`refine` then
 drives the launch direction by Newton's method (finite-difference Jacobian on

@@ -1,16 +1,22 @@
 """Shooting and bouncing rays: candidate interaction signatures for every receiver.
 
 One launch (a Fibonacci sphere of directions at the transmitter) serves all
-receivers. Per bounce, every live ray is cast at once (one Embree batch);
-at each non-transparent hit it splits into a reflected ray and, unless Snell
-has no real solution (total internal reflection), a transmitted ray, up to
-``max_interactions`` events. A ray's power factor (lossless Fresnel power
-reflectance / transmittance from Re n, mean of TE and TM, times the true
-absorption ``exp(-2 alpha L)``) prunes it once below the dynamic range; a cap
-on live rays keeps the strongest (deterministic partition).
+receivers; it is processed in batches of :data:`LAUNCH_BATCH` directions,
+each batch's whole bounce tree at once, so memory stays bounded without
+culling branches. Per bounce, every live ray of the batch is cast together
+(Embree batches of :data:`CHUNK_RAYS`); at each hit it splits into a
+reflected ray and, unless Snell has no real solution (total internal
+reflection), a transmitted ray, up to ``max_interactions`` events. The scene
+given holds only the surfaces between different materials (see
+:func:`raytrace.scene.scene_for`), so media are compared by material class.
+A ray's power factor (lossless Fresnel power reflectance / transmittance
+from Re n, mean of TE and TM, times the true absorption ``exp(-2 alpha L)``)
+prunes it once below the dynamic range; a safety cap on live rays keeps the
+highest power / reduced-length^2 (deterministic partition). Shooting runs in
+float32 (it only produces seeds; refinement is float64).
 
 Reception: a segment passing within the reception radius of a receiver in
-the same medium makes a candidate. The radius is the ray tube's half-width,
+a medium of the same material makes a candidate. The radius is the ray tube's half-width,
 grown along the unfolded path as ``angle * length`` with ``angle`` the launch
 spacing sqrt(4 pi / N), multiplied at each refraction by the tube's angular
 magnification ``max(n1 cos_i / (n2 cos_t), n1 / n2, 1)``. Candidates are
