@@ -107,6 +107,17 @@ def trace_channel(
     see :mod:`raytrace.field` for the derivation). Paths weaker than the
     strongest one of a receiver by more than ``dynamic_range_db`` are dropped;
     rays whose Fresnel/absorption power factor falls below it are pruned.
+
+    ``max_interactions`` bounds the reflections + refractions of the shot rays;
+    the direct (refraction-only) path is always searched whatever its number
+    of refractions. A receiver can get no path at all when geometric optics
+    has none (e.g. a sensor in air outside the escape cone of the skin).
+    Every :class:`~raytrace.paths.Segment` carries its end points.
+    Raises :class:`~raytrace.errors.InputError` subclasses naming the field
+    (``transmitter.position_m``, ``receivers[i].position_m``,
+    ``frequency_hz``, ``band_frequencies_hz``, ``rays``, ``max_interactions``,
+    ``dynamic_range_db``, polarizations, patterns) and
+    :class:`~raytrace.errors.BudgetExceededError` when ``budget`` runs out.
     """
     started = time.monotonic()
     tx, rx, tx_pol, rx_pol, rx_pattern = _validate(
