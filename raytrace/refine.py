@@ -340,6 +340,10 @@ def refine(
     tube = np.full(p, np.nan)
     segments = 0
     h = FD_STEP_RAD
+    cached = np.zeros(p, bool)  # last trace of dirs[i] known (from the line search)
+    cache_ok = np.zeros(p, bool)
+    cache_point = np.zeros((p, 3))
+    cache_dir = np.zeros((p, 3))
 
     def run(sel, dd):
         nonlocal segments
@@ -357,15 +361,24 @@ def refine(
         rx = rx_m[act]
         u, v = tangent_basis(d0)
         m = len(act)
-        # base ray and the two finite-difference neighbours in one batch
-        trio = run(np.concatenate([act, act, act]), np.concatenate([d0, _normalize(d0 + h * u), _normalize(d0 + h * v)]))
-        parts = [
-            FollowResult(ok=trio.ok[k * m:(k + 1) * m], last_point=trio.last_point[k * m:(k + 1) * m],
-                         last_dir=trio.last_dir[k * m:(k + 1) * m], last_med=trio.last_med[k * m:(k + 1) * m],
-                         segments=0)
-            for k in range(3)
+        # base rays (unless the accepted line-search trial already traced them) and the two
+        # finite-difference neighbours, in one batch
+        fresh = act[~cached[act]]
+        batch = run(np.concatenate([fresh, act, act]),
+                    np.concatenate([dirs[fresh], _normalize(d0 + h * u), _normalize(d0 + h * v)]))
+        nf0 = len(fresh)
+        cache_ok[fresh] = batch.ok[:nf0]
+        cache_point[fresh] = batch.last_point[:nf0]
+        cache_dir[fresh] = batch.last_dir[:nf0]
+        base = FollowResult(ok=cache_ok[act], last_point=cache_point[act], last_dir=cache_dir[act],
+                            last_med=np.zeros(m, np.int64), segments=0)
+        parts = [base] + [
+            FollowResult(ok=batch.ok[nf0 + k * m:nf0 + (k + 1) * m],
+                         last_point=batch.last_point[nf0 + k * m:nf0 + (k + 1) * m],
+                         last_dir=batch.last_dir[nf0 + k * m:nf0 + (k + 1) * m],
+                         last_med=batch.last_med[nf0 + k * m:nf0 + (k + 1) * m], segments=0)
+            for k in range(2)
         ]
-        base = parts[0]
         db = np.where(base.ok[:, None], base.last_dir, np.array([0.0, 0.0, 1.0]))
         e1, e2 = tangent_basis(db)
         r0, ok0 = _landing(base, rx, db, e1, e2)
@@ -415,5 +428,11 @@ def refine(
             won = np.flatnonzero(any_better)
             dirs[sel[pi[won]]] = trial[chosen[won]]
             pending[pi[won]] = False
+            # the accepted trial is the next iteration's base ray: keep its trace
+            winners = sel[pi[won]]
+            cache_ok[winners] = res.ok[chosen[won]]
+            cache_point[winners] = res.last_point[chosen[won]]
+            cache_dir[winners] = res.last_dir[chosen[won]]
+            cached[winners] = True
         failed[sel[pending]] = True
     return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=segments)
