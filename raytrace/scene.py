@@ -13,7 +13,8 @@ starts exactly on the surface (``shared/design/tracer.md``, "Numerical care").
 
 Normals: the facet normal decides the side (entering / leaving an organ);
 directions (reflection, refraction) use smooth normals interpolated from the
-hit's barycentrics over per-corner normals. A corner whose vertex normal
+hit's barycentrics over per-corner normals (vertex normals with Max's
+weights, exact for vertices on a sphere). A corner whose vertex normal
 deviates from its facet normal by more than :data:`CREASE_ANGLE_RAD` (a box
 corner, a cylinder rim) uses the facet normal instead, so flat faces stay
 exactly flat and curved faceted organs get continuous normals.
@@ -73,8 +74,7 @@ class TracerScene:
             )
         fn = np.asarray(phantom.face_normals, dtype=float)
         fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
-        corners = np.asarray(phantom.vertex_normals, dtype=float)[faces]  # (F, 3, 3)
-        corners = corners / np.linalg.norm(corners, axis=2, keepdims=True)
+        corners = vertex_normals_max(vertices, faces)[faces]  # (F, 3, 3)
         crease = np.einsum("fcj,fj->fc", corners, fn) < np.cos(CREASE_ANGLE_RAD)
         corners = np.where(crease[..., None], fn[:, None, :], corners)
         magnitude = float(np.abs(centred).max())
@@ -203,6 +203,25 @@ class TracerScene:
         # Never let the smooth normal flip relative to the facet.
         flip = np.einsum("ij,ij->i", nrm, fallback) <= 0.0
         return np.where(flip[:, None], fallback, nrm)
+
+
+def vertex_normals_max(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals with Max's weights: sum over incident faces of
+    ``(e1 x e2) / (|e1|^2 |e2|^2)`` (N. Max, "Weights for computing vertex normals
+    from facet normals", J. Graphics Tools 4(2), 1999), exact for vertices on a
+    sphere. The plain area-weighted average (trimesh's) is off by ~0.15 deg on a
+    5120-face icosphere, which skews the curvature the ray tube sees by ~4 %.
+    Organs never share vertices in a phantom, so no normal mixes two organs."""
+    v = vertices[faces]  # (F, 3, 3)
+    acc = np.zeros_like(vertices)
+    for i in range(3):
+        e1 = v[:, (i + 1) % 3] - v[:, i]
+        e2 = v[:, (i + 2) % 3] - v[:, i]
+        w = np.cross(e1, e2) / (np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2))[:, None]
+        for k in range(3):
+            acc[:, k] += np.bincount(faces[:, i], weights=w[:, k], minlength=len(vertices))
+    norm = np.linalg.norm(acc, axis=1, keepdims=True)
+    return acc / np.where(norm > 0.0, norm, 1.0)
 
 
 _CACHE: dict[tuple, tuple[weakref.ref, TracerScene]] = {}
