@@ -78,9 +78,9 @@ from raytrace.scene import TracerScene, scene_for
 #: Receivers closer than this to the transmitter are rejected [m].
 MIN_SEPARATION_M = 1e-4
 #: Candidate seeds refined per (receiver, signature) group, at most.
-SEEDS_PER_SIGNATURE = 8
+SEEDS_PER_SIGNATURE = 16
 #: Seeds of one group must be this many launch spacings apart.
-SEED_SEPARATION = 2.0
+SEED_SEPARATION = 1.0
 #: Two converged paths with the same signature and delays closer than this are one path [s].
 DUPLICATE_DELAY_S = 1e-15
 #: ... and launch directions closer than this [rad].
