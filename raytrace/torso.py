@@ -68,11 +68,22 @@ Named sites
 -----------
 Capsule sites (kind ``capsule``) at interior points of the stomach, the
 small intestine (two), and the three colon segments, each at least ~10 mm
-from its organ's surface. Sensor sites (kind ``sensor``): a belt of eight in
-air 5 mm off the skin at z = 0 (the thesis' sensor belt around the
-abdomen), every 45 degrees of polar angle starting anterior and going to
-the subject's left, and four more anterior/lateral ones at the stomach
-level (z = 155 mm).
+from its organ's surface. Sensor sites (kind ``sensor``): contact sensors
+taped to the body, modelled inside the 2 mm skin layer, SENSOR_DEPTH_M = 1 mm
+below the faceted outer skin surface (medium ``skin``): a belt of eight at
+z = 0 (the thesis' sensor belt around the abdomen), every 45 degrees of polar
+angle starting anterior and going to the subject's left, and four more
+anterior/lateral ones at the stomach level (z = 155 mm).
+
+Why in the skin and not in air: from tissue, only rays within the escape
+cone of the skin/air interface (about 8 degrees from the local normal,
+n_skin ~ 6.9 at 402 MHz) leave the body, and the muscle wall -> fat
+interface admits only about 26 degrees. A receiver even 5 mm off the skin
+is therefore in a genuine geometric-optics shadow for most capsule
+positions (the field there is carried by surface/lateral waves that ray
+optics does not model); a contact sensor is what WCE receiver arrays are
+and what the thesis' FDTD sensors measure. Receivers in air can still be
+placed anywhere through explicit positions.
 
 Resolution
 ----------
@@ -90,6 +101,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 
 from raytrace.phantom import Material, Organ, Phantom
 from raytrace.shapes import rounded_cylinder, superquadric
@@ -99,6 +111,7 @@ __all__ = [
     "DEFAULT_RESOLUTION",
     "MIN_RESOLUTION",
     "MAX_RESOLUTION",
+    "SENSOR_DEPTH_M",
     "TORSO_NAME",
     "build_torso",
     "default_torso",
@@ -207,8 +220,9 @@ _CAPSULE_SITES_MIRD: dict[str, tuple[str, tuple[float, float, float]]] = {
     "descending_colon": ("descending_colon", (78.6, -23.1, -167.9)),
 }
 
-#: Distance of the sensor sites from the skin, in air [m].
-SENSOR_STANDOFF_M = 5e-3
+#: Depth of the (contact) sensor sites below the faceted outer skin surface [m]
+#: (the skin is 2 mm thick, so the sites sit mid-skin).
+SENSOR_DEPTH_M = 1e-3
 
 _BELT_DIRECTIONS = {
     "belt_anterior": 0.0,
@@ -229,13 +243,12 @@ _UPPER_DIRECTIONS = {
 _UPPER_Z_M = 0.155
 
 
-def _skin_point(polar_deg: float, z_m: float) -> np.ndarray:
-    """A point SENSOR_STANDOFF_M outside the analytic skin surface.
+def _skin_ray(polar_deg: float, z_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The analytic outer-skin point at a polar angle and height, and its outward normal.
 
     ``polar_deg`` is the polar angle around the trunk axis from anterior (-y)
     towards the subject's left (+x). The skin cross-section at height z is an
-    ellipse of semi-axes (a, b) along the straight side of the trunk; the
-    point is offset along the ellipse's outward normal.
+    ellipse of semi-axes (a, b) along the straight side of the trunk.
     """
     skin = _body_specs()[0]
     a, b, c = (v * _MM for v in skin.semi_axes_mm)
@@ -248,25 +261,38 @@ def _skin_point(polar_deg: float, z_m: float) -> np.ndarray:
     p = r * d
     n = np.array([p[0] / a**2, p[1] / b**2])
     n /= np.linalg.norm(n)
-    q = p + SENSOR_STANDOFF_M * n
-    return np.array([q[0], q[1], z_m])
+    return np.array([p[0], p[1], z_m]), np.array([n[0], n[1], 0.0])
 
 
-def _sites() -> dict[str, tuple[str, np.ndarray]]:
+def _contact_point(skin_mesh: trimesh.Trimesh, polar_deg: float, z_m: float) -> np.ndarray:
+    """A point SENSOR_DEPTH_M below the faceted outer skin surface, along the
+    analytic normal (the facets are inscribed in the analytic ellipse, up to
+    1.4 mm inside it at the coarsest resolution, so the depth is measured from
+    the mesh itself: the site is mid-skin at every resolution)."""
+    point, normal = _skin_ray(polar_deg, z_m)
+    start = point + 0.01 * normal
+    locations, _, _ = skin_mesh.ray.intersects_location(start[None, :], -normal[None, :])
+    if len(locations) == 0:
+        raise ValueError(f"no skin surface along the sensor normal at {polar_deg} deg")
+    first = locations[np.argmin(np.linalg.norm(locations - start, axis=1))]
+    return first - SENSOR_DEPTH_M * normal
+
+
+def _sites(skin_mesh: trimesh.Trimesh) -> dict[str, tuple[str, np.ndarray]]:
     sites: dict[str, tuple[str, np.ndarray]] = {}
     for name, (_, pos) in _CAPSULE_SITES_MIRD.items():
         sites[name] = ("capsule", _to_model_m(pos))
     for name, deg in _BELT_DIRECTIONS.items():
-        sites[name] = ("sensor", _skin_point(deg, 0.0))
+        sites[name] = ("sensor", _contact_point(skin_mesh, deg, 0.0))
     for name, deg in _UPPER_DIRECTIONS.items():
-        sites[name] = ("sensor", _skin_point(deg, _UPPER_Z_M))
+        sites[name] = ("sensor", _contact_point(skin_mesh, deg, _UPPER_Z_M))
     return sites
 
 
 def expected_site_media() -> dict[str, str]:
     """The medium (organ name or ``air``) each torso site is designed to be in."""
     out = {name: organ for name, (organ, _) in _CAPSULE_SITES_MIRD.items()}
-    out.update({name: "air" for name in (*_BELT_DIRECTIONS, *_UPPER_DIRECTIONS)})
+    out.update({name: "skin" for name in (*_BELT_DIRECTIONS, *_UPPER_DIRECTIONS)})
     return out
 
 
@@ -298,7 +324,7 @@ def build_torso(resolution: int = DEFAULT_RESOLUTION) -> Phantom:
     phantom = Phantom.build(
         TORSO_NAME,
         organs,
-        sites=_sites(),
+        sites=_sites(organs[0].mesh),
         description=(
             "Default procedural abdomen section: skin, subcutaneous fat, muscle wall, "
             "muscle-like visceral cavity with liver, stomach, small intestine, ascending/"

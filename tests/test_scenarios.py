@@ -169,7 +169,7 @@ def test_torso_scenarios_use_capsule_and_sensor_sites() -> None:
         phantom = scenario.phantom()
         assert phantom.sites[scenario.transmitter].kind == "capsule"
         assert all(phantom.sites[r].kind == "sensor" for r in scenario.receivers)
-        assert all(phantom.sites[r].medium == "air" for r in scenario.receivers)
+        assert all(phantom.sites[r].medium == "skin" for r in scenario.receivers)
     small = SCENARIOS["torso-small-intestine"]
     assert small.phantom().sites[small.transmitter].medium == "small_intestine"
     assert len(small.receivers) == 8

@@ -19,7 +19,7 @@ SMALL_CHANNEL = {
     "transmitter": {"site": "small_intestine_1"},
     "receivers": [{"site": "belt_anterior"}, {"name": "side", "site": "belt_left"}],
     "rays": 2000,
-    "max_interactions": 6,  # small intestine -> cavity -> muscle -> fat -> skin -> air: 5 refractions
+    "max_interactions": 6,  # small intestine -> cavity -> muscle -> fat -> skin: 4 refractions
 }
 
 PROFILE = {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}, {"delay_s": 2.0e-9, "gain": {"re": -2e-4, "im": 1e-4}}]}
@@ -134,7 +134,7 @@ def test_phantoms_and_scenarios(api):
     kinds = {s["kind"] for s in detail["sites"].values()}
     assert kinds == {"capsule", "sensor"}
     for site in detail["sites"].values():
-        assert (site["medium"] == "air") == (site["kind"] == "sensor")
+        assert (site["medium"] == "skin") == (site["kind"] == "sensor")  # contact sensors, mid-skin
     r = api.get("/v1/scenarios")
     assert r.status_code == 200
     for sc in r.json()["scenarios"]:
@@ -232,7 +232,7 @@ def test_channel_happy_path_on_the_default_torso(api):
     assert out["transmitter"]["medium"] == "small_intestine"
     assert [p["receiver"] for p in out["profiles"]] == ["belt_anterior", "side"]
     for prof in out["profiles"]:
-        assert prof["medium"] == "air"
+        assert prof["medium"] == "skin"  # torso sensor sites are contact sensors
         delays = [p["delay_s"] for p in prof["paths"]]
         assert delays == sorted(delays)
         for p in prof["paths"]:
