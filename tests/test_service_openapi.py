@@ -102,4 +102,4 @@ def test_upload_manifest_schema_is_documented():
 def test_docs_settings_table_is_current():
     from service.settings import settings_table_markdown
 
-    assert settings_table_markdown() in (ROOT / "docs" / "service.md").read_text(), "regenerate the table in docs/service.md"
+    assert settings_table_markdown() in (ROOT / "README.md").read_text(), "regenerate the settings table in README.md (Configuration)"
