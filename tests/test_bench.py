@@ -1,0 +1,38 @@
+"""The benchmark harness keeps working (it measures, it never asserts speed)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from bench.ceiling import embree_ceiling, fibonacci_directions
+from bench.common import growth_exponent, run_point
+from raytrace.phantom import Material, Organ, Phantom
+
+
+def test_growth_exponent_recovers_a_power_law() -> None:
+    x = np.array([1e4, 3e4, 1e5, 3e5])
+    assert growth_exponent(x, 2.0 * x**1.5) == pytest.approx(1.5, abs=1e-9)
+    assert np.isnan(growth_exponent([1.0], [1.0]))
+
+
+def test_fibonacci_directions_are_unit_and_balanced() -> None:
+    d = fibonacci_directions(10_000)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(d.mean(axis=0), 0.0, atol=1e-3)
+
+
+def test_ceiling_counts_primary_and_secondary_rays() -> None:
+    sphere = trimesh.creation.icosphere(3, radius=0.1)
+    phantom = Phantom.build("s", [Organ("body", Material(relative_permittivity=50.0), sphere)])
+    out = embree_ceiling(phantom, np.array([0.01, 0.0, 0.0]), rays=2000, repeat=1)
+    # Every primary ray from inside a closed sphere hits it, so each spawns one secondary.
+    assert out["rays_cast"] == 4000 and out["rays_per_s"] > 0 and out["triangles"] == 1280
+
+
+@pytest.mark.slow
+def test_scaling_point_runs_in_a_fresh_process() -> None:
+    out = run_point(["--rays", "2000", "--receivers", "2", "--interactions", "2", "--resolution", "24"])
+    assert out["receivers"] == 2 and out["triangles"] > 1000
+    assert out["peak_rss_mb"] >= out["rss_before_trace_mb"] > 0
