@@ -241,12 +241,27 @@ def cos_transmitted(
 ) -> np.ndarray:
     """Complex ``cos(theta_t) = sqrt(1 - (n1/n2)^2 (1 - cos_i^2))`` on the physical branch.
 
-    Snell's law ``n1 sin_i = n2 sin_t`` (Born & Wolf 1.5.2). Of the two roots the
-    one kept makes the transmitted wave ``exp(-j k0 n2 ct z)`` decay away from
-    the interface, ``Im(n2 ct) < 0``; when ``n2 ct`` is real (lossless, no total
-    internal reflection) the forward root ``Re(n2 ct) > 0``. For lossless total
-    internal reflection this is the evanescent root ``ct = -j |ct|``. Same
-    rule as ``tmm.is_forward_angle`` up to the conjugate time convention.
+    Snell's law ``n1 sin_i = n2 sin_t`` (Born & Wolf 1.5.2). Which of the two
+    roots is physical depends on the tangential index ``n1 sin_i``:
+
+    * **Real** ``n1 sin_i`` (a lossless first medium, or a wave that entered
+      the layer stack from one, e.g. the complex ``cos`` inside a slab): the
+      transmitted wave ``exp(-j k0 n2 ct z)`` must decay away from the
+      interface, ``Im(n2 ct) < 0``; when ``n2 ct`` is real (lossless, no total
+      internal reflection) the forward root ``Re(n2 ct) > 0``. For lossless
+      total internal reflection this is the evanescent root ``ct = -j |ct|``.
+      Same rule as ``tmm.is_forward_angle`` up to the conjugate time convention.
+    * **Complex** ``n1 sin_i``: a ray in lossy tissue, i.e. a wave decaying
+      along its own real direction (the ray tracer's case). Along the
+      interface the incident field then varies as ``exp(-j k0 n1 sin_i x)``
+      with a real decay, and the transmitted field at a fixed ``x`` legitimately
+      *grows* away from the interface (the field seen further out was launched
+      from further back, where the incident wave was stronger), so the decay
+      rule would pick the backward root (``Re ct < 0``, ``|r| > 1``: a ray
+      leaving muscle into air). Below the geometric critical angle (real
+      parts) the root continuous with the lossless limit is used, the
+      principal root ``Re ct >= 0``; beyond it the evanescent root with
+      ``Im(n2 ct) <= 0``.
     """
     n1 = _index(n1, "n1")
     n2 = _index(n2, "n2")
@@ -254,8 +269,14 @@ def cos_transmitted(
     sin2_t = (n1 / n2) ** 2 * (1.0 - ci * ci)
     ct = np.sqrt(1.0 - sin2_t + 0j)
     nct = n2 * ct
-    lossy = np.abs(nct.imag) > 100.0 * np.finfo(float).eps * np.maximum(np.abs(nct), 1e-300)
-    backward = np.where(lossy, nct.imag > 0.0, nct.real < 0.0)
+    tiny = 100.0 * np.finfo(float).eps
+    lossy = np.abs(nct.imag) > tiny * np.maximum(np.abs(nct), 1e-300)
+    decaying_backward = np.where(lossy, nct.imag > 0.0, nct.real < 0.0)
+    kx = n1 * np.sqrt(1.0 - ci * ci + 0j)  # tangential index n1 sin_i
+    complex_kx = np.abs(kx.imag) > 1e3 * np.finfo(float).eps * np.maximum(np.abs(kx), 1e-300)
+    geometric_tir = (n1.real / n2.real) ** 2 * (1.0 - np.real(ci) ** 2) > 1.0
+    ray_backward = np.where(geometric_tir, nct.imag > 0.0, ct.real < 0.0)
+    backward = np.where(complex_kx, ray_backward, decaying_backward)
     return np.where(backward, -ct, ct)
 
 

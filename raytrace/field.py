@@ -35,7 +35,8 @@ the ray the projection is undefined; a fixed perpendicular is used instead.
 
 Lossy media: the Fresnel coefficients are the plane-wave ones with complex
 indices and the complex ``cos_t`` of Snell's law at the real (geometric)
-incidence angle, as :mod:`raytrace.em` / ``tmm`` define them, while the
+incidence angle (:func:`raytrace.em.fresnel`; for a ray in lossy tissue the
+root continuous with the lossless limit, see :func:`raytrace.em.cos_transmitted`), while the
 ray geometry and tube use ``Re n``. This is exact for lossless media and at
 normal incidence (tested against ``tmm`` through a lossy slab), and exactly
 reciprocal for lossless media; at oblique incidence between media of
@@ -55,41 +56,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from raytrace.em import C0, Fresnel, interface_basis
+from raytrace.em import C0, fresnel, interface_basis
 from raytrace.media import MediaTable
 from raytrace.refine import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION, Steps
 
 #: Smallest tube cross-section as a fraction of the unfolded length (caps caustic gain at +20 dB).
 TUBE_FLOOR = 0.1
-
-
-def ray_fresnel(n1: np.ndarray, n2: np.ndarray, cos_i: np.ndarray, tir: np.ndarray) -> Fresnel:
-    """Fresnel field coefficients (Born & Wolf 1.5.20-21, tmm sign convention of
-    :mod:`raytrace.em`) for a *ray* crossing from lossy medium n1 into n2.
-
-    The only difference from :func:`raytrace.em.fresnel` is the branch of the
-    complex ``cos_t``: em picks the root with ``Im(n2 cos_t) <= 0`` (decaying
-    away from the interface), which is right for a homogeneous incident wave
-    from a lossless medium but, for a ray leaving a lossy tissue into a less
-    lossy one (muscle -> air), selects a backward root (``Re cos_t < 0``,
-    ``|r| > 1``). A ray below the geometric critical angle (``tir`` False,
-    real parts) is transmitted forward: the principal root (``Re cos_t >= 0``)
-    is used; beyond it, the evanescent root with ``Im(n2 cos_t) <= 0``.
-    """
-    n1 = np.asarray(n1, complex)
-    n2 = np.asarray(n2, complex)
-    ci = np.asarray(cos_i, float)
-    ct = np.sqrt(1.0 - (n1 / n2) ** 2 * (1.0 - ci * ci) + 0j)  # principal: Re >= 0
-    evanescent = np.where((n2 * ct).imag > 0.0, -ct, ct)
-    ct = np.where(np.asarray(tir, bool), evanescent, ct)
-    n1ci, n2ct, n2ci, n1ct = n1 * ci, n2 * ct, n2 * ci, n1 * ct
-    same = n1 == n2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r_te = np.where(same, 0.0, (n1ci - n2ct) / (n1ci + n2ct))
-        t_te = np.where(same, 1.0, 2.0 * n1ci / (n1ci + n2ct))
-        r_tm = np.where(same, 0.0, (n2ci - n1ct) / (n2ci + n1ct))
-        t_tm = np.where(same, 1.0, 2.0 * n1ci / (n2ci + n1ct))
-    return Fresnel(r_te=r_te + 0j, t_te=t_te + 0j, r_tm=r_tm + 0j, t_tm=t_tm + 0j, cos_t=ct)
 
 
 def antenna_vector(direction: np.ndarray, polarization: np.ndarray, pattern: str) -> np.ndarray:
@@ -164,7 +136,7 @@ def path_gains(
                 mf_i, mt_i = mf[inter], steps.med_to[s][i]
                 basis = interface_basis(steps.dir_in[s][i], steps.normal[s][i], n_re0[mf_i + 1], n_re0[mt_i + 1])
                 ci = basis.cos_i
-                fr = ray_fresnel(n[:, mf_i + 1].T, n[:, mt_i + 1].T, ci[:, None], basis.tir[:, None])  # (I, F)
+                fr = fresnel(n[:, mf_i + 1].T, n[:, mt_i + 1].T, ci[:, None])  # (I, F), ray branch of cos_t
                 es = np.einsum("ifj,ij->if", field[i], basis.s)
                 ep = np.einsum("ifj,ij->if", field[i], basis.p_in)
                 refl = kind[inter] == KIND_REFLECTION

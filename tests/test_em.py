@@ -515,3 +515,33 @@ def test_interface_basis_rejects_bad_vectors():
         em.interface_basis(np.ones((2, 2)), np.ones((2, 2)))
     with pytest.raises(InvalidGeometryError):
         em.refract_direction(np.array([[np.nan, 0, 1.0]]), np.array([[0, 0, 1.0]]), 1.0, 1.5)
+
+
+def test_ray_in_lossy_tissue_takes_the_root_continuous_with_the_lossless_limit():
+    """A ray in lossy tissue (complex tangential index n1 sin_i) leaving into a less lossy
+    medium: the decaying-wave rule (right for a real tangential index, tmm's case) would pick
+    the backward root (Re cos_t < 0, |r| > 1). Oracle: continuity in the loss. Scaling Im n1
+    from 0 (lossless: the Born & Wolf 1.5.20-21 closed form with real cos_t) up to the
+    tissue value must move every coefficient continuously (no branch jump: consecutive
+    steps of a 1000-point 1e-8..1 geometric scan differ by < 0.3 of the coefficient's
+    magnitude: the smooth variation per step is < 0.1 of it, the wrong root jumps by ~2), with
+    Re cos_t > 0 and |r| < 1 throughout, below the geometric critical angle."""
+    pairs = [(N_MUSCLE, 1.0 + 0j), (N_MUSCLE, N_FAT), (7.17 - 2.15j, 1.0 + 0j), (9.32 - 4.56j, N_MUSCLE)]
+    for n1, n2 in pairs:
+        theta_c = np.arcsin(n2.real / n1.real)
+        for theta in np.linspace(0.0, 0.95 * theta_c, 5):
+            ci = np.cos(theta)
+            scale = np.concatenate([[0.0], np.geomspace(1e-8, 1.0, 1000)])
+            n1s = n1.real + 1j * n1.imag * scale
+            f = em.fresnel(n1s, n2, ci)
+            ct0 = np.sqrt(1 - (n1.real / n2) ** 2 * (1 - ci**2))
+            assert abs(f.r_te[0] - (n1.real * ci - n2 * ct0) / (n1.real * ci + n2 * ct0)) < EXACT
+            for coef in (f.r_te, f.r_tm, f.t_te, f.t_tm, f.cos_t):
+                assert np.max(np.abs(np.diff(coef))) < 0.3 * max(np.abs(coef).max(), 0.1)
+            assert np.all(f.cos_t.real > 0)
+            assert np.all(np.abs(f.r_te) < 1) and np.all(np.abs(f.r_tm) < 1)
+    # a real tangential index (the complex cos inside a slab entered from air) keeps the
+    # decaying-wave root: Im(n2 cos_t) < 0
+    ci_slab = em.cos_transmitted(1.0, N_MUSCLE, np.cos(np.deg2rad(40.0)))
+    ct = em.cos_transmitted(N_MUSCLE, N_FAT, ci_slab)
+    assert (N_FAT * ct).imag < 0
