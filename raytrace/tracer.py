@@ -37,7 +37,7 @@ Design choices (where this departs from or sharpens ``shared/design/tracer.md``)
   converged duplicates are merged only when delay *and* launch direction
   agree: the walls of one organ share a signature but are distinct paths.
 * Fresnel coefficients for rays leaving a lossy tissue use the forward
-  branch of the complex ``cos_t`` (:func:`raytrace.field.ray_fresnel`).
+  branch of the complex ``cos_t`` (:func:`raytrace.em.cos_transmitted`).
 * Shooting runs in launch batches (bounded memory, no culling of branches).
 * Limits of geometric optics: the caustic field is capped (tube floor) and the
   caustic phase shift is not applied; diffraction and surface (lateral)
@@ -71,7 +71,8 @@ from raytrace.paths import (
     TraceStats,
 )
 from raytrace.phantom import Material, Phantom
-from raytrace.refine import KIND_PASS, KIND_REFLECTION, encode, follow, refine, refine_by_continuation
+from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, encode, follow, refine, refine_by_continuation
+from raytrace.direct import direct_seeds, zoom_seeds
 from raytrace.sbr import shoot
 from raytrace.scene import TracerScene, scene_for
 
@@ -147,34 +148,66 @@ def trace_channel(
     scene = scene_for(phantom, ~media.face_transparent)
     segments = 0
 
-    # --- seeds: direct (straight-line signature) + shooting and bouncing
+    # --- direct paths first: the straight line's signature (homotopy on the indices when its
+    # launch is totally reflected on the way), then, for receivers still without one,
+    # refraction-only rays walked from the transmitter (their own signatures), zoomed in
+    # when Newton's basin is narrower than the launch spacing (near a critical angle)
     d_codes, d_n, seg = _straight_signatures(scene, media, tx, rx)
     segments += seg
+    direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
+    found = refine(scene, media, tx, tx_medium, rx, direct_dir, d_codes, d_n, budget=budget)
+    segments += found.segments
+    retry = np.flatnonzero(~found.converged)
+    if len(retry):
+        again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], d_codes[retry], d_n[retry],
+                                       budget=budget)
+        segments += again.segments
+        found.dirs[retry] = again.dirs
+        found.converged[retry] = again.converged
+        found.tube_m2_per_sr[retry] = again.tube_m2_per_sr
+    groups = [(np.arange(len(rx)), d_codes, d_n, found)]
+    missing = np.flatnonzero(~found.converged)
+    if len(missing):
+        walk = direct_seeds(scene, media, tx, tx_medium, rx, rx_medium, int(rays), missing, budget)
+        segments += walk.segments
+        ref_w = refine(scene, media, tx, tx_medium, rx[walk.receiver], walk.launch_dir, walk.codes, walk.nint,
+                       budget=budget)
+        segments += ref_w.segments
+        groups.append((walk.receiver, walk.codes, walk.nint, ref_w))
+        have = np.unique(walk.receiver[ref_w.converged])
+        still = np.isin(walk.receiver, missing[~np.isin(missing, have)])
+        if still.any():
+            sub = type(walk)(walk.receiver[still], walk.launch_dir[still], walk.miss_m[still],
+                             walk.codes[still], walk.nint[still], 0)
+            zoomed = zoom_seeds(scene, media, tx, tx_medium, rx, rx_medium, sub,
+                                2.0 * np.sqrt(4.0 * np.pi / int(rays)), budget)
+            segments += zoomed.segments
+            ref_z = refine(scene, media, tx, tx_medium, rx[zoomed.receiver], zoomed.launch_dir, zoomed.codes,
+                           zoomed.nint, budget=budget)
+            segments += ref_z.segments
+            groups.append((zoomed.receiver, zoomed.codes, zoomed.nint, ref_z))
+
+    # --- shooting and bouncing rays: every other signature
     cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
                   float(dynamic_range_db), budget)
     segments += cands.segments
     s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
-    width = max(d_codes.shape[1], s_codes.shape[1], 1)
-    seed_rx = np.concatenate([np.arange(len(rx)), s_rx])
-    seed_codes = np.concatenate([_pad(d_codes, width), _pad(s_codes, width)])
-    seed_n = np.concatenate([d_n, s_n])
-    direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
-    seed_dir = np.concatenate([direct_dir, s_dir])
     if budget is not None:
         budget.charge(0)
+    ref_s = refine(scene, media, tx, tx_medium, rx[s_rx], s_dir, s_codes, s_n, budget=budget)
+    segments += ref_s.segments
+    groups.append((s_rx, s_codes, s_n, ref_s))
 
-    # --- refine every seed, then re-trace the converged ones with the last leg checked
-    refined = refine(scene, media, tx, tx_medium, rx[seed_rx], seed_dir, seed_codes, seed_n, budget=budget)
-    segments += refined.segments
-    # direct seeds whose straight launch fails (e.g. total reflection on the way): homotopy
-    retry = np.flatnonzero(~refined.converged[: len(rx)])
-    if len(retry):
-        again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], seed_codes[retry], seed_n[retry],
-                                       budget=budget)
-        segments += again.segments
-        refined.dirs[retry] = again.dirs
-        refined.converged[retry] = again.converged
-        refined.tube_m2_per_sr[retry] = again.tube_m2_per_sr
+    width = max(max(g[1].shape[1] for g in groups), 1)
+    seed_rx = np.concatenate([g[0] for g in groups])
+    seed_codes = np.concatenate([_pad(g[1], width) for g in groups])
+    seed_n = np.concatenate([g[2] for g in groups])
+    refined = Refined(
+        dirs=np.concatenate([g[3].dirs for g in groups]),
+        converged=np.concatenate([g[3].converged for g in groups]),
+        tube_m2_per_sr=np.concatenate([g[3].tube_m2_per_sr for g in groups]),
+        segments=0,
+    )
     conv = np.flatnonzero(refined.converged)
     rec = follow(full_scene, media, tx, tx_medium, refined.dirs[conv], seed_codes[conv], seed_n[conv],
                  targets_m=rx[seed_rx[conv]])

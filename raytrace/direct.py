@@ -1,0 +1,265 @@
+"""Seeds for direct (refraction-only) paths that the straight line does not give.
+
+The straight transmitter->receiver segment's crossings are the direct path's
+signature only when refraction does not change which surfaces the path
+crosses. Behind strongly refracting interfaces it does: the refracted path
+misses an organ the line clips, or crosses one the line misses, and paths
+near a critical angle (muscle -> fat 26 deg, muscle -> bone 28 deg,
+muscle -> lung 41 deg) leave through a thin sliver of launch directions that
+a launch lattice can step over and whose Newton basin is narrower than the
+lattice spacing.
+
+:func:`refraction_walk` follows rays refraction-only (Snell with ``Re n``,
+smooth normals, a ray stops at total internal reflection or in air, no
+splitting) and records, for every leg in a receiver's material, the closest
+approach to the receiver and the signature so far. :func:`direct_seeds`
+walks the whole Fibonacci launch once (one cast per ray and event) and keeps
+per receiver the closest rays with distinct launch directions;
+:func:`zoom_seeds` then shrinks a grid of launch directions around each seed
+(derivative-free, so it cannot overshoot into total reflection the way a
+Newton step does near a critical angle) until the miss is small enough for
+:func:`raytrace.refine.refine` to converge. Every path is still made exact by
+Newton refinement; these are only seeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from raytrace.budget import Budget
+from raytrace.launch import angular_spacing_rad, fibonacci_sphere
+from raytrace.media import MediaTable
+from raytrace.refine import encode, snell_refract, tangent_basis
+from raytrace.scene import TracerScene
+
+#: Refraction events followed at most.
+MAX_EVENTS = 24
+#: Seeds kept per receiver (closest approaches, launch directions two spacings apart).
+SEEDS_PER_RECEIVER = 6
+#: Rays walked together.
+BATCH = 50_000
+#: Zoom grid: GRID x GRID launch directions per seed and level.
+GRID = 11
+#: Zoom levels (the grid half-width halves per level).
+ZOOM_LEVELS = 24
+#: The zoom stops once the miss is below this [m] (Newton then takes over).
+ZOOM_MISS_M = 1e-7
+
+
+@dataclass
+class Walk:
+    miss_m: np.ndarray  # (P, R) closest approach of a leg in the receiver's material (inf: none)
+    codes: np.ndarray  # (P, R, MAX_EVENTS) signature up to that leg, -1 padded
+    nint: np.ndarray  # (P, R)
+    segments: int
+
+
+def refraction_walk(
+    scene: TracerScene,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    dirs: np.ndarray,
+    rx_m: np.ndarray,
+    rx_medium: np.ndarray,
+    ray_rx: np.ndarray | None = None,
+    *,
+    exact: bool = True,
+) -> Walk:
+    """Walk rays refraction-only; closest approach to every receiver (``ray_rx`` None, R
+    columns) or to each ray's own receiver ``ray_rx[i]`` (one column). Vectorised per event.
+    ``exact=False``: Embree's float32 hit distances and barycentric normals (about 1e-8 m,
+    enough for the global seed walk; the zoom uses the float64 re-intersection)."""
+    p = len(dirs)
+    cls = media.material_class
+    n_re = media.n_real
+    rx_cls = cls[np.asarray(rx_medium) + 1]
+    own = ray_rx is not None
+    cols = 1 if own else len(rx_m)
+    o = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
+    d = np.array(dirs, float)
+    med = np.full(p, tx_medium, np.int64)
+    push = np.zeros((p, 3))
+    codes = np.full((p, MAX_EVENTS), -1, np.int64)
+    nint = np.zeros(p, np.int64)
+    miss = np.full((p, cols), np.inf)
+    nmiss = np.zeros((p, cols), np.int64)
+    alive = np.ones(p, bool)
+    segments = 0
+    for _ in range(MAX_EVENTS + 1):
+        idx = np.flatnonzero(alive)
+        if len(idx) == 0:
+            break
+        face, t, uv = scene.first_hit(o[idx], d[idx], push[idx], barycentric=True, exact=exact)
+        segments += len(idx)
+        reach = np.minimum(np.where(face >= 0, t, np.inf), 1e3)
+        ray_cls = cls[med[idx] + 1]
+        for c in range(cols):
+            if own:
+                target = rx_m[ray_rx[idx]]
+                s = np.flatnonzero(ray_cls == rx_cls[ray_rx[idx]])
+                target = target[s]
+            else:
+                s = np.flatnonzero(ray_cls == rx_cls[c])
+                target = rx_m[c]
+            if len(s) == 0:
+                continue
+            i = idx[s]
+            v = target - o[i]
+            tp = np.clip(np.einsum("ij,ij->i", v, d[i]), 0.0, reach[s])
+            dist = np.linalg.norm(v - tp[:, None] * d[i], axis=1)
+            closer = dist < miss[i, c]
+            miss[i[closer], c] = dist[closer]
+            nmiss[i[closer], c] = nint[i[closer]]
+        hit = face >= 0
+        alive[idx[~hit]] = False
+        j, f = idx[hit], face[hit]
+        if len(j) == 0:
+            break
+        pt = o[j] + t[hit, None] * d[j]
+        fn = scene.face_normals[f]
+        leaving = np.einsum("ij,ij->i", d[j], fn) > 0.0
+        organ = scene.face_organ[f]
+        parent = media.parent[organ]
+        m_from = np.where(leaving, organ, parent)
+        m_to = np.where(leaving, parent, organ)
+        if exact:
+            ns = scene.smooth_normals(f, pt)
+        else:
+            ns = scene.smooth_normals_uv(f, uv[hit])
+            flip = np.einsum("ij,ij->i", ns, fn) <= 0.0
+            ns[flip] = fn[flip]
+        dt, tir, _, _ = snell_refract(d[j], ns, np.einsum("ij,ij->i", d[j], ns), n_re[m_from + 1] / n_re[m_to + 1])
+        wrong = np.einsum("ij,ij->i", dt, fn) * np.where(leaving, 1.0, -1.0) <= 0.0
+        stop = (cls[m_from + 1] != cls[med[j] + 1]) | tir | wrong | (nint[j] >= MAX_EVENTS)
+        alive[j[stop]] = False
+        g = ~stop
+        jg = j[g]
+        codes[jg, nint[jg]] = encode(organ[g], leaving[g], 0)
+        nint[jg] += 1
+        o[jg] = pt[g]
+        d[jg] = dt[g]
+        med[jg] = m_to[g]
+        push[jg] = np.where(leaving[g], 1.0, -1.0)[:, None] * fn[g] * scene.offset_m
+    out_codes = np.repeat(codes[:, None, :], cols, axis=1)
+    out_codes[np.arange(MAX_EVENTS)[None, None, :] >= nmiss[:, :, None]] = -1
+    return Walk(miss_m=miss, codes=out_codes, nint=nmiss, segments=segments)
+
+
+@dataclass
+class Seeds:
+    receiver: np.ndarray  # (S,)
+    launch_dir: np.ndarray  # (S, 3)
+    miss_m: np.ndarray  # (S,)
+    codes: np.ndarray  # (S, MAX_EVENTS)
+    nint: np.ndarray  # (S,)
+    segments: int
+
+
+def _charge(budget: Budget | None, n: int) -> None:
+    if budget is not None:
+        budget.charge(n)
+
+
+def direct_seeds(
+    scene: TracerScene,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    rx_m: np.ndarray,
+    rx_medium: np.ndarray,
+    rays: int,
+    receivers: np.ndarray,
+    budget: Budget | None = None,
+) -> Seeds:
+    """Per receiver in ``receivers``, the :data:`SEEDS_PER_RECEIVER` launch directions (of a
+    ``rays``-direction Fibonacci launch) whose refraction-only rays pass closest to it."""
+    receivers = np.asarray(receivers, np.int64)
+    launch = fibonacci_sphere(rays)
+    min_cos = np.cos(2.0 * angular_spacing_rad(rays))
+    segments = 0
+    pool: dict[int, list[tuple[float, np.ndarray, np.ndarray, int]]] = {int(r): [] for r in receivers}
+    for first in range(0, rays, BATCH):
+        dirs = launch[first:first + BATCH]
+        w = refraction_walk(scene, media, tx_m, tx_medium, dirs, rx_m[receivers], rx_medium[receivers],
+                            exact=False)
+        segments += w.segments
+        _charge(budget, w.segments)
+        for c, r in enumerate(receivers):
+            ok = np.flatnonzero(np.isfinite(w.miss_m[:, c]))
+            top = ok[np.argsort(w.miss_m[ok, c], kind="stable")[: 8 * SEEDS_PER_RECEIVER]]
+            pool[int(r)].extend((float(w.miss_m[k, c]), dirs[k], w.codes[k, c], int(w.nint[k, c])) for k in top)
+    out = []
+    for r in receivers:  # a few dozen candidates per receiver: loops over seeds, not rays
+        kept: list[tuple] = []
+        for cand in sorted(pool[int(r)], key=lambda x: x[0]):
+            if all(float(cand[1] @ k[1]) < min_cos for k in kept):
+                kept.append(cand)
+                if len(kept) == SEEDS_PER_RECEIVER:
+                    break
+        out.extend((int(r),) + k for k in kept)
+    if not out:
+        return Seeds(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, MAX_EVENTS), np.int64),
+                     np.zeros(0, np.int64), segments)
+    return Seeds(
+        receiver=np.array([x[0] for x in out], np.int64),
+        launch_dir=np.array([x[2] for x in out]),
+        miss_m=np.array([x[1] for x in out]),
+        codes=np.array([x[3] for x in out], np.int64),
+        nint=np.array([x[4] for x in out], np.int64),
+        segments=segments,
+    )
+
+
+def zoom_seeds(
+    scene: TracerScene,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    rx_m: np.ndarray,
+    rx_medium: np.ndarray,
+    seeds: Seeds,
+    half_width_rad: float,
+    budget: Budget | None = None,
+) -> Seeds:
+    """Derivative-free zoom: a GRID x GRID patch of launch directions around each seed, the
+    best (smallest refraction-only miss) becomes the centre, the half-width halves; until the
+    miss is below :data:`ZOOM_MISS_M` or :data:`ZOOM_LEVELS` levels (all seeds at once)."""
+    s = len(seeds.receiver)
+    if s == 0:
+        return seeds
+    d0 = np.array(seeds.launch_dir, float)
+    best = np.array(seeds.miss_m, float)
+    codes = np.array(seeds.codes)
+    nint = np.array(seeds.nint)
+    scale = np.full(s, float(half_width_rad))
+    a = np.linspace(-1.0, 1.0, GRID)
+    ga, gb = (x.ravel() for x in np.meshgrid(a, a))
+    segments = 0
+    for _ in range(ZOOM_LEVELS):
+        act = np.flatnonzero(best >= ZOOM_MISS_M)
+        if len(act) == 0:
+            break
+        u, v = tangent_basis(d0[act])
+        k = len(ga)
+        dirs = (d0[act, None, :] + (scale[act, None] * ga)[:, :, None] * u[:, None, :]
+                + (scale[act, None] * gb)[:, :, None] * v[:, None, :]).reshape(-1, 3)
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        ray_rx = np.repeat(seeds.receiver[act], k)
+        w = refraction_walk(scene, media, tx_m, tx_medium, dirs, rx_m, rx_medium, ray_rx)
+        segments += w.segments
+        _charge(budget, w.segments)
+        m = w.miss_m[:, 0].reshape(len(act), k)
+        pick = np.argmin(m, axis=1)
+        row = np.arange(len(act)) * k + pick
+        better = m[np.arange(len(act)), pick] < best[act]
+        sel = act[better]
+        d0[sel] = dirs[row[better]]
+        best[sel] = m[np.arange(len(act)), pick][better]
+        codes[sel] = w.codes[row[better], 0]
+        nint[sel] = w.nint[row[better], 0]
+        scale[act] *= 0.5
+    return Seeds(receiver=seeds.receiver, launch_dir=d0, miss_m=best, codes=codes, nint=nint,
+                 segments=seeds.segments + segments)
