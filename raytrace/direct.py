@@ -37,7 +37,7 @@ from raytrace.scene import TracerScene
 #: Refraction events followed at most.
 MAX_EVENTS = 24
 #: Seeds kept per receiver (closest approaches, launch directions two spacings apart).
-SEEDS_PER_RECEIVER = 6
+SEEDS_PER_RECEIVER = 12
 #: Rays walked together.
 BATCH = 50_000
 #: Zoom grid: GRID x GRID launch directions per seed and level.
