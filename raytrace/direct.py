@@ -263,3 +263,77 @@ def zoom_seeds(
         scale[act] *= 0.5
     return Seeds(receiver=seeds.receiver, launch_dir=d0, miss_m=best, codes=codes, nint=nint,
                  segments=seeds.segments + segments)
+
+
+def reverse_signature(codes: np.ndarray, nint: np.ndarray) -> np.ndarray:
+    """The signature of the same path travelled backwards: events in reverse order, each
+    surface crossed from the other side (``leaving`` flipped, the reflect bit kept)."""
+    codes = np.asarray(codes, np.int64)
+    out = np.full_like(codes, -1)
+    for row in range(len(codes)):  # a handful of seeds
+        k = int(nint[row])
+        ev = codes[row, :k][::-1]
+        out[row, :k] = ev ^ 2  # code = (organ * 2 + leaving) * 2 + reflect: bit 1 is `leaving`
+    return out
+
+
+def reverse_seeds(
+    scene: TracerScene,
+    media: MediaTable,
+    tx_m: np.ndarray,
+    tx_medium: int,
+    rx_m: np.ndarray,
+    rx_medium: np.ndarray,
+    receivers: np.ndarray,
+    rays: int,
+    budget: Budget | None = None,
+) -> Seeds:
+    """Forward seeds for ``receivers`` found from the receiver's side (reciprocity).
+
+    Near a critical angle the launch-to-landing map from the high-index side is badly
+    conditioned (a launch sliver fans out over centimetres of skin), while from the other
+    end the same path can be a broad, well-conditioned bundle. For each receiver the walk
+    and Newton refinement (no zoom: this is the well-conditioned side) run with the roles swapped (source at the receiver, target
+    the transmitter); each converged reverse path gives the forward launch direction (towards
+    its last vertex) and the reversed signature, which the caller refines forward so the
+    field is computed along the forward path as usual. A loop over receivers (at most a
+    dozen), vectorised inside."""
+    from raytrace.refine import follow, refine
+
+    out_rx, out_dir, out_codes, out_n = [], [], [], []
+    segments = 0
+    target = np.asarray(tx_m, float)[None, :]
+    target_medium = np.array([tx_medium])
+    for r in np.asarray(receivers, np.int64):
+        src, src_med = rx_m[r], int(rx_medium[r])
+        seeds = direct_seeds(scene, media, src, src_med, target, target_medium, rays, np.array([0]), budget)
+        segments += seeds.segments
+        if len(seeds.receiver) == 0:
+            continue
+        tgt = np.repeat(target, len(seeds.receiver), axis=0)
+        ref = refine(scene, media, src, src_med, tgt, seeds.launch_dir, seeds.codes, seeds.nint, budget=budget)
+        segments += ref.segments
+        dirs, codes, nint, ok = ref.dirs, seeds.codes, seeds.nint, ref.converged
+        if not ok.any():
+            continue
+        dirs, codes, nint = dirs[ok], codes[ok], nint[ok]
+        back = follow(scene, media, src, src_med, dirs, codes, nint)
+        segments += back.segments
+        last = np.where((nint > 0)[:, None], back.last_point, src)  # the forward path's first vertex
+        fwd = last - np.asarray(tx_m, float)
+        fwd /= np.linalg.norm(fwd, axis=1, keepdims=True)
+        out_rx.append(np.full(len(dirs), r))
+        out_dir.append(fwd)
+        out_codes.append(reverse_signature(codes, nint))
+        out_n.append(nint)
+    if not out_rx:
+        return Seeds(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, MAX_EVENTS), np.int64),
+                     np.zeros(0, np.int64), segments)
+    return Seeds(
+        receiver=np.concatenate(out_rx),
+        launch_dir=np.concatenate(out_dir),
+        miss_m=np.zeros(sum(len(x) for x in out_rx)),
+        codes=np.concatenate(out_codes),
+        nint=np.concatenate(out_n),
+        segments=segments,
+    )

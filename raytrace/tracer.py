@@ -72,7 +72,7 @@ from raytrace.paths import (
 )
 from raytrace.phantom import Material, Phantom
 from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, encode, follow, refine, refine_by_continuation
-from raytrace.direct import direct_seeds, zoom_seeds
+from raytrace.direct import direct_seeds, reverse_seeds, zoom_seeds
 from raytrace.sbr import shoot
 from raytrace.scene import TracerScene, scene_for
 
@@ -186,6 +186,16 @@ def trace_channel(
                            zoomed.nint, budget=budget)
             segments += ref_z.segments
             groups.append((zoomed.receiver, zoomed.codes, zoomed.nint, ref_z))
+            have = np.union1d(have, zoomed.receiver[ref_z.converged])
+        # still none: search from the receiver's side (reciprocity), refine the reversed path forward
+        rest = missing[~np.isin(missing, have)]
+        if len(rest):
+            back = reverse_seeds(scene, media, tx, tx_medium, rx, rx_medium, rest, int(rays), budget)
+            segments += back.segments
+            ref_b = refine(scene, media, tx, tx_medium, rx[back.receiver], back.launch_dir, back.codes, back.nint,
+                           budget=budget)
+            segments += ref_b.segments
+            groups.append((back.receiver, back.codes, back.nint, ref_b))
 
     # --- shooting and bouncing rays: every other signature
     cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),

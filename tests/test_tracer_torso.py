@@ -53,8 +53,9 @@ def test_torso_paths_are_consistent_with_the_phantom(phantom):
 
 # ----------------------------------------------------------------- direct paths, contact sensors
 #: Capsule x sensor pairs of the default torso (contact sensors 1 mm deep in the skin) with no
-#: refraction-only geometric-optics path found by any of four searches: this tracer at 1e5 and
-#: 1e6 rays, and two independent brute-force refraction-only shooters (a 3.9e6-ray theta-phi
+#: refraction-only geometric-optics path found by any of five searches: this tracer at 1e5 and
+#: 1e6 rays, its refraction-only search at 2e6 rays from both ends (reciprocity), and two
+#: independent brute-force refraction-only shooters (a 3.9e6-ray theta-phi
 #: lattice with image-triangle containment, and 2e6 Fibonacci rays each zoomed by a
 #: derivative-free grid search). Mechanisms (checked by tracing the straight line): the fat
 #: layer's 26 deg critical angle (muscle -> fat) when the capsule sees the sensor's fat patch
@@ -65,17 +66,21 @@ def test_torso_paths_are_consistent_with_the_phantom(phantom):
 #: These are genuine GO shadows of this phantom (real fields reach them by diffraction).
 GO_SHADOWS = {
     ("stomach", "belt_left"), ("stomach", "belt_right"), ("stomach", "upper_left"),
-    ("small_intestine_1", "upper_left"),
     ("small_intestine_2", "belt_left"), ("small_intestine_2", "belt_right"),
     ("ascending_colon", "belt_anterior_left"), ("ascending_colon", "upper_left"),
     ("transverse_colon", "belt_left"), ("transverse_colon", "belt_right"), ("transverse_colon", "upper_left"),
     ("descending_colon", "belt_anterior"), ("descending_colon", "belt_anterior_right"),
     ("descending_colon", "upper_left"),
 }
-#: Pairs whose only direct paths (7 refractions) leave a low-index layer (fat, bone) within a
-#: fraction of a degree of its critical angle: a launch sliver narrower than the 1e5-ray
-#: spacing, found at 1e6 rays (-135 and -128 dB, 50 dB under the pair's strongest path).
-SLIVER_ONLY = {("ascending_colon", "upper_anterior_left"), ("ascending_colon", "upper_anterior")}
+#: Pairs whose only direct paths leave a low-index layer (fat, bone) within a fraction of a
+#: degree of its critical angle: a launch sliver narrower than the 1e5-ray spacing, found by
+#: this tracer at 1e6 rays (ascending colon, 7 refractions through spine and liver: -135 and
+#: -128 dB, 50 dB under the pair's strongest path) or by its refraction-only search at 2e6
+#: rays (small_intestine_1 -> upper_left).
+SLIVER_ONLY = {
+    ("ascending_colon", "upper_anterior_left"), ("ascending_colon", "upper_anterior"),
+    ("small_intestine_1", "upper_left"),
+}
 
 
 @pytest.fixture(scope="module")
@@ -172,3 +177,34 @@ def test_torso_trace_is_deterministic(contact_torso, direct_traces):
     first = direct_traces[cap]
     for p1, p2 in zip(first.profiles, again.profiles):
         assert [(p.delay_s, p.gain, p.length_m) for p in p1.paths] == [(p.delay_s, p.gain, p.length_m) for p in p2.paths]
+
+
+def test_reverse_search_gives_the_forward_direct_path(contact_torso, direct_traces):
+    """Reciprocity fallback: the direct path searched from the sensor's side, reversed
+    (signature reversed, each surface from the other side) and refined forward, is the path
+    the forward search found (same launch direction to 1e-6 rad: both are Newton solutions
+    to 1e-9 m over ~0.1 m), for a pair whose forward search is well conditioned."""
+    from raytrace.direct import reverse_seeds, reverse_signature
+    from raytrace.media import MediaTable
+    from raytrace.refine import refine
+    from raytrace.scene import scene_for
+
+    codes = np.array([[10, 6, 33, -1]])
+    assert reverse_signature(reverse_signature(codes, np.array([3])), np.array([3])).tolist() == codes.tolist()
+    assert reverse_signature(codes, np.array([3])).tolist() == [[35, 4, 8, -1]]
+    ph = contact_torso
+    media = MediaTable.build(ph, np.array([402e6]))
+    scene = scene_for(ph, ~media.face_transparent)
+    cap, sensor = "small_intestine_2", "belt_anterior"
+    tx = ph.sites[cap].position_m
+    rx = ph.sites[sensor].position_m[None]
+    tx_med, rx_med = ph.organ_index(ph.sites[cap].medium), ph.organ_index(ph.sites[sensor].medium)
+    back = reverse_seeds(scene, media, tx, tx_med, rx, np.array([rx_med]), np.array([0]), 20_000)
+    assert len(back.receiver) >= 1
+    fwd = refine(scene, media, tx, tx_med, np.repeat(rx, len(back.receiver), 0), back.launch_dir, back.codes,
+                 back.nint)
+    assert fwd.converged.any()
+    prof = next(p for p in direct_traces[cap].profiles if p.receiver == sensor)
+    launch = [(p.segments[0].end_m - tx) / p.segments[0].length_m for p in prof.paths if _is_direct(p)]
+    angles = [np.arccos(np.clip(d @ l, -1, 1)) for d in fwd.dirs[fwd.converged] for l in launch]
+    assert min(angles) < 1e-6
