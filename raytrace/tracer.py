@@ -3,10 +3,12 @@
 Pipeline (``shared/design/tracer.md``):
 
 1. Validate the request (typed errors naming the field).
-2. Direct path seeds: the straight transmitter->receiver segment's crossings
+2. Direct paths: the straight transmitter->receiver segment's crossings
    (a multi-hit walk along it) give the refraction-only signature; it is
-   always refined, whatever ``max_interactions`` is, so the direct path is
-   found whenever it exists physically.
+   always refined, whatever ``max_interactions`` is. Receivers where it
+   fails get refraction-only seeds from the rays themselves, zoomed when
+   Newton's basin is narrower than the launch spacing, and finally a search
+   from the receiver's side (reciprocity) (:mod:`raytrace.direct`).
 3. Shooting and bouncing rays (:mod:`raytrace.sbr`): one Fibonacci launch for
    all receivers, reflected + transmitted splitting up to
    ``max_interactions``, candidates grouped by interaction signature.
@@ -30,9 +32,12 @@ Design choices (where this departs from or sharpens ``shared/design/tracer.md``)
   deep in muscle, a sensor in air) are found by homotopy on the indices
   (``n_i^s``, s: 0 -> 1), starting from the exact straight line at s = 0.
   The direct path is refined whatever ``max_interactions`` is (it may need
-  more refractions than that); it can only be missing when geometric optics
-  has no refraction-only path (shadow of a critical angle, e.g. a sensor in
-  air far to the side of a capsule behind fat).
+  more refractions than that); it is missing when geometric optics has no
+  refraction-only path (shadow of a critical angle, e.g. a sensor whose fat
+  patch the capsule sees beyond muscle -> fat's 26 deg, or the wedge behind
+  a colon's limb), or when its only solutions pass a critical angle within a
+  launch sliver narrower than the search resolves at the requested ``rays``
+  (more rays find them; they are ~50 dB under the strongest path).
 * Several seeds per signature (distinct face sequences) are refined, and
   converged duplicates are merged only when delay *and* launch direction
   agree: the walls of one organ share a signature but are distinct paths.
