@@ -63,8 +63,10 @@ from typing import Sequence
 import numpy as np
 
 from raytrace.budget import Budget
+from raytrace.direct import Seeds, direct_seeds, reverse_seeds, zoom_seeds
 from raytrace.errors import InputError, InvalidGeometryError
 from raytrace.field import path_gains
+from raytrace.launch import angular_spacing_rad
 from raytrace.media import MediaTable
 from raytrace.paths import (
     Antenna,
@@ -77,7 +79,6 @@ from raytrace.paths import (
 )
 from raytrace.phantom import Material, Phantom
 from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, encode, follow, refine, refine_by_continuation
-from raytrace.direct import direct_seeds, reverse_seeds, zoom_seeds
 from raytrace.sbr import shoot
 from raytrace.scene import TracerScene, scene_for
 
@@ -182,10 +183,10 @@ def trace_channel(
         have = np.unique(walk.receiver[ref_w.converged])
         still = np.isin(walk.receiver, missing[~np.isin(missing, have)])
         if still.any():
-            sub = type(walk)(walk.receiver[still], walk.launch_dir[still], walk.miss_m[still],
-                             walk.codes[still], walk.nint[still], 0)
+            sub = Seeds(walk.receiver[still], walk.launch_dir[still], walk.miss_m[still],
+                        walk.codes[still], walk.nint[still], 0)
             zoomed = zoom_seeds(scene, media, tx, tx_medium, rx, rx_medium, sub,
-                                2.0 * np.sqrt(4.0 * np.pi / int(rays)), budget)
+                                2.0 * angular_spacing_rad(int(rays)), budget)
             segments += zoomed.segments
             ref_z = refine(scene, media, tx, tx_medium, rx[zoomed.receiver], zoomed.launch_dir, zoomed.codes,
                            zoomed.nint, budget=budget)
