@@ -110,14 +110,14 @@ def _response(results: list[dict[str, Any]], primary: str | None) -> dict[str, A
 
 
 def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
-    from estimators.pdoa import estimate_pdoa  # type: ignore[import-not-found]
+    from estimators.pdoa import estimate_pdoa
 
     _check_trials(req, settings)
     if req.band is not None and req.band.points > settings.max_band_points:
         raise Unprocessable(
             f"{req.band.points} exceeds this server's limit of {settings.max_band_points}", loc=["body", "band", "points"]
         )
-    results = estimate_pdoa(
+    result = estimate_pdoa(
         path_profile(req.profile),
         frequencies_hz=None if req.frequencies_hz is None else np.asarray(req.frequencies_hz, float),
         band=None if req.band is None else req.band.model_dump(),
@@ -129,16 +129,14 @@ def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
         relative_permittivity=req.relative_permittivity,
         true_distance_m=req.true_distance_m,
     )
-    if not isinstance(results, (list, tuple)):
-        results = [results]
-    return _response([_result(r) for r in results], getattr(req, "method", None))
+    return _response([_result(result)], req.method)
 
 
 def rss(req: RssRequest, settings: Settings) -> dict[str, Any]:
-    from estimators.rss import estimate_rss  # type: ignore[import-not-found]
+    from estimators.rss import estimate_rss
 
     _check_trials(req, settings)
-    results = estimate_rss(
+    result = estimate_rss(
         None if req.profile is None else path_profile(req.profile),
         rss_dbm=req.rss_dbm,
         transmit_power_dbm=req.transmit_power_dbm,
@@ -148,6 +146,4 @@ def rss(req: RssRequest, settings: Settings) -> dict[str, Any]:
         true_distance_m=req.true_distance_m,
         shadowing=req.shadowing,
     )
-    if not isinstance(results, (list, tuple)):
-        results = [results]
-    return _response([_result(r) for r in results], getattr(req, "method", None))
+    return _response([_result(result)], None)

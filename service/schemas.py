@@ -340,7 +340,11 @@ class ToaRequest(RangingCommon):
             ]
         },
     )
-    method: Literal["first_peak", "all_peaks", "gcc", "all"] = Field("gcc", description="TOA estimator (`all`: every one).")
+    method: Literal["first_peak", "all_peaks", "gcc", "envelope", "all"] = Field(
+        "gcc",
+        description="TOA estimator: `first_peak` (Eq 4.18), `all_peaks` (Eq 4.19-4.21), `gcc` (Eq 4.22-4.24), "
+        "`envelope` (cross-correlation envelope only, no carrier phase), `all`: the thesis' three.",
+    )
     waveform: Waveform = Field(default_factory=Waveform, description="Transmitted waveform.")
 
 
