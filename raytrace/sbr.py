@@ -71,6 +71,7 @@ class _Context:
     rx_m: np.ndarray
     rx_medium: np.ndarray
     cls: np.ndarray  # material class per medium (index m + 1)
+    need: np.ndarray  # fewest further interactions to reach a receiver's class, per medium (m + 1)
 
 
 @dataclass
@@ -202,6 +203,11 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     wt = wk - wr
     r_mask = ev & (np.einsum("ij,ij->i", dr, fn) * sg < 0.0) & (wr >= threshold)
     t_mask = ev & ~tir & (wt >= threshold) & (np.einsum("ij,ij->i", dt, fn) * sg > 0.0)
+    # a child that cannot reach a receiver's material class within max_interactions is dropped
+    # (it could never be received: see _interactions_needed)
+    r_mask &= nk + (1 + ctx.need[m_from + 1]) <= ctx.kmax
+    t_mask &= nk + (1 + ctx.need[m_to + 1]) <= ctx.kmax
+    p_mask &= nk + ctx.need[m_to + 1] <= ctx.kmax
     mag = np.minimum(np.maximum(np.maximum(n1 * ci / np.maximum(n2 * ct, 1e-3), n1 / n2), 1.0), 50.0)
     # event log: one int32 entry per spawned reflected / transmitted ray
     base = log.size
@@ -273,6 +279,7 @@ def shoot(
         rx_m=(np.asarray(rx_m, float) - scene.center).astype(np.float32),
         rx_medium=np.asarray(rx_medium),
         cls=media.material_class,
+        need=_interactions_needed(media, rx_medium),
     )
     log = _Log()
     found = _Found()
@@ -332,6 +339,39 @@ def shoot(
         rays_launched=rays,
         segments=segments,
     )
+
+
+def _interactions_needed(media: MediaTable, rx_medium: np.ndarray) -> np.ndarray:
+    """Per medium (index m + 1): the fewest interactions a ray in it needs before it can be
+    received, i.e. the number of transmissions to reach a medium of a receiver's material
+    class (0 for those classes; a large number when none can be reached).
+
+    A ray only ever crosses a surface of organ X between X and its parent (the bounce
+    requires the side it comes from to be of the ray's class), each crossing of a visible
+    surface costs one interaction and joins two different classes, and reception needs the
+    ray's class to be the receiver's. So a breadth-first search over the graph of material
+    classes (an edge per organ/parent pair of different classes) bounds the interactions
+    still needed; a ray with ``nint + need > max_interactions`` can never make a candidate
+    and is not spawned (exact pruning: the candidates are unchanged)."""
+    cls = np.asarray(media.material_class, np.int64)
+    n_cls = int(cls.max()) + 1
+    adjacent: list[set[int]] = [set() for _ in range(n_cls)]
+    for organ, parent in enumerate(np.asarray(media.parent, np.int64)):
+        a, b = int(cls[organ + 1]), int(cls[parent + 1])
+        if a != b:
+            adjacent[a].add(b)
+            adjacent[b].add(a)
+    big = 1 << 20
+    dist = np.full(n_cls, big, np.int64)
+    frontier = sorted({int(c) for c in cls[np.asarray(rx_medium, np.int64) + 1]})
+    dist[frontier] = 0
+    step = 0
+    while frontier:  # a graph of a dozen material classes
+        step += 1
+        nxt = sorted({b for a in frontier for b in adjacent[a] if dist[b] == big})
+        dist[nxt] = step
+        frontier = nxt
+    return dist[cls]
 
 
 def _resolve(found: _Found, log: _Log, width: int) -> None:

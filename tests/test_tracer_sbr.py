@@ -1,0 +1,72 @@
+"""Shooting-phase pruning (raytrace/sbr.py): rays that cannot reach a receiver's material
+within ``max_interactions`` are not spawned, and that must not change the candidates.
+
+Oracles: the torso's nesting written out by hand (skin > fat > muscle wall > visceral
+cavity > organs) for the interaction counts, and the same launch shot with the pruning
+disabled for the candidates (exact equality: pruning is a pure optimisation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from raytrace import sbr
+from raytrace.media import MediaTable
+from raytrace.scene import scene_for
+
+torso = pytest.importorskip("raytrace.torso")
+
+
+@pytest.fixture(scope="module")
+def phantom():
+    return torso.default_torso()
+
+
+def _medium(ph, name):
+    return -1 if name == "air" else [o.name for o in ph.organs].index(name)
+
+
+def test_interactions_needed_follow_the_torso_layers(phantom):
+    media = MediaTable.build(phantom, np.array([402e6]))
+    skin = _medium(phantom, "skin")
+    need = sbr._interactions_needed(media, np.array([skin]))
+    # by hand: from air one refraction into skin; from fat one; from the muscle wall two
+    # (muscle -> fat -> skin); from the cavity the same (cavity and wall are both muscle: the
+    # surface between them is transparent); from an organ in the cavity three
+    expected = {"air": 1, "skin": 0, "subcutaneous_fat": 1, "muscle_wall": 2, "visceral_cavity": 2,
+                "liver": 3, "small_intestine": 3, "spine": 3, "left_lung": 3}
+    for name, n in expected.items():
+        assert need[_medium(phantom, name) + 1] == n, name
+    # receivers in two classes: the nearer one counts
+    liver = _medium(phantom, "liver")
+    need2 = sbr._interactions_needed(media, np.array([skin, liver]))
+    assert need2[_medium(phantom, "liver") + 1] == 0
+    assert need2[_medium(phantom, "small_intestine") + 1] == 2  # organ -> cavity -> liver
+    assert need2[_medium(phantom, "air") + 1] == 1
+
+
+def _candidate_set(c):
+    return sorted(
+        (int(r), tuple(int(x) for x in codes), tuple(np.round(d, 12)), float(cl))
+        for r, codes, d, cl in zip(c.receiver, c.codes, c.launch_dir, c.closeness)
+    )
+
+
+@pytest.mark.parametrize("max_interactions", [4, 6])
+def test_pruning_leaves_the_candidates_unchanged(phantom, monkeypatch, max_interactions):
+    media = MediaTable.build(phantom, np.array([402e6]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    tx = phantom.sites[[n for n, s in phantom.sites.items() if s.kind == "capsule"][0]].position_m
+    sensors = [s for s in phantom.sites.values() if s.kind == "sensor"]
+    rx = np.array([s.position_m for s in sensors])
+    tx_med = int(phantom.medium_index(tx[None, :])[0])
+    rx_med = np.array([int(phantom.medium_index(r[None, :])[0]) for r in rx])
+    args = (scene, media, tx, tx_med, rx, rx_med, 20_000, max_interactions, 80.0)
+    pruned = sbr.shoot(*args)
+    monkeypatch.setattr(sbr, "_interactions_needed", lambda media, rx_medium: np.zeros(len(media.materials),
+                                                                                          np.int64))
+    full = sbr.shoot(*args)
+    assert pruned.segments < full.segments  # it does prune something
+    assert len(full.receiver) > 0
+    assert _candidate_set(pruned) == _candidate_set(full)
