@@ -51,9 +51,18 @@ ZOOM_MISS_M = 1e-7
 @dataclass
 class Walk:
     miss_m: np.ndarray  # (P, R) closest approach of a leg in the receiver's material (inf: none)
-    codes: np.ndarray  # (P, R, MAX_EVENTS) signature up to that leg, -1 padded
-    nint: np.ndarray  # (P, R)
+    events: np.ndarray  # (P, MAX_EVENTS) every refraction of the walk, -1 padded
+    nint: np.ndarray  # (P, R) events before that closest leg
     segments: int
+
+    def codes(self, rows: np.ndarray, col: int | np.ndarray) -> np.ndarray:
+        """Signatures (-1 padded) of walked rays ``rows`` up to their closest leg to receiver
+        column ``col``: the first ``nint[rows, col]`` events. Built only for the rows asked
+        for (a (P, R, MAX_EVENTS) table of every ray would be tens of MB per batch)."""
+        rows = np.asarray(rows, np.int64)
+        out = np.array(self.events[rows])
+        out[np.arange(MAX_EVENTS)[None, :] >= self.nint[rows, col][:, None]] = -1
+        return out
 
 
 def refraction_walk(
@@ -143,9 +152,7 @@ def refraction_walk(
         d[jg] = dt[g]
         med[jg] = m_to[g]
         push[jg] = np.where(leaving[g], 1.0, -1.0)[:, None] * fn[g] * scene.offset_m
-    out_codes = np.repeat(codes[:, None, :], cols, axis=1)
-    out_codes[np.arange(MAX_EVENTS)[None, None, :] >= nmiss[:, :, None]] = -1
-    return Walk(miss_m=miss, codes=out_codes, nint=nmiss, segments=segments)
+    return Walk(miss_m=miss, events=codes, nint=nmiss, segments=segments)
 
 
 @dataclass
@@ -190,7 +197,7 @@ def direct_seeds(
         for c, r in enumerate(receivers):
             ok = np.flatnonzero(np.isfinite(w.miss_m[:, c]))
             top = ok[np.argsort(w.miss_m[ok, c], kind="stable")[: 8 * SEEDS_PER_RECEIVER]]
-            pool[int(r)].extend((float(w.miss_m[k, c]), dirs[k], w.codes[k, c], int(w.nint[k, c])) for k in top)
+            pool[int(r)].extend(zip(w.miss_m[top, c].tolist(), dirs[top], w.codes(top, c), w.nint[top, c].tolist()))
     out = []
     for r in receivers:  # a few dozen candidates per receiver: loops over seeds, not rays
         kept: list[tuple] = []
@@ -258,7 +265,7 @@ def zoom_seeds(
         sel = act[better]
         d0[sel] = dirs[row[better]]
         best[sel] = m[np.arange(len(act)), pick][better]
-        codes[sel] = w.codes[row[better], 0]
+        codes[sel] = w.codes(row[better], 0)
         nint[sel] = w.nint[row[better], 0]
         scale[act] *= 0.5
     return Seeds(receiver=seeds.receiver, launch_dir=d0, miss_m=best, codes=codes, nint=nint,
