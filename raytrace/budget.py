@@ -25,6 +25,7 @@ class Budget:
     started: float = field(default_factory=time.monotonic)
     ray_segments: int = 0
     _cancelled: threading.Event = field(default_factory=threading.Event, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def cancel(self) -> None:
         self._cancelled.set()
@@ -33,8 +34,10 @@ class Budget:
         return time.monotonic() - self.started
 
     def charge(self, ray_segments: int = 0) -> None:
-        """Account for work done and raise if a limit is passed."""
-        self.ray_segments += int(ray_segments)
+        """Account for work done and raise if a limit is passed (thread-safe: the tracer
+        shoots launch batches concurrently)."""
+        with self._lock:
+            self.ray_segments += int(ray_segments)
         if self._cancelled.is_set():
             raise BudgetExceededError("the computation was cancelled", kind="cancelled")
         if self.max_ray_segments is not None and self.ray_segments > self.max_ray_segments:

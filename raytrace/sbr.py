@@ -25,6 +25,8 @@ only seeds: :func:`raytrace.refine.refine` makes every kept path exact.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,6 +41,9 @@ from raytrace.scene import TracerScene
 LAUNCH_BATCH = 50_000
 #: Safety cap on the live rays of one launch batch (highest priority kept).
 MAX_LIVE_RAYS = 2_000_000
+#: Launch batches shot concurrently (threads; Embree releases the GIL). Peak memory grows
+#: with it: each batch holds its own bounce tree.
+SHOOT_THREADS = min(2, os.cpu_count() or 1)
 #: Reception radius in units of the local ray-tube half-width.
 RECEPTION_FACTOR = 1.0
 
@@ -281,17 +286,17 @@ def shoot(
         cls=media.material_class,
         need=_interactions_needed(media, rx_medium),
     )
-    log = _Log()
-    found = _Found()
-    segments = 0
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
     spacing = angular_spacing_rad(rays)
-    for first in range(0, rays, LAUNCH_BATCH):
-        # launch batches: the whole bounce tree of one batch at a time bounds memory
-        # without culling branches (the candidates of every batch are merged)
+    tx_c = (np.asarray(tx_m, float) - scene.center).astype(np.float32)
+
+    def launch_batch(first: int) -> tuple[_Found, int]:
+        # the whole bounce tree of one batch of launch directions: bounds memory without
+        # culling branches; batches are independent (own event log and candidates)
         count = min(LAUNCH_BATCH, rays - first)
+        log, found, segments = _Log(), _Found(), 0
         state = _State(
-            o=np.broadcast_to((np.asarray(tx_m, float) - scene.center).astype(np.float32), (count, 3)).copy(),
+            o=np.broadcast_to(tx_c, (count, 3)).copy(),
             d=launch[first:first + count].astype(np.float32),
             med=np.full(count, tx_medium, np.int64),
             w=np.ones(count, np.float32),
@@ -323,6 +328,22 @@ def shoot(
                 keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
                 state = state.take(keep)
         _resolve(found, log, width)  # signatures of this batch's candidates; the log is freed
+        return found, segments
+
+    firsts = list(range(0, rays, LAUNCH_BATCH))
+    workers = min(SHOOT_THREADS, len(firsts))
+    if workers > 1:
+        # Embree and the large numpy operations release the GIL: batches run concurrently;
+        # the results are merged in batch order, so the candidates are those of a serial run
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            batches = list(pool.map(launch_batch, firsts))
+    else:
+        batches = [launch_batch(first) for first in firsts]
+    found = _Found()
+    for part, _n in batches:
+        for name in ("rx", "n", "src", "close", "codes", "faces"):
+            getattr(found, name).extend(getattr(part, name))
+    segments = sum(n for _f, n in batches)
     if not found.codes:
         return Candidates(
             receiver=np.zeros(0, np.int64), codes=np.zeros((0, width), np.int64),
