@@ -58,6 +58,7 @@ organs are comparable to the wavelength (science.md).
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numpy as np
@@ -154,58 +155,63 @@ def trace_channel(
     scene = scene_for(phantom, ~media.face_transparent)
     segments = 0
 
-    # --- direct paths first: the straight line's signature (homotopy on the indices when its
-    # launch is totally reflected on the way), then, for receivers still without one,
-    # refraction-only rays walked from the transmitter (their own signatures), zoomed in
-    # when Newton's basin is narrower than the launch spacing (near a critical angle)
-    d_codes, d_n, seg = _straight_signatures(scene, media, tx, rx)
-    segments += seg
-    direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
-    found = refine(scene, media, tx, tx_medium, rx, direct_dir, d_codes, d_n, budget=budget)
-    segments += found.segments
-    retry = np.flatnonzero(~found.converged)
-    if len(retry):
-        again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], d_codes[retry], d_n[retry],
-                                       budget=budget)
-        segments += again.segments
-        found.dirs[retry] = again.dirs
-        found.converged[retry] = again.converged
-        found.tube_m2_per_sr[retry] = again.tube_m2_per_sr
-    groups = [(np.arange(len(rx)), d_codes, d_n, found)]
-    missing = np.flatnonzero(~found.converged)
-    if len(missing):
-        walk = direct_seeds(scene, media, tx, tx_medium, rx, rx_medium, int(rays), missing, budget)
-        segments += walk.segments
-        ref_w = refine(scene, media, tx, tx_medium, rx[walk.receiver], walk.launch_dir, walk.codes, walk.nint,
-                       budget=budget)
-        segments += ref_w.segments
-        groups.append((walk.receiver, walk.codes, walk.nint, ref_w))
-        have = np.unique(walk.receiver[ref_w.converged])
-        still = np.isin(walk.receiver, missing[~np.isin(missing, have)])
-        if still.any():
-            sub = Seeds(walk.receiver[still], walk.launch_dir[still], walk.miss_m[still],
-                        walk.codes[still], walk.nint[still], 0)
-            zoomed = zoom_seeds(scene, media, tx, tx_medium, rx, rx_medium, sub,
-                                2.0 * angular_spacing_rad(int(rays)), budget)
-            segments += zoomed.segments
-            ref_z = refine(scene, media, tx, tx_medium, rx[zoomed.receiver], zoomed.launch_dir, zoomed.codes,
-                           zoomed.nint, budget=budget)
-            segments += ref_z.segments
-            groups.append((zoomed.receiver, zoomed.codes, zoomed.nint, ref_z))
-            have = np.union1d(have, zoomed.receiver[ref_z.converged])
-        # still none: search from the receiver's side (reciprocity), refine the reversed path forward
-        rest = missing[~np.isin(missing, have)]
-        if len(rest):
-            back = reverse_seeds(scene, media, tx, tx_medium, rx, rx_medium, rest, int(rays), budget)
-            segments += back.segments
-            ref_b = refine(scene, media, tx, tx_medium, rx[back.receiver], back.launch_dir, back.codes, back.nint,
+    # --- shooting and bouncing rays (every other signature) does not depend on the direct-path
+    # search: it runs in a worker thread meanwhile (Embree and large numpy operations release
+    # the GIL); its result is the same as a serial run's
+    with ThreadPoolExecutor(max_workers=1) as worker:
+        shot = worker.submit(shoot, scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
+                             float(dynamic_range_db), budget)
+        # --- direct paths first: the straight line's signature (homotopy on the indices when its
+        # launch is totally reflected on the way), then, for receivers still without one,
+        # refraction-only rays walked from the transmitter (their own signatures), zoomed in
+        # when Newton's basin is narrower than the launch spacing (near a critical angle)
+        d_codes, d_n, seg = _straight_signatures(scene, media, tx, rx)
+        segments += seg
+        direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
+        found = refine(scene, media, tx, tx_medium, rx, direct_dir, d_codes, d_n, budget=budget)
+        segments += found.segments
+        retry = np.flatnonzero(~found.converged)
+        if len(retry):
+            again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], d_codes[retry], d_n[retry],
+                                           budget=budget)
+            segments += again.segments
+            found.dirs[retry] = again.dirs
+            found.converged[retry] = again.converged
+            found.tube_m2_per_sr[retry] = again.tube_m2_per_sr
+        groups = [(np.arange(len(rx)), d_codes, d_n, found)]
+        missing = np.flatnonzero(~found.converged)
+        if len(missing):
+            walk = direct_seeds(scene, media, tx, tx_medium, rx, rx_medium, int(rays), missing, budget)
+            segments += walk.segments
+            ref_w = refine(scene, media, tx, tx_medium, rx[walk.receiver], walk.launch_dir, walk.codes, walk.nint,
                            budget=budget)
-            segments += ref_b.segments
-            groups.append((back.receiver, back.codes, back.nint, ref_b))
+            segments += ref_w.segments
+            groups.append((walk.receiver, walk.codes, walk.nint, ref_w))
+            have = np.unique(walk.receiver[ref_w.converged])
+            still = np.isin(walk.receiver, missing[~np.isin(missing, have)])
+            if still.any():
+                sub = Seeds(walk.receiver[still], walk.launch_dir[still], walk.miss_m[still],
+                            walk.codes[still], walk.nint[still], 0)
+                zoomed = zoom_seeds(scene, media, tx, tx_medium, rx, rx_medium, sub,
+                                    2.0 * angular_spacing_rad(int(rays)), budget)
+                segments += zoomed.segments
+                ref_z = refine(scene, media, tx, tx_medium, rx[zoomed.receiver], zoomed.launch_dir, zoomed.codes,
+                               zoomed.nint, budget=budget)
+                segments += ref_z.segments
+                groups.append((zoomed.receiver, zoomed.codes, zoomed.nint, ref_z))
+                have = np.union1d(have, zoomed.receiver[ref_z.converged])
+            # still none: search from the receiver's side (reciprocity), refine the reversed path forward
+            rest = missing[~np.isin(missing, have)]
+            if len(rest):
+                back = reverse_seeds(scene, media, tx, tx_medium, rx, rx_medium, rest, int(rays), budget)
+                segments += back.segments
+                ref_b = refine(scene, media, tx, tx_medium, rx[back.receiver], back.launch_dir, back.codes, back.nint,
+                               budget=budget)
+                segments += ref_b.segments
+                groups.append((back.receiver, back.codes, back.nint, ref_b))
 
-    # --- shooting and bouncing rays: every other signature
-    cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
-                  float(dynamic_range_db), budget)
+        # --- shooting and bouncing rays (started above, in parallel): every other signature
+        cands = shot.result()
     segments += cands.segments
     s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
     if budget is not None:
