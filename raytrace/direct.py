@@ -105,23 +105,24 @@ def refraction_walk(
         segments += len(idx)
         reach = np.minimum(np.where(face >= 0, t, np.inf), 1e3)
         ray_cls = cls[med[idx] + 1]
-        for c in range(cols):
-            if own:
-                target = rx_m[ray_rx[idx]]
-                s = np.flatnonzero(ray_cls == rx_cls[ray_rx[idx]])
-                target = target[s]
-            else:
-                s = np.flatnonzero(ray_cls == rx_cls[c])
-                target = rx_m[c]
+        if own:
+            s = np.flatnonzero(ray_cls == rx_cls[ray_rx[idx]])
+            groups = [(s, [(0, rx_m[ray_rx[idx[s]]])])]
+        else:  # the rays in one material class are gathered once for all its receivers
+            groups = [(np.flatnonzero(ray_cls == k), [(c, rx_m[c]) for c in np.flatnonzero(rx_cls == k)])
+                      for k in np.unique(rx_cls)]
+        for s, targets in groups:
             if len(s) == 0:
                 continue
             i = idx[s]
-            v = target - o[i]
-            tp = np.clip(np.einsum("ij,ij->i", v, d[i]), 0.0, reach[s])
-            dist = np.linalg.norm(v - tp[:, None] * d[i], axis=1)
-            closer = dist < miss[i, c]
-            miss[i[closer], c] = dist[closer]
-            nmiss[i[closer], c] = nint[i[closer]]
+            o_i, d_i, reach_s = o[i], d[i], reach[s]
+            for c, target in targets:
+                v = target - o_i
+                tp = np.clip(np.einsum("ij,ij->i", v, d_i), 0.0, reach_s)
+                dist = np.linalg.norm(v - tp[:, None] * d_i, axis=1)
+                closer = dist < miss[i, c]
+                miss[i[closer], c] = dist[closer]
+                nmiss[i[closer], c] = nint[i[closer]]
         hit = face >= 0
         alive[idx[~hit]] = False
         j, f = idx[hit], face[hit]
