@@ -180,17 +180,27 @@ class TracerScene:
         nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None]
         return nrm
 
-    def smooth_normals(self, face: np.ndarray, points_m: np.ndarray) -> np.ndarray:
-        """Unit outward normals interpolated from barycentrics (float64) of points on their faces."""
-        tri = self.vertices[self.faces[face]]  # (N, 3, 3)
-        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-        v0, v1, v2 = b - a, c - a, points_m - a
+    @cached_property
+    def _barycentric_frame(self) -> tuple[np.ndarray, ...]:
+        """Per face: first vertex, edge vectors v0 = b - a, v1 = c - a, their dot products and
+        the Gram determinant (float64), so :meth:`smooth_normals` only projects the points."""
+        tri = self.vertices[self.faces]  # (F, 3, 3)
+        a = tri[:, 0]
+        v0, v1 = tri[:, 1] - a, tri[:, 2] - a
         d00 = np.einsum("ij,ij->i", v0, v0)
         d01 = np.einsum("ij,ij->i", v0, v1)
         d11 = np.einsum("ij,ij->i", v1, v1)
+        return a, v0, v1, d00, d01, d11, d00 * d11 - d01 * d01
+
+    def smooth_normals(self, face: np.ndarray, points_m: np.ndarray) -> np.ndarray:
+        """Unit outward normals interpolated from barycentrics (float64) of points on their faces."""
+        fa, fv0, fv1, fd00, fd01, fd11, fden = self._barycentric_frame
+        a, v0, v1 = fa[face], fv0[face], fv1[face]
+        d00, d01, d11 = fd00[face], fd01[face], fd11[face]
+        v2 = points_m - a
         d20 = np.einsum("ij,ij->i", v2, v0)
         d21 = np.einsum("ij,ij->i", v2, v1)
-        den = d00 * d11 - d01 * d01
+        den = fden[face]
         v = (d11 * d20 - d01 * d21) / den
         w = (d00 * d21 - d01 * d20) / den
         u = 1.0 - v - w
