@@ -44,12 +44,10 @@ FD_STEP_RAD = 1e-7
 MAX_STEP_RAD = 0.25
 MAX_ITERATIONS = 40
 LINE_SEARCH_HALVINGS = 10
-#: Step fractions evaluated per batched trace in the line search.
-LINE_SEARCH_BATCH = 4
-#: Batches of halvings: the full step alone first (usually accepted), then groups of four.
-_LINE_SEARCH_SCHEDULE = [(0, 1)] + [
-    (a, min(a + LINE_SEARCH_BATCH, LINE_SEARCH_HALVINGS)) for a in range(1, LINE_SEARCH_HALVINGS, LINE_SEARCH_BATCH)
-]
+#: Batches of halvings traced together: all of them in one trace call (the per-call cost of
+#: the vectorised walk dominates at a few hundred seeds, not the rays; a third of the seeds
+#: need a halved step on most iterations, so sequential batches cost 3 more calls each).
+_LINE_SEARCH_SCHEDULE = [(0, LINE_SEARCH_HALVINGS)]
 
 
 def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.ndarray:
@@ -344,6 +342,13 @@ def refine(
     cache_ok = np.zeros(p, bool)
     cache_point = np.zeros((p, 3))
     cache_dir = np.zeros((p, 3))
+    # finite-difference neighbours of dirs[i] already traced (speculatively, with the full-step
+    # line-search trial, which is usually accepted and becomes the next base ray)
+    fd_cached = np.zeros(p, bool)
+    fd_ok = np.zeros((2, p), bool)
+    fd_point = np.zeros((2, p, 3))
+    fd_dir = np.zeros((2, p, 3))
+    fd_med = np.zeros((2, p), np.int64)
 
     def run(sel, dd):
         nonlocal segments
@@ -362,21 +367,28 @@ def refine(
         u, v = tangent_basis(d0)
         m = len(act)
         # base rays (unless the accepted line-search trial already traced them) and the two
-        # finite-difference neighbours, in one batch
+        # finite-difference neighbours (unless traced with that trial), in one batch
         fresh = act[~cached[act]]
-        batch = run(np.concatenate([fresh, act, act]),
-                    np.concatenate([dirs[fresh], _normalize(d0 + h * u), _normalize(d0 + h * v)]))
-        nf0 = len(fresh)
+        need = ~fd_cached[act]
+        nfd = act[need]
+        batch = run(np.concatenate([fresh, nfd, nfd]),
+                    np.concatenate([dirs[fresh], _normalize(d0[need] + h * u[need]),
+                                    _normalize(d0[need] + h * v[need])]))
+        nf0, m2 = len(fresh), len(nfd)
         cache_ok[fresh] = batch.ok[:nf0]
         cache_point[fresh] = batch.last_point[:nf0]
         cache_dir[fresh] = batch.last_dir[:nf0]
+        for k in range(2):
+            part = slice(nf0 + k * m2, nf0 + (k + 1) * m2)
+            fd_ok[k, nfd] = batch.ok[part]
+            fd_point[k, nfd] = batch.last_point[part]
+            fd_dir[k, nfd] = batch.last_dir[part]
+            fd_med[k, nfd] = batch.last_med[part]
         base = FollowResult(ok=cache_ok[act], last_point=cache_point[act], last_dir=cache_dir[act],
                             last_med=np.zeros(m, np.int64), segments=0)
         parts = [base] + [
-            FollowResult(ok=batch.ok[nf0 + k * m:nf0 + (k + 1) * m],
-                         last_point=batch.last_point[nf0 + k * m:nf0 + (k + 1) * m],
-                         last_dir=batch.last_dir[nf0 + k * m:nf0 + (k + 1) * m],
-                         last_med=batch.last_med[nf0 + k * m:nf0 + (k + 1) * m], segments=0)
+            FollowResult(ok=fd_ok[k, act], last_point=fd_point[k, act], last_dir=fd_dir[k, act],
+                         last_med=fd_med[k, act], segments=0)
             for k in range(2)
         ]
         db = np.where(base.ok[:, None], base.last_dir, np.array([0.0, 0.0, 1.0]))
@@ -406,8 +418,10 @@ def refine(
         base_dir = d0[todo]
         old = miss[todo]
         pending = np.ones(len(sel), bool)
-        # backtracking in batches: step fractions 1, 1/2, ... tried several at once (one
-        # trace call per batch), the largest that reduces the miss is taken
+        fd_cached[sel] = False  # their directions change (or they fail)
+        # backtracking: step fractions 1, 1/2, ... tried at once (one trace call), the largest
+        # that reduces the miss is taken; the full step's finite-difference neighbours are
+        # traced with it (it usually wins and is then the next iteration's base ray)
         for first, last in _LINE_SEARCH_SCHEDULE:
             pi = np.flatnonzero(pending)
             if len(pi) == 0:
@@ -417,7 +431,17 @@ def refine(
             lam = np.repeat(fractions, len(pi))  # fraction-major: all seeds at 1, then at 1/2...
             rows = np.tile(pi, nf)
             trial = _normalize(base_dir[rows] + lam[:, None] * (step[rows, 0:1] * du[rows] + step[rows, 1:2] * dv[rows]))
-            res = run(sel[rows], trial)
+            speculate = first == 0  # the full step: trace its finite-difference neighbours too
+            if speculate:
+                nt = len(pi)  # fraction-major: the full-step trials are the first len(pi) rows
+                tu, tv = tangent_basis(trial[:nt])
+                nr = len(trial)
+                res3 = run(np.concatenate([sel[rows], sel[pi], sel[pi]]),
+                           np.concatenate([trial, _normalize(trial[:nt] + h * tu), _normalize(trial[:nt] + h * tv)]))
+                res = FollowResult(ok=res3.ok[:nr], last_point=res3.last_point[:nr], last_dir=res3.last_dir[:nr],
+                                   last_med=res3.last_med[:nr], segments=0)
+            else:
+                res = run(sel[rows], trial)
             dd = np.where(res.ok[:, None], res.last_dir, np.array([0.0, 0.0, 1.0]))
             a1, a2 = tangent_basis(dd)
             rt, okt = _landing(res, rx_m[sel[rows]], dd, a1, a2)
@@ -434,5 +458,15 @@ def refine(
             cache_point[winners] = res.last_point[chosen[won]]
             cache_dir[winners] = res.last_dir[chosen[won]]
             cached[winners] = True
+            if speculate:
+                full = won[pick[won] == 0]  # the full step won: its neighbours are the next FD rays
+                winners = sel[pi[full]]
+                for k in range(2):
+                    part = nr + k * nt + full
+                    fd_ok[k, winners] = res3.ok[part]
+                    fd_point[k, winners] = res3.last_point[part]
+                    fd_dir[k, winners] = res3.last_dir[part]
+                    fd_med[k, winners] = res3.last_med[part]
+                fd_cached[winners] = True
         failed[sel[pending]] = True
     return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=segments)
