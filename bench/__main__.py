@@ -96,7 +96,7 @@ def main() -> None:
     c, t, li = report["ceiling"], report["tracer"], report["latency_in_process"]
     print(f"CapsuleRT benchmarks ({'quick' if args.quick else 'full'}) on {report['machine']['cpus']} CPUs, "
           f"default torso {c['triangles']} triangles, {t['receivers']} sensor sites, max_interactions 6")
-    _row("Embree ceiling [rays/s]", f"{c['rays_per_s']:.3e}")
+    _row(f"Embree ceiling, {c['threads']} threads [rays/s]", f"{c['rays_per_s']:.3e}")
     _row("tracer [ray segments/s]", f"{t['segments_per_s']:.3e}")
     _row("tracer / ceiling", f"{t['ratio_to_ceiling']:.2f}", "target >= 0.50")
     _row("in-process channel, all sites p50 / p95 [s]",
