@@ -191,7 +191,11 @@ class BandGain(Out):
 
 class PathOut(Out):
     delay_s: float = Field(description="Absolute propagation delay [s].")
-    gain: Complex = Field(description="Complex gain a_k of h(t) = sum a_k delta(t - delay_k) [-].")
+    gain: Complex = Field(
+        description="Complex gain a_k of h(t) = sum a_k delta(t - delay_k) at the carrier frequency_hz, "
+        "baseband-equivalent (it includes the propagation phase exp(-j 2 pi f tau_k)); |a_k|^2 is the "
+        "power transfer between the antennas [-]."
+    )
     gain_db: float = Field(description=f"20 log10 |gain| [dB] (floor {GAIN_DB_FLOOR:g}).")
     length_m: float = Field(description="Geometric length [m].")
     interactions: list[Interaction]
