@@ -155,12 +155,13 @@ def trace_channel(
     scene = scene_for(phantom, ~media.face_transparent)
     segments = 0
 
-    # --- shooting and bouncing rays (every other signature) does not depend on the direct-path
-    # search: it runs in a worker thread meanwhile (Embree and large numpy operations release
-    # the GIL); its result is the same as a serial run's
+    # --- shooting and bouncing rays (every other signature) and the refinement of their seeds
+    # do not depend on the direct-path search: they run in a worker thread meanwhile (Embree
+    # and large numpy operations release the GIL), so neither core idles while the other
+    # refines; the result is the same as a serial run's
     with ThreadPoolExecutor(max_workers=1) as worker:
-        shot = worker.submit(shoot, scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
-                             float(dynamic_range_db), budget)
+        shot = worker.submit(_shoot_and_refine, scene, media, tx, tx_medium, rx, rx_medium, int(rays),
+                             int(max_interactions), float(dynamic_range_db), budget)
         # --- direct paths first: the straight line's signature (homotopy on the indices when its
         # launch is totally reflected on the way), then, for receivers still without one,
         # refraction-only rays walked from the transmitter (their own signatures), zoomed in
@@ -211,13 +212,8 @@ def trace_channel(
                 groups.append((back.receiver, back.codes, back.nint, ref_b))
 
         # --- shooting and bouncing rays (started above, in parallel): every other signature
-        cands = shot.result()
-    segments += cands.segments
-    s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
-    if budget is not None:
-        budget.charge(0)
-    ref_s = refine(scene, media, tx, tx_medium, rx[s_rx], s_dir, s_codes, s_n, budget=budget)
-    segments += ref_s.segments
+        cands, s_rx, s_codes, s_n, ref_s = shot.result()
+    segments += cands.segments + ref_s.segments
     groups.append((s_rx, s_codes, s_n, ref_s))
 
     width = max(max(g[1].shape[1] for g in groups), 1)
@@ -285,6 +281,18 @@ def trace_channel(
 
 
 # ------------------------------------------------------------------ helpers
+def _shoot_and_refine(scene, media, tx, tx_medium, rx, rx_medium, rays, max_interactions, dynamic_range_db,
+                      budget):
+    """Shooting and bouncing rays, seed selection and Newton refinement of those seeds (the
+    worker thread's share of a request): ``(candidates, seed receivers, codes, nint, Refined)``."""
+    cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, rays, max_interactions, dynamic_range_db, budget)
+    s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
+    if budget is not None:
+        budget.charge(0)
+    ref_s = refine(scene, media, tx, tx_medium, rx[s_rx], s_dir, s_codes, s_n, budget=budget)
+    return cands, s_rx, s_codes, s_n, ref_s
+
+
 def _validate(phantom, transmitter, receivers, frequency_hz, rays, max_interactions, dynamic_range_db):
     def vec(value, name, *, unit=False):
         try:
