@@ -87,50 +87,52 @@ def refraction_walk(
     rx_cls = cls[np.asarray(rx_medium) + 1]
     own = ray_rx is not None
     cols = 1 if own else len(rx_m)
+    codes = np.full((p, MAX_EVENTS), -1, np.int64)
+    miss = np.full((p, cols), np.inf)
+    nmiss = np.zeros((p, cols), np.int64)
+    # state of the rays still alive only, compacted after every event (row ``r`` is walked ray
+    # ``ids[r]``): no gathers and scatters of the whole launch per event
+    ids = np.arange(p)
     o = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
     d = np.array(dirs, float)
     med = np.full(p, tx_medium, np.int64)
     push = np.zeros((p, 3))
-    codes = np.full((p, MAX_EVENTS), -1, np.int64)
     nint = np.zeros(p, np.int64)
-    miss = np.full((p, cols), np.inf)
-    nmiss = np.zeros((p, cols), np.int64)
-    alive = np.ones(p, bool)
     segments = 0
     for _ in range(MAX_EVENTS + 1):
-        idx = np.flatnonzero(alive)
-        if len(idx) == 0:
+        if len(ids) == 0:
             break
-        face, t, uv = scene.first_hit(o[idx], d[idx], push[idx], barycentric=True, exact=exact)
-        segments += len(idx)
+        face, t, uv = scene.first_hit(o, d, push, barycentric=True, exact=exact)
+        segments += len(ids)
         reach = np.minimum(np.where(face >= 0, t, np.inf), 1e3)
-        ray_cls = cls[med[idx] + 1]
+        ray_cls = cls[med + 1]
         if own:
-            s = np.flatnonzero(ray_cls == rx_cls[ray_rx[idx]])
-            groups = [(s, [(0, rx_m[ray_rx[idx[s]]])])]
+            s = np.flatnonzero(ray_cls == rx_cls[ray_rx[ids]])
+            groups = [(s, [(0, rx_m[ray_rx[ids[s]]])])]
         else:  # the rays in one material class are gathered once for all its receivers
             groups = [(np.flatnonzero(ray_cls == k), [(c, rx_m[c]) for c in np.flatnonzero(rx_cls == k)])
                       for k in np.unique(rx_cls)]
         for s, targets in groups:
             if len(s) == 0:
                 continue
-            i = idx[s]
-            o_i, d_i, reach_s = o[i], d[i], reach[s]
+            i = ids[s]
+            o_i, d_i, reach_s = o[s], d[s], reach[s]
+            n_i = nint[s]
             for c, target in targets:
                 v = target - o_i
                 tp = np.clip(np.einsum("ij,ij->i", v, d_i), 0.0, reach_s)
                 dist = np.linalg.norm(v - tp[:, None] * d_i, axis=1)
                 closer = dist < miss[i, c]
                 miss[i[closer], c] = dist[closer]
-                nmiss[i[closer], c] = nint[i[closer]]
-        hit = face >= 0
-        alive[idx[~hit]] = False
-        j, f = idx[hit], face[hit]
-        if len(j) == 0:
+                nmiss[i[closer], c] = n_i[closer]
+        hit = np.flatnonzero(face >= 0)
+        if len(hit) == 0:
             break
-        pt = o[j] + t[hit, None] * d[j]
+        f = face[hit]
+        dh = d[hit]
+        pt = o[hit] + t[hit, None] * dh
         fn = scene.face_normals[f]
-        leaving = np.einsum("ij,ij->i", d[j], fn) > 0.0
+        leaving = np.einsum("ij,ij->i", dh, fn) > 0.0
         organ = scene.face_organ[f]
         parent = media.parent[organ]
         m_from = np.where(leaving, organ, parent)
@@ -141,18 +143,19 @@ def refraction_walk(
             ns = scene.smooth_normals_uv(f, uv[hit])
             flip = np.einsum("ij,ij->i", ns, fn) <= 0.0
             ns[flip] = fn[flip]
-        dt, tir, _, _ = snell_refract(d[j], ns, np.einsum("ij,ij->i", d[j], ns), n_re[m_from + 1] / n_re[m_to + 1])
+        dt, tir, _, _ = snell_refract(dh, ns, np.einsum("ij,ij->i", dh, ns), n_re[m_from + 1] / n_re[m_to + 1])
         wrong = np.einsum("ij,ij->i", dt, fn) * np.where(leaving, 1.0, -1.0) <= 0.0
-        stop = (cls[m_from + 1] != cls[med[j] + 1]) | tir | wrong | (nint[j] >= MAX_EVENTS)
-        alive[j[stop]] = False
-        g = ~stop
-        jg = j[g]
-        codes[jg, nint[jg]] = encode(organ[g], leaving[g], 0)
-        nint[jg] += 1
-        o[jg] = pt[g]
-        d[jg] = dt[g]
-        med[jg] = m_to[g]
-        push[jg] = np.where(leaving[g], 1.0, -1.0)[:, None] * fn[g] * scene.offset_m
+        nh = nint[hit]
+        stop = (cls[m_from + 1] != cls[med[hit] + 1]) | tir | wrong | (nh >= MAX_EVENTS)
+        g = np.flatnonzero(~stop)
+        ids = ids[hit[g]]
+        nh = nh[g]
+        codes[ids, nh] = encode(organ[g], leaving[g], 0)
+        nint = nh + 1
+        o = pt[g]
+        d = dt[g]
+        med = m_to[g]
+        push = np.where(leaving[g], 1.0, -1.0)[:, None] * fn[g] * scene.offset_m
     return Walk(miss_m=miss, events=codes, nint=nmiss, segments=segments)
 
 
@@ -169,6 +172,17 @@ class Seeds:
 def _charge(budget: Budget | None, n: int) -> None:
     if budget is not None:
         budget.charge(n)
+
+
+def _closest(miss_m: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the ``k`` smallest finite values of ``miss_m``, smallest first, ties in index
+    order: the first ``k`` of a stable argsort of the finite values, without sorting them all
+    (a partition finds the k-th value; only the values up to it are sorted)."""
+    ok = np.flatnonzero(np.isfinite(miss_m))
+    if len(ok) > k:
+        kth = np.partition(miss_m[ok], k - 1)[k - 1]
+        ok = ok[miss_m[ok] <= kth]  # every value tied with the k-th too: the stable order decides
+    return ok[np.argsort(miss_m[ok], kind="stable")[:k]]
 
 
 def direct_seeds(
@@ -196,8 +210,7 @@ def direct_seeds(
         segments += w.segments
         _charge(budget, w.segments)
         for c, r in enumerate(receivers):
-            ok = np.flatnonzero(np.isfinite(w.miss_m[:, c]))
-            top = ok[np.argsort(w.miss_m[ok, c], kind="stable")[: 8 * SEEDS_PER_RECEIVER]]
+            top = _closest(w.miss_m[:, c], 8 * SEEDS_PER_RECEIVER)
             pool[int(r)].extend(zip(w.miss_m[top, c].tolist(), dirs[top], w.codes(top, c), w.nint[top, c].tolist()))
     out = []
     for r in receivers:  # a few dozen candidates per receiver: loops over seeds, not rays
