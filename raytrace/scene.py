@@ -181,31 +181,32 @@ class TracerScene:
         return nrm
 
     @cached_property
-    def _barycentric_frame(self) -> tuple[np.ndarray, ...]:
-        """Per face: first vertex, edge vectors v0 = b - a, v1 = c - a, their dot products and
-        the Gram determinant (float64), so :meth:`smooth_normals` only projects the points."""
+    def _barycentric_frame(self) -> np.ndarray:
+        """Per face, one row (F, 22) so :meth:`smooth_normals` gathers once: first vertex a (0:3),
+        edge vectors v0 = b - a (3:6), v1 = c - a (6:9), their dot products d00, d01, d11
+        (9:12), the Gram determinant (12) and the three corner normals (13:22), float64."""
         tri = self.vertices[self.faces]  # (F, 3, 3)
         a = tri[:, 0]
         v0, v1 = tri[:, 1] - a, tri[:, 2] - a
         d00 = np.einsum("ij,ij->i", v0, v0)
         d01 = np.einsum("ij,ij->i", v0, v1)
         d11 = np.einsum("ij,ij->i", v1, v1)
-        return a, v0, v1, d00, d01, d11, d00 * d11 - d01 * d01
+        return np.concatenate([a, v0, v1, np.stack([d00, d01, d11, d00 * d11 - d01 * d01], axis=1),
+                               self.corner_normals.reshape(-1, 9)], axis=1)
 
     def smooth_normals(self, face: np.ndarray, points_m: np.ndarray) -> np.ndarray:
         """Unit outward normals interpolated from barycentrics (float64) of points on their faces."""
-        fa, fv0, fv1, fd00, fd01, fd11, fden = self._barycentric_frame
-        a, v0, v1 = fa[face], fv0[face], fv1[face]
-        d00, d01, d11 = fd00[face], fd01[face], fd11[face]
+        fr = self._barycentric_frame[face]  # one gather of every per-face quantity
+        a, v0, v1 = fr[:, 0:3], fr[:, 3:6], fr[:, 6:9]
+        d00, d01, d11, den = fr[:, 9], fr[:, 10], fr[:, 11], fr[:, 12]
         v2 = points_m - a
         d20 = np.einsum("ij,ij->i", v2, v0)
         d21 = np.einsum("ij,ij->i", v2, v1)
-        den = fden[face]
         v = (d11 * d20 - d01 * d21) / den
         w = (d00 * d21 - d01 * d20) / den
         u = 1.0 - v - w
         bary = np.clip(np.stack([u, v, w], axis=1), 0.0, 1.0)
-        cn = self.corner_normals[face]
+        cn = fr[:, 13:22].reshape(-1, 3, 3)
         nrm = np.einsum("nc,ncj->nj", bary, cn)
         norm = np.linalg.norm(nrm, axis=1, keepdims=True)
         fallback = self.face_normals[face]
