@@ -128,22 +128,31 @@ class TracerScene:
         )
         face = res["primID"].astype(np.int64)
         hit = face >= 0
+        every = bool(hit.all())  # the common case in refinement: no boolean gathers needed
         if self.face_map is not None:
-            face[hit] = self.face_map[face[hit]]
+            if every:
+                face = self.face_map[face]
+            else:
+                face[hit] = self.face_map[face[hit]]
         t = np.full(n, np.inf)
         if not exact:
             t[hit] = res["tfar"][hit]
         elif hit.any():
-            f = face[hit]
+            f = face if every else face[hit]
             nrm = self.face_normals[f]
-            denom = np.einsum("ij,ij->i", nrm, directions[hit])
-            num = self.plane_d[f] - np.einsum("ij,ij->i", nrm, origins_m[hit])
+            denom = np.einsum("ij,ij->i", nrm, directions if every else directions[hit])
+            num = self.plane_d[f] - np.einsum("ij,ij->i", nrm, origins_m if every else origins_m[hit])
             with np.errstate(divide="ignore", invalid="ignore"):
                 t64 = num / denom
-            t32 = res["tfar"][hit].astype(float)
+            t32 = (res["tfar"] if every else res["tfar"][hit]).astype(float)
             good = np.isfinite(t64) & (np.abs(denom) > 1e-12)
-            t[hit] = np.where(good, np.maximum(t64, 0.0), t32)
-        face[~hit] = -1
+            t64 = np.where(good, np.maximum(t64, 0.0), t32)
+            if every:
+                t = t64
+            else:
+                t[hit] = t64
+        if not every:
+            face[~hit] = -1
         if barycentric:
             return face, t, np.stack([res["u"], res["v"]], axis=1).astype(float)
         return face, t
