@@ -52,10 +52,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ._checks import finite_float, generator, relative_permittivity as _check_eps, snr_db as _check_snr
-from ._checks import trials_count
+from ._checks import MonteCarloInputs, finite_float
 from .bounds import multitone_crlb, pdoa_crlb
-from .constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
+from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
 from .profile import PathProfile
 from .results import PDOAResult, summarise
@@ -186,13 +185,9 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
     if method not in METHODS:
         raise EstimatorInputError(f"unknown method {method!r} (two_tone | regression)", "method")
     f = _frequencies(method, frequencies_hz, band)
-    snr = _check_snr(snr_db)
-    n_trials = trials_count(trials)
-    rng = generator(seed)
-    eps = _check_eps(relative_permittivity)
-    v = velocity_m_per_s(eps)
-    if true_distance_m is not None:
-        true_distance_m = finite_float(true_distance_m, "true_distance_m", nonnegative=True)
+    mc = MonteCarloInputs(snr_db, trials, seed, relative_permittivity, true_distance_m)
+    snr, n_trials, rng, eps, v = mc.snr_db, mc.trials, mc.rng, mc.relative_permittivity, mc.velocity_m_per_s
+    true_distance_m = mc.true_distance_m
     width = float(f[-1] - f[0])
     t0 = 1.0 / width if duration_s is None else finite_float(duration_s, "duration_s", positive=True)
 

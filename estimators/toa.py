@@ -60,11 +60,9 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.fft
 
-from ._checks import finite_float, generator, trials_count
-from ._checks import relative_permittivity as _check_eps
-from ._checks import snr_db as _check_snr
+from ._checks import MonteCarloInputs
 from .bounds import waveform_toa_crlb
-from .constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
+from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
 from .profile import PathProfile
 from .results import TOAResult, summarise
@@ -255,13 +253,9 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         raise EstimatorInputError(
             f"unknown method {method!r} (first_peak | all_peaks | gcc | envelope | all)", "method")
     wf = make_waveform(waveform)
-    snr = _check_snr(snr_db)
-    n_trials = trials_count(trials)
-    rng = generator(seed)
-    eps = _check_eps(relative_permittivity)
-    v = velocity_m_per_s(eps)
-    if true_distance_m is not None:
-        true_distance_m = finite_float(true_distance_m, "true_distance_m", nonnegative=True)
+    mc = MonteCarloInputs(snr_db, trials, seed, relative_permittivity, true_distance_m)
+    snr, n_trials, rng, eps, v = mc.snr_db, mc.trials, mc.rng, mc.relative_permittivity, mc.velocity_m_per_s
+    true_distance_m = mc.true_distance_m
     fs, fc = wf.sample_rate_hz, wf.carrier_hz
     peak_methods = [m for m in methods if m in ("first_peak", "all_peaks")]
     if peak_methods and fs < 4.0 * fc:
