@@ -24,7 +24,6 @@ good as that match -- which is the point of exposing them.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
