@@ -17,7 +17,6 @@ import os
 import platform
 import time
 
-import numpy as np
 
 from bench import ceiling, estimators_bench, latency, scenes
 from bench.common import ROOT, growth_exponent, run_point

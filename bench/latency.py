@@ -15,7 +15,6 @@ import sys
 import time
 
 import httpx
-import numpy as np
 
 from bench import scenes
 from bench.common import ROOT, percentiles, timed

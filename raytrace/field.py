@@ -58,7 +58,7 @@ import numpy as np
 
 from raytrace.em import C0, fresnel, interface_basis
 from raytrace.media import MediaTable
-from raytrace.refine import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION, Steps
+from raytrace.refine import KIND_PASS, KIND_REFLECTION, Steps
 
 #: Smallest tube cross-section as a fraction of the unfolded length (caps caustic gain at +20 dB).
 TUBE_FLOOR = 0.1
