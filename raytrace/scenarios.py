@@ -37,7 +37,7 @@ from raytrace.paths import Antenna
 from raytrace.phantom import Material, Organ, Phantom
 from raytrace.shapes import box, superquadric
 from raytrace.tissues import DEFAULT_FAT
-from raytrace.torso import TORSO_NAME, default_torso
+from raytrace.torso import BELT_SITES, TORSO_NAME, UPPER_SITES, default_torso
 
 __all__ = [
     "SCENARIOS",
@@ -250,18 +250,6 @@ def get_phantom(phantom_id: str) -> Phantom:
 
 
 # ------------------------------------------------------------- scenarios
-_BELT = (
-    "belt_anterior",
-    "belt_anterior_left",
-    "belt_left",
-    "belt_posterior_left",
-    "belt_posterior",
-    "belt_posterior_right",
-    "belt_right",
-    "belt_anterior_right",
-)
-_UPPER = ("upper_anterior_right", "upper_anterior", "upper_anterior_left", "upper_left")
-
 SCENARIOS: dict[str, Scenario] = {
     s.id: s
     for s in (
@@ -351,28 +339,28 @@ SCENARIOS: dict[str, Scenario] = {
             id="torso-small-intestine",
             description=(
                 "Default torso: capsule in the small intestine (site small_intestine_1), the "
-                "eight-sensor belt around the abdomen at the same level."
+                "seven-sensor belt around the abdomen 35 mm above it."
             ),
             phantom_id=TORSO_NAME,
             transmitter="small_intestine_1",
-            receivers=_BELT,
+            receivers=BELT_SITES,
         ),
         Scenario(
             id="torso-stomach",
             description=(
-                "Default torso: capsule in the stomach, four sensors at stomach level and the "
-                "eight-sensor belt."
+                "Default torso: capsule in the stomach, five sensors at stomach level and the "
+                "seven-sensor belt."
             ),
             phantom_id=TORSO_NAME,
             transmitter="stomach",
-            receivers=_UPPER + _BELT,
+            receivers=UPPER_SITES + BELT_SITES,
         ),
         Scenario(
             id="torso-descending-colon",
-            description="Default torso: capsule in the descending colon, the eight-sensor belt.",
+            description="Default torso: capsule in the descending colon, the seven-sensor belt.",
             phantom_id=TORSO_NAME,
             transmitter="descending_colon",
-            receivers=_BELT,
+            receivers=BELT_SITES,
         ),
     )
 }

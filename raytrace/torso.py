@@ -40,8 +40,8 @@ Frame (right-handed, metres)
 ----------------------------
 x = subject's left, y = posterior (so **-y is anterior**, the MIRD trunk
 convention of tissues.md 5.3), z = up. The origin is on the trunk axis at the
-level of the small-intestine mid-plane (about the umbilicus, L3-L4), where
-the sensor belt sits: MIRD trunk z = -140 mm maps to z = 0. The modelled
+level of the small-intestine mid-plane (about the umbilicus, L3-L4; the
+sensor belt is 50 mm above it): MIRD trunk z = -140 mm maps to z = 0. The modelled
 section spans z = -134.5 mm (below the descending colon) to +394.5 mm (above
 the lung bases); its rounded top and bottom are cuts through the body, each
 with all four layers so that every surface is closed.
@@ -70,10 +70,14 @@ Capsule sites (kind ``capsule``) at interior points of the stomach, the
 small intestine (two), and the three colon segments, each at least ~10 mm
 from its organ's surface. Sensor sites (kind ``sensor``): contact sensors
 taped to the body, modelled inside the 2 mm skin layer, SENSOR_DEPTH_M = 1 mm
-below the faceted outer skin surface (medium ``skin``): a belt of eight at
-z = 0 (the thesis' sensor belt around the abdomen), every 45 degrees of polar
-angle starting anterior and going to the subject's left, and four more
-anterior/lateral ones at the stomach level (z = 155 mm).
+below the faceted outer skin surface (medium ``skin``), in two rows around
+the abdomen (polar angle from anterior towards the subject's left):
+
+* ``belt_*`` at z = 50 mm (between the small intestine and the transverse
+  colon): anterior 0, anterior_left 30, left 75, posterior_left 135,
+  posterior 180, posterior_right 225, anterior_right 330 deg;
+* ``upper_*`` at z = 125 mm (stomach level): anterior_left 30, left 75,
+  posterior 180, right 285, anterior_right 330 deg.
 
 Why in the skin and not in air: from tissue, only rays within the escape
 cone of the skin/air interface (about 8 degrees from the local normal,
@@ -84,6 +88,18 @@ positions (the field there is carried by surface/lateral waves that ray
 optics does not model); a contact sensor is what WCE receiver arrays are
 and what the thesis' FDTD sensors measure. Receivers in air can still be
 placed anywhere through explicit positions.
+
+Why these positions and not a uniform belt every 45 degrees: the same
+critical angles leave contact positions that some capsule cannot reach by
+any refraction-only path (the fat layer's 26 deg when a capsule sees the
+sensor's patch of the muscle wall obliquely; the wedge behind a colon's
+limb). Mapping every 15 deg at twelve heights (``tools/
+torso_sensor_reachability.py``) shows the flanks (polar 90-120 and
+240-270 deg) shadowed from some capsule at every height, and the anterior
+wall reachable from all six capsules only in patches. Every site above has
+a direct path from all six capsule sites at resolutions 48, 64 and 96 and
+at 5e4 and 1e5 rays, so each is inside a reachable patch, not on its
+edge. Other contact positions: :func:`contact_point`.
 
 Resolution
 ----------
@@ -108,12 +124,15 @@ from raytrace.shapes import rounded_cylinder, superquadric
 from raytrace.tissues import DEFAULT_FAT
 
 __all__ = [
+    "BELT_SITES",
+    "UPPER_SITES",
     "DEFAULT_RESOLUTION",
     "MIN_RESOLUTION",
     "MAX_RESOLUTION",
     "SENSOR_DEPTH_M",
     "TORSO_NAME",
     "build_torso",
+    "contact_point",
     "default_torso",
     "expected_site_media",
 ]
@@ -224,23 +243,29 @@ _CAPSULE_SITES_MIRD: dict[str, tuple[str, tuple[float, float, float]]] = {
 #: (the skin is 2 mm thick, so the sites sit mid-skin).
 SENSOR_DEPTH_M = 1e-3
 
+#: Sensor rows: height above the small-intestine mid-plane [m] and the polar angle of each
+#: site [deg] (module doc: why these).
+_BELT_Z_M = 0.050
 _BELT_DIRECTIONS = {
     "belt_anterior": 0.0,
-    "belt_anterior_left": 45.0,
-    "belt_left": 90.0,
+    "belt_anterior_left": 30.0,
+    "belt_left": 75.0,
     "belt_posterior_left": 135.0,
     "belt_posterior": 180.0,
     "belt_posterior_right": 225.0,
-    "belt_right": 270.0,
-    "belt_anterior_right": 315.0,
+    "belt_anterior_right": 330.0,
 }
+_UPPER_Z_M = 0.125
 _UPPER_DIRECTIONS = {
     "upper_anterior_left": 30.0,
-    "upper_anterior": 0.0,
+    "upper_left": 75.0,
+    "upper_posterior": 180.0,
+    "upper_right": 285.0,
     "upper_anterior_right": 330.0,
-    "upper_left": 90.0,
 }
-_UPPER_Z_M = 0.155
+#: Names of the sensor sites of each row, in polar order.
+BELT_SITES = tuple(_BELT_DIRECTIONS)
+UPPER_SITES = tuple(_UPPER_DIRECTIONS)
 
 
 def _skin_ray(polar_deg: float, z_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -278,12 +303,21 @@ def _contact_point(skin_mesh: trimesh.Trimesh, polar_deg: float, z_m: float) -> 
     return first - SENSOR_DEPTH_M * normal
 
 
+def contact_point(phantom: Phantom, polar_deg: float, z_m: float) -> np.ndarray:
+    """Position [m] of a contact sensor on the torso ``phantom`` (any resolution), placed like
+    the sensor sites: SENSOR_DEPTH_M inside the skin at polar angle ``polar_deg`` (from
+    anterior towards the subject's left) and height ``z_m``. ``ValueError`` off the straight
+    side of the trunk (|z| beyond the rounded rims)."""
+    skin = phantom.organs[phantom.organ_index("skin")].mesh
+    return _contact_point(skin, float(polar_deg), float(z_m))
+
+
 def _sites(skin_mesh: trimesh.Trimesh) -> dict[str, tuple[str, np.ndarray]]:
     sites: dict[str, tuple[str, np.ndarray]] = {}
     for name, (_, pos) in _CAPSULE_SITES_MIRD.items():
         sites[name] = ("capsule", _to_model_m(pos))
     for name, deg in _BELT_DIRECTIONS.items():
-        sites[name] = ("sensor", _contact_point(skin_mesh, deg, 0.0))
+        sites[name] = ("sensor", _contact_point(skin_mesh, deg, _BELT_Z_M))
     for name, deg in _UPPER_DIRECTIONS.items():
         sites[name] = ("sensor", _contact_point(skin_mesh, deg, _UPPER_Z_M))
     return sites

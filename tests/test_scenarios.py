@@ -172,4 +172,4 @@ def test_torso_scenarios_use_capsule_and_sensor_sites() -> None:
         assert all(phantom.sites[r].medium == "skin" for r in scenario.receivers)
     small = SCENARIOS["torso-small-intestine"]
     assert small.phantom().sites[small.transmitter].medium == "small_intestine"
-    assert len(small.receivers) == 8
+    assert len(small.receivers) == 7

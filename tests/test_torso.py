@@ -56,12 +56,9 @@ EXPECTED_SITE_MEDIUM = {
     "descending_colon": "descending_colon",
     **{
         f"belt_{d}": "skin"
-        for d in (
-            "anterior", "anterior_left", "left", "posterior_left",
-            "posterior", "posterior_right", "right", "anterior_right",
-        )
+        for d in ("anterior", "anterior_left", "left", "posterior_left", "posterior", "posterior_right", "anterior_right")
     },
-    **{f"upper_{d}": "skin" for d in ("anterior", "anterior_left", "anterior_right", "left")},
+    **{f"upper_{d}": "skin" for d in ("anterior_left", "left", "posterior", "right", "anterior_right")},
 }
 
 
@@ -152,8 +149,15 @@ def test_sensor_sites_are_contact_sensors_mid_skin(torso: Phantom) -> None:
     np.testing.assert_allclose(to_outer, SENSOR_DEPTH_M, atol=1e-5)
     assert np.all(to_inner >= 0.0009), to_inner  # mid-skin: ~1 mm from the fat too
     belt = np.array([s.position_m for n, s in torso.sites.items() if n.startswith("belt_")])
-    assert len(belt) == 8
-    np.testing.assert_allclose(belt[:, 2], 0.0)  # one belt at the small-intestine mid-plane
+    assert len(belt) == 7
+    np.testing.assert_allclose(belt[:, 2], 0.05)  # one belt, 50 mm above the small-intestine mid-plane
+    # the public placement helper puts a sensor exactly where the sites are
+    from raytrace.torso import contact_point
+
+    np.testing.assert_array_equal(contact_point(torso, 0.0, 0.05), torso.sites["belt_anterior"].position_m)
+    np.testing.assert_array_equal(contact_point(torso, 285, 0.125), torso.sites["upper_right"].position_m)
+    with pytest.raises(ValueError, match="straight side"):
+        contact_point(torso, 0.0, 0.40)  # above the trunk's straight side (rounded top rim)
 
 
 def test_anterior_layers_have_the_cited_thicknesses(torso: Phantom) -> None:

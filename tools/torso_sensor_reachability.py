@@ -1,35 +1,44 @@
 """Which contact-sensor positions of the default torso have a direct (refraction-only) path
-from every capsule site? A map for choosing sensor sites.
+from every capsule site? The map the torso's sensor sites were chosen from.
 
-Candidates every 15 deg of polar angle (from anterior towards the subject's left) at the belt
-(z = 0) and upper (z = 0.155 m) heights, 1 mm deep in the skin like the torso's own sensors;
-each capsule is traced to all of them (1e5 rays; the direct-path search does not depend on
-max_interactions, 4 keeps the shooting cheap). "." marks a pair without a direct path at that
-ray count (a GO shadow, or a near-critical sliver finer than the launch spacing; see
-docs/tracer.md). Usage: .venv/bin/python tools/torso_sensor_reachability.py  (~40 s)
+Candidates every 15 deg of polar angle (from anterior towards the subject's left) at heights
+z = -0.050 ... +0.225 m every 25 mm, 1 mm deep in the skin like the torso's own sensors
+(:func:`raytrace.torso.contact_point`); each capsule is traced to all of them. A cell shows
+how many of the six capsules have a direct path there, ``*`` for all six. A missing pair is a
+GO shadow or a near-critical sliver finer than the launch spacing (docs/tracer.md); a site is
+safe when its cell is ``*`` at several resolutions and ray counts, not only one.
+
+Usage: .venv/bin/python tools/torso_sensor_reachability.py [resolution [rays]]
+(default 48 and 1e5: ~70 s on 2 cores). The direct-path search does not depend on
+max_interactions; 2 keeps the shooting cheap.
 """
+import sys
 import time
+
+import numpy as np
 
 import raytrace.torso as T
 from raytrace.paths import Antenna
 from raytrace.tracer import trace_channel
 
-p = T.default_torso()
-skin = p.organs[p.organ_index("skin")].mesh
-heights = (0.0, T._UPPER_Z_M)
-cands = {(z, deg): T._contact_point(skin, float(deg), z) for z in heights for deg in range(0, 360, 15)}
-caps = {n: s.position_m for n, s in p.sites.items() if s.kind == "capsule"}
-rx = [Antenna(v, f"{deg}@{z}") for (z, deg), v in cands.items()]
-direct = {}
-for c, pos in caps.items():
+resolution = int(sys.argv[1]) if len(sys.argv) > 1 else T.DEFAULT_RESOLUTION
+rays = int(sys.argv[2]) if len(sys.argv) > 2 else 100_000
+phantom = T.default_torso(resolution)
+heights = [round(float(z), 3) for z in np.arange(-0.050, 0.2251, 0.025)]
+polar = range(0, 360, 15)
+cells = {(z, deg): T.contact_point(phantom, deg, z) for z in heights for deg in polar}
+capsules = {n: s.position_m for n, s in phantom.sites.items() if s.kind == "capsule"}
+keys = list(cells)
+receivers = [Antenna(cells[k], f"{k[1]}@{k[0]}") for k in keys]
+reached = dict.fromkeys(keys, 0)
+for name, position in capsules.items():
     t0 = time.time()
-    res = trace_channel(p, Antenna(pos, c), rx, 402e6, rays=100_000, max_interactions=4)
-    for key, prof in zip(cands, res.profiles):
-        direct[(c, key)] = any(all(i.kind == "refraction" for i in pa.interactions) for pa in prof.paths)
-    print(f"{c}: {time.time() - t0:.1f} s", flush=True)
-print("columns:", " ".join(caps))
+    res = trace_channel(phantom, Antenna(position, name), receivers, 402e6, rays=rays, max_interactions=2)
+    for key, prof in zip(keys, res.profiles):
+        reached[key] += any(all(i.kind == "refraction" for i in p.interactions) for p in prof.paths)
+    print(f"{name}: {time.time() - t0:.1f} s", file=sys.stderr, flush=True)
+print(f"resolution {resolution}, {rays} rays; capsules: {', '.join(capsules)}")
+print("polar [deg]" + "".join(f"{d:4d}" for d in polar))
 for z in heights:
-    print(f"z = {z} m")
-    for deg in range(0, 360, 15):
-        marks = " ".join("X" if direct[(c, (z, deg))] else "." for c in caps)
-        print(f"  polar {deg:3d} deg: {marks}   without: {[c for c in caps if not direct[(c, (z, deg))]]}")
+    print(f"z = {z:+.3f} m" + "".join("   *" if reached[(z, d)] == len(capsules) else f"{reached[(z, d)]:4d}"
+                                      for d in polar))
