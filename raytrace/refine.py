@@ -43,6 +43,15 @@ FD_STEP_RAD = 1e-7
 #: Largest Newton step on the launch angles [rad].
 MAX_STEP_RAD = 0.25
 MAX_ITERATIONS = 40
+#: A seed whose miss is not below STALL_FACTOR times its miss STALL_WINDOW iterations earlier
+#: is given up. Newton in its basin shrinks the miss quadratically; seeds that crawl
+#: (backtracked steps at a basin edge near a critical angle) otherwise keep every iteration's
+#: vectorised pass going for a handful of seeds up to MAX_ITERATIONS. Measured on the default
+#: torso (6 capsules x 12 sensors, 1148 paths): no path lost, 10-15 % less time per request;
+#: window 6 lost two paths (-46, -48 dB under the strongest), a hard cap of 12 iterations lost
+#: eleven, one of them 0.7 dB under the strongest.
+STALL_WINDOW = 10
+STALL_FACTOR = 0.9
 LINE_SEARCH_HALVINGS = 10
 #: Batches of halvings traced together: all of them in one trace call (the per-call cost of
 #: the vectorised walk dominates at a few hundred seeds, not the rays; a third of the seeds
@@ -358,7 +367,8 @@ def refine(
             budget.charge(res.segments)
         return res
 
-    for _ in range(MAX_ITERATIONS):
+    history = np.full((MAX_ITERATIONS, p), np.inf)  # miss per iteration
+    for it in range(MAX_ITERATIONS):
         act = np.flatnonzero(~converged & ~failed)
         if len(act) == 0:
             break
@@ -403,6 +413,9 @@ def refine(
         conv = good & (miss < MISS_TOLERANCE_M)
         converged[act[conv]] = True
         tube[act[conv]] = np.abs(det[conv])
+        history[it, act] = miss
+        if it >= STALL_WINDOW:
+            good &= conv | (miss < STALL_FACTOR * history[it - STALL_WINDOW, act])
         failed[act[~good]] = True
         todo = good & ~conv
         if not todo.any():
