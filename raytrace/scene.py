@@ -161,10 +161,6 @@ class TracerScene:
     def face_normals32(self) -> np.ndarray:
         return self.face_normals.astype(np.float32)
 
-    @cached_property
-    def corner_normals32(self) -> np.ndarray:
-        return self.corner_normals.astype(np.float32)
-
     def first_hit32(self, origins_c: np.ndarray, directions: np.ndarray):
         """Shooting-phase query, all float32: ``origins_c`` already in the scene's centred
         frame. Returns ``(face, t, uv)`` with ``face = -1``, ``t = inf`` on a miss."""
@@ -180,14 +176,23 @@ class TracerScene:
         return face, t, np.stack([res["u"], res["v"]], axis=1)
 
     def smooth_normals_uv(self, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
-        """Smooth unit normals from Embree barycentrics (cheaper, float32-accurate: for shooting)."""
-        weights = np.empty((len(face), 3), dtype=uv.dtype)
-        weights[:, 0] = 1.0 - uv[:, 0] - uv[:, 1]
-        weights[:, 1:] = uv
-        corners = self.corner_normals32 if uv.dtype == np.float32 else self.corner_normals
-        nrm = np.einsum("nc,ncj->nj", weights, corners[face])
+        """Smooth unit normals from Embree barycentrics (cheaper, float32-accurate: for shooting):
+        ``n0 + u (n1 - n0) + v (n2 - n0)`` from one gathered row per hit, normalised."""
+        table = self._corner_table32 if uv.dtype == np.float32 else self._corner_table64
+        g = table[face]
+        nrm = g[:, 0:3] + uv[:, 0:1] * g[:, 3:6] + uv[:, 1:2] * g[:, 6:9]
         nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None]
         return nrm
+
+    @cached_property
+    def _corner_table64(self) -> np.ndarray:
+        """Per face (F, 9): the first corner normal and the differences to the other two."""
+        c = self.corner_normals
+        return np.ascontiguousarray(np.concatenate([c[:, 0], c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]], axis=1))
+
+    @cached_property
+    def _corner_table32(self) -> np.ndarray:
+        return self._corner_table64.astype(np.float32)
 
     @cached_property
     def _barycentric_frame(self) -> np.ndarray:
