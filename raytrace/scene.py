@@ -185,6 +185,21 @@ class TracerScene:
         return nrm
 
     @cached_property
+    def face_curvature32(self) -> np.ndarray:
+        """Per face, an estimate of the surface's largest normal curvature [1/m]: the largest
+        angle between two corner normals over the edge joining them (0 on flat organs; 1/R on
+        a faceted sphere of radius R). The shooting widens ray tubes by it (curved organs
+        focus and defocus: a mirror of curvature k turns a ray at height h by 2 k h)."""
+        tri = self.vertices[self.faces]
+        c = self.corner_normals
+        out = np.zeros(len(self.faces))
+        for i, j in ((0, 1), (1, 2), (2, 0)):
+            cos = np.clip(np.einsum("ij,ij->i", c[:, i], c[:, j]), -1.0, 1.0)
+            length = np.linalg.norm(tri[:, i] - tri[:, j], axis=1)
+            out = np.maximum(out, np.arccos(cos) / np.maximum(length, 1e-12))
+        return out.astype(np.float32)
+
+    @cached_property
     def _corner_table64(self) -> np.ndarray:
         """Per face (F, 9): the first corner normal and the differences to the other two."""
         c = self.corner_normals
