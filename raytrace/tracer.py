@@ -219,6 +219,16 @@ def trace_channel(
         cands, s_rx, s_codes, s_n, ref_s = shot.result()
     segments += cands.segments + ref_s.segments
     groups.append((s_rx, s_codes, s_n, ref_s))
+    # --- the echo of a direct path off the receiver's own organ surface (a contact sensor's
+    # skin/air total reflection: as strong as the direct path, 2 x the sensor depth longer). The
+    # shooting finds it where it finds the direct path; where only the refraction-only search
+    # found that (near a critical angle: the groups between the straight line's and the
+    # shooting's) it is seeded from the direct path here
+    t_rx, t_codes, t_n, t_dir = _surface_echo_seeds(groups[1:-1], rx_medium, int(max_interactions))
+    if len(t_rx):
+        ref_t = refine(scene, media, tx, tx_medium, rx[t_rx], t_dir, t_codes, t_n, budget=budget)
+        segments += ref_t.segments
+        groups.append((t_rx, t_codes, t_n, ref_t))
 
     width = max(max(g[1].shape[1] for g in groups), 1)
     seed_rx = np.concatenate([g[0] for g in groups])
@@ -295,6 +305,35 @@ def _shoot_and_refine(scene, media, tx, tx_medium, rx, rx_medium, rays, max_inte
         budget.charge(0)
     ref_s = refine(scene, media, tx, tx_medium, rx[s_rx], s_dir, s_codes, s_n, budget=budget)
     return cands, s_rx, s_codes, s_n, ref_s
+
+
+def _surface_echo_seeds(groups, rx_medium, max_interactions):
+    """Seeds for the echo of each converged direct (refraction-only) path off the surface of
+    the organ its receiver is in: the same signature plus one reflection on that organ's own
+    boundary from inside, launched along the direct path (Newton moves it by a fraction of a
+    degree). One seed per (receiver, direct signature) within ``max_interactions`` (unlike the
+    direct path, its echo obeys the cap); none for receivers in air."""
+    rows = []
+    for rx_idx, codes, nint, ref in groups:
+        real = codes >= 0
+        direct = ref.converged & real.any(axis=1) & ~((codes & 1).astype(bool) & real).any(axis=1)
+        direct &= (rx_medium[rx_idx] >= 0) & (nint < max_interactions)
+        for i in np.flatnonzero(direct):
+            rows.append((int(rx_idx[i]), codes[i, : nint[i]], ref.dirs[i]))
+    seen, out = set(), []
+    for r, code, d in rows:  # a few per receiver: a loop over converged paths, not rays
+        key = (r, code.tobytes())
+        if key not in seen:
+            seen.add(key)
+            out.append((r, np.append(code, encode(rx_medium[r], True, 1)), d))
+    if not out:
+        return np.zeros(0, np.int64), np.zeros((0, 1), np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    width = max(len(c) for _, c, _ in out)
+    codes = np.full((len(out), width), -1, np.int64)
+    for k, (_, c, _) in enumerate(out):
+        codes[k, : len(c)] = c
+    return (np.array([r for r, _, _ in out], np.int64), codes, np.array([len(c) for _, c, _ in out], np.int64),
+            np.array([d for _, _, d in out]))
 
 
 def _validate(phantom, transmitter, receivers, frequency_hz, rays, max_interactions, dynamic_range_db):
