@@ -14,12 +14,14 @@ own search); uses only the phantom's surface model (Embree first hits + smooth n
    the launch direction minimising the closest approach) - this finds near-critical slivers
    narrower than a lattice cell.
 A pair reported NONE by both at 4e6 rays is a GO shadow unless a sliver hides below that
-resolution (see docs/tracer.md). Usage:
-    .venv/bin/python tools/torso_direct_bruteforce.py [NT=1400] [N_FIB=2e6] [capsule,...]
+resolution (see docs/tracer.md). Sensors: the torso's sensor sites, or with UNIFORM=1 in the
+environment the uniform-belt positions of tests/test_tracer_torso.py (UNIFORM_BELT), where
+its GO_SHADOWS were established. Usage:
+    [UNIFORM=1] .venv/bin/python tools/torso_direct_bruteforce.py [NT=1400] [N_FIB=2e6] [capsule,...]
 Takes ~3 minutes for all 72 pairs on 2 cores.
 """
 
-import sys, time
+import os, sys, time
 import numpy as np
 import raytrace.torso as T
 
@@ -36,11 +38,18 @@ nre = media.n_real
 parent = np.asarray(ph.parent)
 forg = sc.face_organ
 caps = [n for n, s in ph.sites.items() if s.kind == 'capsule']
-sens = [n for n, s in ph.sites.items() if s.kind == 'sensor']
 only = sys.argv[3].split(',') if len(sys.argv) > 3 else None
 from raytrace.launch import fibonacci_sphere
-RX = np.array([ph.sites[s].position_m for s in sens])
-RXM = np.array([ph.organ_index(ph.sites[s].medium) for s in sens])
+if os.environ.get("UNIFORM"):
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+    from test_tracer_torso import UNIFORM_BELT
+    sens = list(UNIFORM_BELT)
+    RX = np.array([T.contact_point(ph, deg, z) for deg, z in UNIFORM_BELT.values()])
+    RXM = np.full(len(RX), ph.organ_index("skin"))
+else:
+    sens = [n for n, s in ph.sites.items() if s.kind == 'sensor']
+    RX = np.array([ph.sites[s].position_m for s in sens])
+    RXM = np.array([ph.organ_index(ph.sites[s].medium) for s in sens])
 A_SKIN, B_SKIN = 0.163, 0.119
 NRM = np.stack([RX[:, 0] / A_SKIN**2, RX[:, 1] / B_SKIN**2, 0 * RX[:, 0]], 1)
 NRM /= np.linalg.norm(NRM, axis=1, keepdims=True)
