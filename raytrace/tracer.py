@@ -89,9 +89,9 @@ MIN_SEPARATION_M = 1e-4
 SEEDS_PER_SIGNATURE = 6
 #: Seeds of one group must be this many launch spacings apart. With the curvature-widened
 #: reception tubes a group holds many neighbouring candidates that converge to one path:
-#: 4 seeds 2 spacings apart found the same strong paths as 16 seeds 1 spacing apart on the
-#: default torso (within 20 dB of the strongest: 42 vs 41 of 267 missed against 1e6 rays) in
-#: 20 % less time.
+#: 6 seeds 3 spacings apart found the same strong paths as 16 seeds 1 spacing apart on the
+#: default torso (within 20 dB of the strongest, 24 of 267 missed against 1e6 rays by both)
+#: in about 25 % less time; 4 seeds lost one of two symmetric walls' paths (tests).
 SEED_SEPARATION = 3.0
 #: Two converged paths with the same signature and delays closer than this are one path [s].
 DUPLICATE_DELAY_S = 1e-15
