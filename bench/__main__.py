@@ -18,7 +18,7 @@ import platform
 import time
 
 
-from bench import ceiling, estimators_bench, latency, scenes
+from bench import ceiling, completeness, estimators_bench, latency, scenes
 from bench.common import ROOT, growth_exponent, run_point
 from raytrace.tracer import trace_channel
 
@@ -81,6 +81,7 @@ def main() -> None:
     report["ceiling"] = ceiling.embree_ceiling(phantom, origin, rays)
     report["tracer"] = tracer_throughput(rays, 6)
     report["tracer"]["ratio_to_ceiling"] = report["tracer"]["segments_per_s"] / report["ceiling"]["rays_per_s"]
+    report["completeness"] = completeness.completeness(rays, 6)
     report["latency_in_process"] = latency.in_process(repeat, rays, 6)
     if not args.skip_http:
         report["latency_http"] = latency.over_http(repeat, rays, 6)
@@ -98,6 +99,9 @@ def main() -> None:
     _row(f"Embree ceiling, {c['threads']} threads [rays/s]", f"{c['rays_per_s']:.3e}")
     _row("tracer [ray segments/s]", f"{t['segments_per_s']:.3e}")
     _row("tracer / ceiling", f"{t['ratio_to_ceiling']:.2f}", "target >= 0.50")
+    cp = report["completeness"]
+    _row(f"receivers missing the strongest path of {cp['dense_rays']:.0e} rays", f"{cp['strongest_missed']} / {cp['receivers']}")
+    _row("paths within 10 dB of the strongest found", f"{cp['strong_found']} / {cp['strong_paths']}")
     _row("in-process channel, all sites p50 / p95 [s]",
          f"{li['all_sensor_sites']['p50_s']:.3f} / {li['all_sensor_sites']['p95_s']:.3f}", "target p50 <= 0.5")
     _row("in-process channel, one receiver p50 / p95 [s]",

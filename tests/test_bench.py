@@ -36,3 +36,12 @@ def test_scaling_point_runs_in_a_fresh_process() -> None:
     out = run_point(["--rays", "2000", "--receivers", "2", "--interactions", "2", "--resolution", "24"])
     assert out["receivers"] == 2 and out["triangles"] > 1000
     assert out["peak_rss_mb"] >= out["rss_before_trace_mb"] > 0
+
+
+def test_completeness_compares_the_default_with_a_denser_launch() -> None:
+    from bench.completeness import completeness
+
+    out = completeness(rays=3000, interactions=2, dense_factor=2)
+    assert out["dense_rays"] == 6000 and out["receivers"] == 12
+    assert 0 <= out["strongest_missed"] <= out["receivers"]
+    assert 0 <= out["strong_found"] <= out["strong_paths"] and out["strong_paths"] >= 1
