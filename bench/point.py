@@ -11,14 +11,30 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import sys
 import time
 
 from bench import scenes
 from raytrace.tracer import trace_channel
 
 
-def _rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process's own address space [MB].
+
+    Linux: ``VmHWM`` from /proc/self/status. Not ``getrusage().ru_maxrss``: the
+    kernel folds the parent's high-water mark into it at ``execve`` (the forked
+    copy of the parent's memory counts), so a point launched from a bench that
+    had grown to 460 MB reported at least 460 MB whatever it used. Elsewhere
+    ``ru_maxrss`` is the fallback (kilobytes on Linux/BSD, bytes on macOS)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    scale = 1024.0 * 1024.0 if sys.platform == "darwin" else 1024.0
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / scale
 
 
 def main() -> None:
@@ -34,7 +50,7 @@ def main() -> None:
     build_s = time.perf_counter() - t0
     tx = scenes.transmitter(phantom)
     rx = scenes.receivers(phantom, a.receivers)
-    before_mb = _rss_mb()
+    before_mb = peak_rss_mb()
     kwargs = dict(rays=a.rays, max_interactions=a.interactions)
     trace_channel(phantom, tx, rx[:1], a.frequency, rays=1000, max_interactions=1)  # warm the scene
     t0 = time.perf_counter()
@@ -44,7 +60,7 @@ def main() -> None:
         "rays": a.rays, "resolution": a.resolution, "receivers": len(rx), "interactions": a.interactions,
         "triangles": phantom.triangle_count, "build_s": build_s, "trace_s": trace_s,
         "ray_segments": result.stats.ray_segments_traced, "paths": result.stats.paths_found,
-        "rss_before_trace_mb": before_mb, "peak_rss_mb": _rss_mb(),
+        "rss_before_trace_mb": before_mb, "peak_rss_mb": peak_rss_mb(),
     }))
 
 

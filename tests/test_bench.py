@@ -38,6 +38,22 @@ def test_scaling_point_runs_in_a_fresh_process() -> None:
     assert out["peak_rss_mb"] >= out["rss_before_trace_mb"] > 0
 
 
+def test_peak_memory_of_a_child_excludes_the_parents() -> None:
+    """A child's ``ru_maxrss`` inherits the parent's high-water mark through fork + exec (the
+    bench's scaling points all reported the bench's own 460 MB): the point's measure must not."""
+    import subprocess
+    import sys
+
+    from bench.common import ROOT
+
+    ballast = np.ones(400 * 1024 * 1024 // 8)  # the parent holds 400 MB, touched
+    code = "from bench.point import peak_rss_mb; print(peak_rss_mb())"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert ballast.sum() > 0
+    # a bare interpreter that imported numpy/trimesh/embree: well under the parent's ballast
+    assert 5.0 < float(out.stdout) < 300.0
+
+
 def test_completeness_compares_the_default_with_a_denser_launch() -> None:
     from bench.completeness import completeness
 
