@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import trimesh
 
 from bench.ceiling import embree_ceiling, fibonacci_directions
-from bench.common import growth_exponent, run_point
+from bench.common import ROOT, growth_exponent, run_point
 from raytrace.phantom import Material, Organ, Phantom
 
 
@@ -41,11 +44,6 @@ def test_scaling_point_runs_in_a_fresh_process() -> None:
 def test_peak_memory_of_a_child_excludes_the_parents() -> None:
     """A child's ``ru_maxrss`` inherits the parent's high-water mark through fork + exec (the
     bench's scaling points all reported the bench's own 460 MB): the point's measure must not."""
-    import subprocess
-    import sys
-
-    from bench.common import ROOT
-
     ballast = np.ones(400 * 1024 * 1024 // 8)  # the parent holds 400 MB, touched
     code = "from bench.point import peak_rss_mb; print(peak_rss_mb())"
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
