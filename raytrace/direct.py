@@ -28,10 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from raytrace import kernels
 from raytrace.budget import Budget
 from raytrace.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.media import MediaTable
-from raytrace.refine import encode, snell_refract, tangent_basis
+from raytrace.refine import tangent_basis
 from raytrace.scene import TracerScene
 
 #: Refraction events followed at most.
@@ -82,80 +83,35 @@ def refraction_walk(
     ``exact=False``: Embree's float32 hit distances and barycentric normals (about 1e-8 m,
     enough for the global seed walk; the zoom uses the float64 re-intersection)."""
     p = len(dirs)
-    cls = media.material_class
-    n_re = media.n_real
-    rx_cls = cls[np.asarray(rx_medium) + 1]
     own = ray_rx is not None
     cols = 1 if own else len(rx_m)
+    parent, cls, _transparent, n_re = media.kernel_tables
+    rx_cls = np.ascontiguousarray(cls[np.asarray(rx_medium, np.int64) + 1])
+    rx_m = np.ascontiguousarray(rx_m, dtype=float)
+    ray_rx = np.ascontiguousarray(ray_rx, np.int64) if own else np.zeros(0, np.int64)
     codes = np.full((p, MAX_EVENTS), -1, np.int64)
     miss = np.full((p, cols), np.inf)
     nmiss = np.zeros((p, cols), np.int64)
+    tables = scene.kernel_tables
+    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.corner_table64,
+               scene.face_organ, parent, cls, n_re, scene.offset_m, scene.center, MAX_EVENTS)
     # state of the rays still alive only, compacted after every event (row ``r`` is walked ray
     # ``ids[r]``): no gathers and scatters of the whole launch per event
     ids = np.arange(p)
     o = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
     d = np.array(dirs, float)
     med = np.full(p, tx_medium, np.int64)
-    push = np.zeros((p, 3))
     nint = np.zeros(p, np.int64)
+    q = (o - scene.center).astype(np.float32)
+    dq = d.astype(np.float32)
     segments = 0
     for _ in range(MAX_EVENTS + 1):
         if len(ids) == 0:
             break
-        face, t, uv = scene.first_hit(o, d, push, barycentric=True, exact=exact)
+        prim, tfar, bu, bv = scene.query(q, dq, barycentric=True)
         segments += len(ids)
-        reach = np.minimum(np.where(face >= 0, t, np.inf), 1e3)
-        ray_cls = cls[med + 1]
-        if own:
-            s = np.flatnonzero(ray_cls == rx_cls[ray_rx[ids]])
-            groups = [(s, [(0, rx_m[ray_rx[ids[s]]])])]
-        else:  # the rays in one material class are gathered once for all its receivers
-            groups = [(np.flatnonzero(ray_cls == k), [(c, rx_m[c]) for c in np.flatnonzero(rx_cls == k)])
-                      for k in np.unique(rx_cls)]
-        for s, targets in groups:
-            if len(s) == 0:
-                continue
-            i = ids[s]
-            o_i, d_i, reach_s = o[s], d[s], reach[s]
-            n_i = nint[s]
-            for c, target in targets:
-                v = target - o_i
-                tp = np.clip(np.einsum("ij,ij->i", v, d_i), 0.0, reach_s)
-                dist = np.linalg.norm(v - tp[:, None] * d_i, axis=1)
-                closer = dist < miss[i, c]
-                miss[i[closer], c] = dist[closer]
-                nmiss[i[closer], c] = n_i[closer]
-        hit = np.flatnonzero(face >= 0)
-        if len(hit) == 0:
-            break
-        f = face[hit]
-        dh = d[hit]
-        pt = o[hit] + t[hit, None] * dh
-        fn = scene.face_normals[f]
-        leaving = np.einsum("ij,ij->i", dh, fn) > 0.0
-        organ = scene.face_organ[f]
-        parent = media.parent[organ]
-        m_from = np.where(leaving, organ, parent)
-        m_to = np.where(leaving, parent, organ)
-        if exact:
-            ns = scene.smooth_normals(f, pt)
-        else:
-            ns = scene.smooth_normals_uv(f, uv[hit])
-            flip = np.einsum("ij,ij->i", ns, fn) <= 0.0
-            ns[flip] = fn[flip]
-        dt, tir, _, _ = snell_refract(dh, ns, np.einsum("ij,ij->i", dh, ns), n_re[m_from + 1] / n_re[m_to + 1])
-        wrong = np.einsum("ij,ij->i", dt, fn) * np.where(leaving, 1.0, -1.0) <= 0.0
-        nh = nint[hit]
-        stop = (cls[m_from + 1] != cls[med[hit] + 1]) | tir | wrong | (nh >= MAX_EVENTS)
-        g = np.flatnonzero(~stop)
-        ids = ids[hit[g]]
-        nh = nh[g]
-        codes[ids, nh] = encode(organ[g], leaving[g], 0)
-        nint = nh + 1
-        o = pt[g]
-        d = dt[g]
-        med = m_to[g]
-        push = np.where(leaving[g], 1.0, -1.0)[:, None] * fn[g] * scene.offset_m
+        ids, o, d, med, nint, q, dq = kernels.walk_step(
+            ids, o, d, med, nint, prim, tfar, bu, bv, exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes, *statics)
     return Walk(miss_m=miss, events=codes, nint=nmiss, segments=segments)
 
 

@@ -11,6 +11,7 @@ reflects nor bends there (it only splits the path's segments).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -35,6 +36,13 @@ class MediaTable:
     def n_real(self) -> np.ndarray:
         """Re n at the centre frequency, used for all ray geometry (Snell directions, delays)."""
         return self.n[0].real
+
+    @cached_property
+    def kernel_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(parent, material_class, face_transparent, n_real)`` in the dtypes and layout
+        :mod:`raytrace.kernels` is compiled for."""
+        return (np.ascontiguousarray(self.parent, np.int64), np.ascontiguousarray(self.material_class, np.int64),
+                np.ascontiguousarray(self.face_transparent, np.bool_), np.ascontiguousarray(self.n_real, np.float64))
 
     @classmethod
     def build(

@@ -28,13 +28,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from raytrace import kernels
+from raytrace.kernels import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION  # noqa: F401 (re-exported)
 from raytrace.budget import Budget
 from raytrace.media import MediaTable
 from raytrace.scene import TracerScene
 
-KIND_REFRACTION = 0
-KIND_REFLECTION = 1
-KIND_PASS = 2
 
 #: Newton stops when the last leg misses the receiver by less than this [m].
 MISS_TOLERANCE_M = 1e-9
@@ -119,120 +118,49 @@ def follow(
     med = np.full(p, tx_medium, dtype=np.int64)
     push = np.zeros((p, 3))
     k = np.zeros(p, dtype=np.int64)
-    nint = np.asarray(nint, dtype=np.int64)
+    nint = np.ascontiguousarray(nint, dtype=np.int64)
+    codes = np.ascontiguousarray(codes, dtype=np.int64)
     ok = np.ones(p, dtype=bool)
     done = np.zeros(p, dtype=bool) if record else (nint == 0)
+    targets = np.ascontiguousarray(targets_m, dtype=float) if record else np.zeros((0, 3))
     steps = Steps() if record else None
-    off = scene.offset_m
-    n_re = media.n_real
+    tables = scene.kernel_tables
+    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
+               *media.kernel_tables, scene.offset_m)
     segments = 0
     max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
     for _ in range(max_steps):
-        act = ok & ~done
-        if not act.any():
+        idx, q, dq = kernels.follow_prepare(ok, done, k, nint, o, d, push, targets, record, scene.center)
+        if len(idx) == 0:
             break
-        idx = np.flatnonzero(act)
-        final = k[idx] >= nint[idx]
-        if record and final.any():
-            to_t = targets_m[idx[final]] - o[idx[final]]
-            d[idx[final]] = to_t / np.linalg.norm(to_t, axis=1, keepdims=True)
-        di = d[idx]
-        face, t = scene.first_hit(o[idx], di, push[idx])
-        segments += len(idx)
-        hit = face >= 0
+        prim, tfar = scene.query(q, dq)
         if record:
-            dist = np.where(final, np.linalg.norm(targets_m[idx] - o[idx], axis=1), np.inf)
-            reached = final & (~hit | (t >= dist))
-            done[idx[reached]] = True
-            live = ~reached
+            out = _new_step_records(p)
+            for name, value in zip(_STEP_FIELDS, out):
+                getattr(steps, name).append(value)
         else:
-            live = np.ones(len(idx), bool)
-        ok[idx[live & ~hit]] = False
-        live &= hit
-        rec = {}
-        if record:
-            rec = dict(
-                valid=np.zeros(p, bool), point=np.zeros((p, 3)), face=np.full(p, -1, np.int64),
-                kind=np.full(p, -1, np.int64), med_from=np.full(p, -2, np.int64),
-                med_to=np.full(p, -2, np.int64), normal=np.zeros((p, 3)), dir_in=np.zeros((p, 3)),
-            )
-        if live.any():
-            j = idx[live]
-            f = face[live]
-            dj = di[live]
-            pt = o[j] + t[live, None] * dj
-            fn = scene.face_normals[f]
-            dn = np.einsum("ij,ij->i", dj, fn)
-            leaving = dn > 0.0
-            organ = scene.face_organ[f]
-            parent = media.parent[organ]
-            m_from = np.where(leaving, organ, parent)
-            m_to = np.where(leaving, parent, organ)
-            sgn = np.where(leaving, 1.0, -1.0)[:, None]
-            cls = media.material_class
-            consistent = cls[m_from + 1] == cls[med[j] + 1]
-            transparent = media.face_transparent[f]
-            is_final = k[j] >= nint[j]
-            # record-mode last leg: a real surface before the receiver blocks the path
-            blocked = ~transparent & is_final
-            expected = np.full(len(j), -1, np.int64)
-            if codes.shape[1]:
-                slot = np.minimum(k[j], codes.shape[1] - 1)
-                expected = np.where(is_final, -1, codes[j, slot])
-            reflect = (expected & 1).astype(bool)
-            code = encode(organ, leaving, reflect)
-            event = ~transparent & ~is_final
-            mismatch = event & (code != expected)
-            bad = ~consistent | blocked | mismatch
-            kind = np.where(transparent, KIND_PASS, np.where(reflect, KIND_REFLECTION, KIND_REFRACTION))
-            ns = scene.smooth_normals(f, pt)
-            new_d = dj.copy()
-            new_med = np.where(transparent | ~reflect, m_to, m_from)
-            new_push = sgn * fn * off
-            r_sel = event & reflect & ~bad
-            if r_sel.any():
-                dr = dj[r_sel] - 2.0 * np.einsum("ij,ij->i", dj[r_sel], ns[r_sel])[:, None] * ns[r_sel]
-                new_d[r_sel] = dr
-                new_push[r_sel] = -sgn[r_sel] * fn[r_sel] * off
-                wrong = np.einsum("ij,ij->i", dr, fn[r_sel]) * sgn[r_sel, 0] >= 0.0
-                bad[np.flatnonzero(r_sel)[wrong]] = True
-            t_sel = event & ~reflect & ~bad
-            if t_sel.any():
-                d_in, n_in = dj[t_sel], ns[t_sel]
-                dt, tir, _, _ = snell_refract(d_in, n_in, np.einsum("ij,ij->i", d_in, n_in),
-                                              n_re[m_from[t_sel] + 1] / n_re[m_to[t_sel] + 1])
-                dt = np.where(tir[:, None], dj[t_sel], dt)
-                new_d[t_sel] = dt
-                wrong = tir | (np.einsum("ij,ij->i", dt, fn[t_sel]) * sgn[t_sel, 0] <= 0.0)
-                bad[np.flatnonzero(t_sel)[wrong]] = True
-            ok[j[bad]] = False
-            good = ~bad
-            jg = j[good]
-            o[jg] = pt[good]
-            d[jg] = new_d[good]
-            med[jg] = new_med[good]
-            push[jg] = new_push[good]
-            k[jg] += event[good]
-            if not record:
-                done[jg] = k[jg] >= nint[jg]
-            if record:
-                rec["valid"][jg] = True
-                rec["point"][jg] = pt[good]
-                rec["face"][jg] = f[good]
-                rec["kind"][jg] = kind[good]
-                rec["med_from"][jg] = m_from[good]
-                rec["med_to"][jg] = m_to[good]
-                rec["normal"][jg] = ns[good]
-                rec["dir_in"][jg] = dj[good]
-        if record:
-            for key, value in rec.items():
-                getattr(steps, key).append(value)
+            out = _NO_RECORD
+        segments += kernels.follow_advance(idx, prim, tfar, o, d, med, push, k, nint, ok, done, codes,
+                                           targets, record, *statics, *out)
     ok &= done
     if record:
         d_last = np.where(ok[:, None], d, np.nan)
     else:
         d_last = d
     return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps)
+
+
+_STEP_FIELDS = ("valid", "point", "face", "kind", "med_from", "med_to", "normal", "dir_in")
+
+
+def _new_step_records(p: int) -> tuple:
+    """One step's record arrays, in :data:`_STEP_FIELDS` order (a ray not advanced keeps these)."""
+    return (np.zeros(p, bool), np.zeros((p, 3)), np.full(p, -1, np.int64), np.full(p, -1, np.int64),
+            np.full(p, -2, np.int64), np.full(p, -2, np.int64), np.zeros((p, 3)), np.zeros((p, 3)))
+
+
+_NO_RECORD = (np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64),
+              np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
 
 
 def snell_refract(d: np.ndarray, ns: np.ndarray, dns: np.ndarray, eta: np.ndarray):

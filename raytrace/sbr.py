@@ -39,10 +39,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from raytrace import kernels
 from raytrace.budget import Budget
 from raytrace.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.media import MediaTable
-from raytrace.refine import encode, snell_refract
 from raytrace.scene import TracerScene
 
 #: Launch directions traced together (their whole bounce tree at once).
@@ -81,16 +81,9 @@ CHUNK_RAYS = 1 << 18
 @dataclass
 class _Context:
     scene: TracerScene
-    n_re: np.ndarray
-    alpha: np.ndarray
-    parent: np.ndarray
-    transparent: np.ndarray
+    tables: tuple  # per-face and per-medium tables, receivers: the arguments of kernels.bounce
     threshold: float
     kmax: int
-    rx_m: np.ndarray
-    rx_medium: np.ndarray
-    cls: np.ndarray  # material class per medium (index m + 1)
-    need: np.ndarray  # fewest further interactions to reach a receiver's class, per medium (m + 1)
 
 
 @dataclass
@@ -146,126 +139,48 @@ class _Found:
     faces: list = field(default_factory=list)
 
 
-def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | None":
-    """Cast one chunk of live rays, record receptions, and spawn the next generation."""
-    scene = ctx.scene
-    off = scene.offset_m
-    n_re = ctx.n_re
-    threshold = ctx.threshold
-    o, d, med = s.o, s.d, s.med
-    face, t, uv = scene.first_hit32(o, d)
-    # reception (rays in the receiver's medium class only; one mask per class)
-    ray_cls = ctx.cls[med + 1]
-    rx_cls = ctx.cls[ctx.rx_medium + 1]
-    for c in np.unique(rx_cls):
-        i_c = np.flatnonzero(ray_cls == c)
-        if len(i_c) == 0:
-            continue
-        o_c, d_c, t_c = o[i_c], d[i_c], t[i_c]
-        for r in np.flatnonzero(rx_cls == c):
-            vec = ctx.rx_m[r] - o_c
-            tt = np.einsum("ij,ij->i", vec, d_c)
-            sel = np.flatnonzero((tt > 0.0) & (tt < t_c))
-            if len(sel) == 0:
-                continue
-            i, vec, tt = i_c[sel], vec[sel], tt[sel]
-            perp = np.linalg.norm(vec - tt[:, None] * d_c[sel], axis=1)
-            radius = RECEPTION_FACTOR * (s.rad[i] + tt * s.ang[i])
-            got = perp <= radius
-            if got.any():
-                i = i[got]
-                found.rx.append(np.full(len(i), r))
-                found.hist.append(s.hist[i])
-                found.n.append(s.nint[i])
-                found.src.append(s.src[i])
-                found.close.append(perp[got] / np.maximum(radius[got], 1e-30))
-    keep = np.flatnonzero(face >= 0)
-    if len(keep) == 0:
-        return None
-    if len(keep) == len(face):
-        keep = slice(None)  # every ray hit: views instead of gathers
-    f = face[keep]
-    tk = t[keep]
-    dk, mk = d[keep], med[keep]
-    pt = o[keep] + tk[:, None] * dk
-    wk = s.w[keep] * np.exp(-2.0 * ctx.alpha[mk + 1] * tk)
-    radk = s.rad[keep] + tk * s.ang[keep]
-    lengthk = s.length[keep] + tk / n_re[mk + 1]  # reduced length sum L_i / Re n_i
-    fn = scene.face_normals32[f]
-    dn = np.einsum("ij,ij->i", dk, fn)
-    leaving = dn > 0.0
-    organ = scene.face_organ[f]
-    parent = ctx.parent[organ]
-    m_from = np.where(leaving, organ, parent)
-    m_to = np.where(leaving, parent, organ)
-    sg = np.where(leaving, np.float32(1.0), np.float32(-1.0))
-    valid = (ctx.cls[m_from + 1] == ctx.cls[mk + 1]) & (wk >= threshold)
-    transparent = ctx.transparent[f]
+def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium: np.ndarray, kmax: int,
+             dynamic_range_db: float) -> _Context:
+    """The shooting's constant inputs, in the dtypes :func:`raytrace.kernels.bounce` is compiled for:
+    geometry in float32 in the scene's centred frame, the power attenuation constant
+    ``alpha = k0 |Im n|`` [Np/m] of every medium at the centre frequency."""
+    rx_medium = np.asarray(rx_medium, np.int64)
+    parent, cls, transparent, _n = media.kernel_tables
+    alpha = (2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -media.n[0].imag
+    return _Context(
+        scene=scene,
+        tables=(
+            scene.kernel_tables.face_map, scene.face_normals32, scene.face_organ, parent, cls, transparent,
+            media.n_real.astype(np.float32), alpha.astype(np.float32), scene.corner_table32,
+            scene.face_curvature32, _interactions_needed(media, rx_medium),
+            np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
+            np.ascontiguousarray(cls[rx_medium + 1]),
+        ),
+        threshold=10.0 ** (-dynamic_range_db / 10.0),
+        kmax=int(kmax),
+    )
 
-    nk, angk = s.nint[keep], s.ang[keep]
-    ev = valid & ~transparent & (nk < ctx.kmax)
-    p_mask = valid & transparent
-    # interaction physics over every hit at once (masks, no per-kind gathers)
-    ns = scene.smooth_normals_uv(f, uv[keep])
-    flip = np.einsum("ij,ij->i", ns, fn) <= 0.0
-    ns[flip] = fn[flip]
-    n1, n2 = n_re[m_from + 1], n_re[m_to + 1]
-    dns = np.einsum("ij,ij->i", dk, ns)
-    dt, tir, ci, ct = snell_refract(dk, ns, dns, n1 / n2)
-    # pruning weight only: lossless Fresnel power reflectance from Re n (mean of TE, TM)
-    n1c, n2c, n1t, n2i = n1 * ci, n2 * ct, n1 * ct, n2 * ci
-    r_te = (n1c - n2c) / np.maximum(n1c + n2c, 1e-30)
-    r_tm = (n2i - n1t) / np.maximum(n2i + n1t, 1e-30)
-    refl_p = np.where(tir, 1.0, np.clip(0.5 * (r_te * r_te + r_tm * r_tm), 0.0, 1.0))
-    dr = dk - (2.0 * dns)[:, None] * ns
-    wr = wk * refl_p
-    wt = wk - wr
-    r_mask = ev & (np.einsum("ij,ij->i", dr, fn) * sg < 0.0) & (wr >= threshold)
-    t_mask = ev & ~tir & (wt >= threshold) & (np.einsum("ij,ij->i", dt, fn) * sg > 0.0)
-    # a child that cannot reach a receiver's material class within max_interactions is dropped
-    # (it could never be received: see _interactions_needed)
-    r_mask &= nk + (1 + ctx.need[m_from + 1]) <= ctx.kmax
-    t_mask &= nk + (1 + ctx.need[m_to + 1]) <= ctx.kmax
-    p_mask &= nk + ctx.need[m_to + 1] <= ctx.kmax
-    mag = np.minimum(np.maximum(np.maximum(n1 * ci / np.maximum(n2 * ct, 1e-3), n1 / n2), 1.0), 50.0)
-    # curved surfaces turn the tube's edge rays: by 2 k h on reflection, k h |1 - n1/n2| on refraction
-    bend = np.float32(CURVATURE_MARGIN) * scene.face_curvature32[f] * radk
-    # event log: one int32 entry per spawned reflected / transmitted ray
-    base = log.size
-    r_idx, t_idx = np.flatnonzero(r_mask), np.flatnonzero(t_mask)
-    hk = s.hist[keep]
-    if len(r_idx) or len(t_idx):
-        log.parent.append(np.concatenate([hk[r_idx], hk[t_idx]]).astype(np.int32))
-        log.code.append(np.concatenate([encode(organ[r_idx], leaving[r_idx], 1),
-                                        encode(organ[t_idx], leaving[t_idx], 0)]).astype(np.int32))
-        log.face.append(np.concatenate([f[r_idx], f[t_idx]]).astype(np.int32))
-        log.size += len(r_idx) + len(t_idx)
-    n_r, n_t, n_p = int(r_mask.sum()), int(t_mask.sum()), int(p_mask.sum())
-    total = n_r + n_t + n_p
-    if total == 0:
+
+def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | None":
+    """Cast one chunk of live rays, record receptions, and spawn the next generation
+    (the per-ray work is :func:`raytrace.kernels.bounce`)."""
+    scene = ctx.scene
+    prim, tfar, bu, bv = scene.query(s.o, s.d, barycentric=True)
+    children, entries, got = kernels.bounce(
+        s.o, s.d, s.med, s.w, s.rad, s.ang, s.length, s.nint, s.hist, s.src, prim, tfar, bu, bv,
+        *ctx.tables, ctx.threshold, ctx.kmax, scene.offset_m, RECEPTION_FACTOR, CURVATURE_MARGIN, log.size,
+    )
+    if len(got[0]):
+        for name, value in zip(("rx", "hist", "n", "src", "close"), got):
+            getattr(found, name).append(value)
+    if len(entries[0]):
+        log.parent.append(entries[0])
+        log.code.append(entries[1])
+        log.face.append(entries[2])
+        log.size += len(entries[0])
+    if len(children[0]) == 0:
         return None
-    a, b = n_r, n_r + n_t
-    push = (sg * np.float32(off))[:, None] * fn
-    o = np.empty((total, 3), np.float32)
-    np.compress(r_mask, pt - push, axis=0, out=o[:a])
-    o_tp = pt + push
-    np.compress(t_mask, o_tp, axis=0, out=o[a:b])
-    np.compress(p_mask, o_tp, axis=0, out=o[b:])
-    d = np.empty((total, 3), np.float32)
-    np.compress(r_mask, dr, axis=0, out=d[:a])
-    np.compress(t_mask, dt, axis=0, out=d[a:b])
-    np.compress(p_mask, dk, axis=0, out=d[b:])
-    med = np.concatenate([m_from[r_mask], m_to[t_mask], m_to[p_mask]])
-    w = np.concatenate([wr[r_mask], wt[t_mask], wk[p_mask]])
-    rad = np.concatenate([radk[r_mask], radk[t_mask], radk[p_mask]])
-    ang = np.concatenate([(angk + 2.0 * bend)[r_mask], (angk * mag + bend * np.abs(1.0 - n1 / n2))[t_mask],
-                          angk[p_mask]])
-    nint = np.concatenate([nk[r_mask] + 1, nk[t_mask] + 1, nk[p_mask]])
-    hist = np.concatenate([base + np.arange(len(r_idx) + len(t_idx)), hk[p_mask]])
-    src = s.src[keep]
-    src = np.concatenate([src[r_mask], src[t_mask], src[p_mask]])
-    length = np.concatenate([lengthk[r_mask], lengthk[t_mask], lengthk[p_mask]])
-    return _State(o=o, d=d, med=med, w=w, rad=rad, ang=ang, length=length, nint=nint, hist=hist, src=src)
+    return _State(*children)
 
 
 def shoot(
@@ -290,19 +205,7 @@ def shoot(
     kmax = int(max_interactions)
     width = max(kmax, 1)
     launch = fibonacci_sphere(rays)
-    ctx = _Context(
-        scene=scene,
-        n_re=media.n_real.astype(np.float32),
-        alpha=((2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -media.n[0].imag).astype(np.float32),
-        parent=media.parent,
-        transparent=media.face_transparent,
-        threshold=10.0 ** (-dynamic_range_db / 10.0),
-        kmax=kmax,
-        rx_m=(np.asarray(rx_m, float) - scene.center).astype(np.float32),
-        rx_medium=np.asarray(rx_medium),
-        cls=media.material_class,
-        need=_interactions_needed(media, rx_medium),
-    )
+    ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db)
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
     spacing = angular_spacing_rad(rays)
     tx_c = (np.asarray(tx_m, float) - scene.center).astype(np.float32)

@@ -157,32 +157,31 @@ class TracerScene:
             return face, t, np.stack([res["u"], res["v"]], axis=1).astype(float)
         return face, t
 
+    def query(self, origins_c: np.ndarray, directions: np.ndarray, *, barycentric: bool = False) -> tuple:
+        """Raw Embree first hits for the compiled kernels: float32 ``origins_c`` (centred frame,
+        spawn push included) and directions. Returns Embree's ``(primID, tfar)``: the primitive
+        of the visible scene (``-1`` on a miss; :attr:`kernel_tables` maps it to a phantom face)
+        and the float32 distance from the query origin; with ``barycentric`` also the hit's
+        ``(u, v)`` (point = (1 - u - v) v0 + u v1 + v v2)."""
+        n = len(origins_c)
+        if n == 0 or (self.face_map is not None and len(self.face_map) == 0):
+            out = (np.full(n, -1, np.int32), np.full(n, np.inf, np.float32))
+            return out + (np.zeros(n, np.float32), np.zeros(n, np.float32)) if barycentric else out
+        res = self.embree.run(origins_c, directions, output=1)
+        if barycentric:
+            return res["primID"], res["tfar"], res["u"], res["v"]
+        return res["primID"], res["tfar"]
+
+    @cached_property
+    def kernel_tables(self) -> "KernelTables":
+        """Per-face tables in the dtypes and layout :mod:`raytrace.kernels` is compiled for."""
+        face_map = np.arange(len(self.faces)) if self.face_map is None else self.face_map
+        return KernelTables(face_map=np.ascontiguousarray(face_map, np.int64),
+                            frame=np.ascontiguousarray(self._barycentric_frame))
+
     @cached_property
     def face_normals32(self) -> np.ndarray:
         return self.face_normals.astype(np.float32)
-
-    def first_hit32(self, origins_c: np.ndarray, directions: np.ndarray):
-        """Shooting-phase query, all float32: ``origins_c`` already in the scene's centred
-        frame. Returns ``(face, t, uv)`` with ``face = -1``, ``t = inf`` on a miss."""
-        n = len(origins_c)
-        if n == 0 or (self.face_map is not None and len(self.face_map) == 0):
-            return np.full(n, -1, np.int64), np.full(n, np.inf, np.float32), np.zeros((n, 2), np.float32)
-        res = self.embree.run(np.ascontiguousarray(origins_c), np.ascontiguousarray(directions), output=1)
-        face = res["primID"].astype(np.int64)
-        hit = face >= 0
-        if self.face_map is not None:
-            face[hit] = self.face_map[face[hit]]
-        t = np.where(hit, res["tfar"], np.float32(np.inf))
-        return face, t, np.stack([res["u"], res["v"]], axis=1)
-
-    def smooth_normals_uv(self, face: np.ndarray, uv: np.ndarray) -> np.ndarray:
-        """Smooth unit normals from Embree barycentrics (cheaper, float32-accurate: for shooting):
-        ``n0 + u (n1 - n0) + v (n2 - n0)`` from one gathered row per hit, normalised."""
-        table = self._corner_table32 if uv.dtype == np.float32 else self._corner_table64
-        g = table[face]
-        nrm = g[:, 0:3] + uv[:, 0:1] * g[:, 3:6] + uv[:, 1:2] * g[:, 6:9]
-        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None]
-        return nrm
 
     @cached_property
     def face_curvature32(self) -> np.ndarray:
@@ -200,14 +199,14 @@ class TracerScene:
         return out.astype(np.float32)
 
     @cached_property
-    def _corner_table64(self) -> np.ndarray:
+    def corner_table64(self) -> np.ndarray:
         """Per face (F, 9): the first corner normal and the differences to the other two."""
         c = self.corner_normals
         return np.ascontiguousarray(np.concatenate([c[:, 0], c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]], axis=1))
 
     @cached_property
-    def _corner_table32(self) -> np.ndarray:
-        return self._corner_table64.astype(np.float32)
+    def corner_table32(self) -> np.ndarray:
+        return self.corner_table64.astype(np.float32)
 
     @cached_property
     def _barycentric_frame(self) -> np.ndarray:
@@ -243,6 +242,12 @@ class TracerScene:
         # Never let the smooth normal flip relative to the facet.
         flip = np.einsum("ij,ij->i", nrm, fallback) <= 0.0
         return np.where(flip[:, None], fallback, nrm)
+
+
+@dataclass(frozen=True)
+class KernelTables:
+    face_map: np.ndarray  # (Embree primitives,) int64 phantom face of each primitive
+    frame: np.ndarray  # (F, 22) float64 barycentric frame and corner normals per face
 
 
 def vertex_normals_max(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

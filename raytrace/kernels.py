@@ -1,0 +1,536 @@
+"""Compiled per-ray kernels (numba, ``nogil``) for the tracer's small-batch hot loops.
+
+Why compiled code and not numpy here: Newton refinement (:mod:`raytrace.refine`)
+re-traces a few thousand rays per iteration, a few dozen times, with a dozen
+numpy operations per ray step. At that batch size each numpy call costs more
+in interpreter overhead than in arithmetic, and the work holds the GIL, so two
+threads do not help (docs/tracer.md, "Tried and dropped"). These kernels do the
+same arithmetic one ray at a time in compiled code, release the GIL, and leave
+Embree (the first-hit query) to the caller. The large shooting batches stay in
+numpy, where the arrays are big enough for it to be efficient.
+
+The formulas are those of the numpy reference they replace, written per ray:
+the float64 re-intersection of :meth:`raytrace.scene.TracerScene.first_hit`,
+the smooth normal of :meth:`raytrace.scene.TracerScene.smooth_normals`, the
+law of reflection and the vector Snell law of :func:`raytrace.refine.snell_refract`
+(``t = eta (d - cos_i n) + cos_t n``, Born & Wolf 1.5). They are tested against
+the independent closed forms of :mod:`raytrace.em` in tests/test_kernels.py and,
+through the tracer, against every oracle of docs/tracer.md.
+
+``cache=True``: the machine code is cached on disk (next to this file or in
+the user's cache directory), so only the first process after an install pays
+the compile (~seconds); :func:`warm_up` compiles or loads it ahead of a request.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+KIND_REFRACTION = 0
+KIND_REFLECTION = 1
+KIND_PASS = 2
+
+
+@njit(cache=True, nogil=True)
+def _smooth_normal(frame, face_normals, f, x, y, z):
+    """Smooth unit normal at point (x, y, z) of face f: barycentrics from the face's frame row,
+    clipped to [0, 1], corner normals interpolated; the facet normal if the result degenerates
+    or flips (:meth:`raytrace.scene.TracerScene.smooth_normals`)."""
+    fr = frame[f]
+    v2x, v2y, v2z = x - fr[0], y - fr[1], z - fr[2]
+    d20 = v2x * fr[3] + v2y * fr[4] + v2z * fr[5]
+    d21 = v2x * fr[6] + v2y * fr[7] + v2z * fr[8]
+    d00, d01, d11, den = fr[9], fr[10], fr[11], fr[12]
+    bv = (d11 * d20 - d01 * d21) / den
+    bw = (d00 * d21 - d01 * d20) / den
+    bu = 1.0 - bv - bw
+    bu = min(max(bu, 0.0), 1.0)
+    bv = min(max(bv, 0.0), 1.0)
+    bw = min(max(bw, 0.0), 1.0)
+    nx = bu * fr[13] + bv * fr[16] + bw * fr[19]
+    ny = bu * fr[14] + bv * fr[17] + bw * fr[20]
+    nz = bu * fr[15] + bv * fr[18] + bw * fr[21]
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+    if not norm > 1e-12:
+        return fx, fy, fz
+    nx, ny, nz = nx / norm, ny / norm, nz / norm
+    if nx * fx + ny * fy + nz * fz <= 0.0:
+        return fx, fy, fz
+    return nx, ny, nz
+
+
+@njit(cache=True, nogil=True)
+def follow_prepare(ok, done, k, nint, o, d, push, targets, record, center):
+    """Active rays of one :func:`raytrace.refine.follow` step and their float32 Embree query
+    (origin in the scene's centred frame plus the spawn push, direction). In record mode a
+    ray past its last event is first aimed at its target."""
+    p = len(ok)
+    count = 0
+    for i in range(p):
+        if ok[i] and not done[i]:
+            count += 1
+    idx = np.empty(count, np.int64)
+    q = np.empty((count, 3), np.float32)
+    dq = np.empty((count, 3), np.float32)
+    j = 0
+    for i in range(p):
+        if not (ok[i] and not done[i]):
+            continue
+        if record and k[i] >= nint[i]:
+            tx, ty, tz = targets[i, 0] - o[i, 0], targets[i, 1] - o[i, 1], targets[i, 2] - o[i, 2]
+            nrm = math.sqrt(tx * tx + ty * ty + tz * tz)
+            d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
+        idx[j] = i
+        for c in range(3):
+            q[j, c] = o[i, c] - center[c] + push[i, c]
+            dq[j, c] = d[i, c]
+        j += 1
+    return idx, q, dq
+
+
+@njit(cache=True, nogil=True)
+def follow_advance(
+    idx, prim, tfar,  # this step's rays and Embree's answer (primitive id or -1, float32 distance)
+    o, d, med, push, k, nint, ok, done, codes, targets, record,  # per-ray state, updated in place
+    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
+    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # record mode
+):
+    """One step of :func:`raytrace.refine.follow` for every active ray: float64 hit point on the
+    hit triangle's plane, side and media from the facet normal, the signature's expected event
+    checked, then reflection (``d - 2 (d.n) n``) or refraction (vector Snell law with the real
+    parts of the indices) about the smooth normal. A ray that leaves its signature is marked
+    ``ok = False``. Returns the number of rays cast (segments)."""
+    n_codes = codes.shape[1]
+    for j in range(len(idx)):
+        i = idx[j]
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+        final = k[i] >= nint[i]
+        g = prim[j]
+        if g < 0:
+            if record and final:
+                done[i] = True  # nothing between the last event and the target
+            else:
+                ok[i] = False
+            continue
+        f = face_map[g]
+        fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        # float64 re-intersection with the hit triangle's plane from the true origin
+        denom = fx * dx + fy * dy + fz * dz
+        t = np.float64(tfar[j])
+        if abs(denom) > 1e-12:
+            t64 = (plane_d[f] - (fx * ox + fy * oy + fz * oz)) / denom
+            if math.isfinite(t64):
+                t = max(t64, 0.0)
+        if record and final:
+            tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
+            if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
+                done[i] = True  # the target comes before the hit
+                continue
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        leaving = denom > 0.0
+        organ = face_organ[f]
+        par = parent[organ]
+        m_from = organ if leaving else par
+        m_to = par if leaving else organ
+        sgn = 1.0 if leaving else -1.0
+        is_transparent = transparent[f]
+        expected = -1
+        if not final and n_codes > 0:
+            expected = codes[i, min(k[i], n_codes - 1)]
+        reflect = (expected & 1) == 1
+        event = not is_transparent and not final
+        bad = cls[m_from + 1] != cls[med[i] + 1]  # the ray is not in the medium it thinks
+        bad = bad or (not is_transparent and final)  # a real surface blocks the last leg
+        code = (organ * 2 + (1 if leaving else 0)) * 2 + (1 if reflect else 0)
+        bad = bad or (event and code != expected)
+        if bad:
+            ok[i] = False
+            continue
+        nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
+        ndx, ndy, ndz = dx, dy, dz
+        pfac = sgn
+        if is_transparent or not reflect:
+            new_med = m_to
+        else:
+            new_med = m_from
+        if event and reflect:
+            dn = dx * nx + dy * ny + dz * nz
+            ndx, ndy, ndz = dx - 2.0 * dn * nx, dy - 2.0 * dn * ny, dz - 2.0 * dn * nz
+            pfac = -sgn
+            if (ndx * fx + ndy * fy + ndz * fz) * sgn >= 0.0:
+                ok[i] = False  # the smooth normal sent the reflection through the facet
+                continue
+        elif event:
+            dns = dx * nx + dy * ny + dz * nz
+            eta = n_re[m_from + 1] / n_re[m_to + 1]
+            s = -1.0 if dns < 0.0 else 1.0
+            ci = abs(dns)
+            sin2 = eta * eta * (1.0 - ci * ci)
+            if sin2 > 1.0:
+                ok[i] = False  # total internal reflection: no refracted ray
+                continue
+            ct = math.sqrt(max(1.0 - sin2, 0.0))
+            ndx = eta * (dx - ci * s * nx) + ct * s * nx
+            ndy = eta * (dy - ci * s * ny) + ct * s * ny
+            ndz = eta * (dz - ci * s * nz) + ct * s * nz
+            norm = math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
+            ndx, ndy, ndz = ndx / norm, ndy / norm, ndz / norm
+            if (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
+                ok[i] = False
+                continue
+        o[i, 0], o[i, 1], o[i, 2] = px, py, pz
+        d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
+        med[i] = new_med
+        push[i, 0], push[i, 1], push[i, 2] = pfac * fx * offset_m, pfac * fy * offset_m, pfac * fz * offset_m
+        if event:
+            k[i] += 1
+        if not record:
+            done[i] = k[i] >= nint[i]
+        else:
+            rec_valid[i] = True
+            rec_point[i, 0], rec_point[i, 1], rec_point[i, 2] = px, py, pz
+            rec_face[i] = f
+            rec_kind[i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
+            rec_from[i] = m_from
+            rec_to[i] = m_to
+            rec_normal[i, 0], rec_normal[i, 1], rec_normal[i, 2] = nx, ny, nz
+            rec_dir[i, 0], rec_dir[i, 1], rec_dir[i, 2] = dx, dy, dz
+    return len(idx)
+
+
+@njit(cache=True, nogil=True)
+def bounce(
+    o, d, med, w, rad, ang, length, nint, hist, src,  # live rays (float32 geometry in the centred frame)
+    prim, tfar, bu, bv,  # Embree's first hits of those rays
+    face_map, face_normals32, face_organ, parent, cls, transparent, n_re, alpha, corner32, curvature32,
+    need, rx_m, rx_cls, threshold, kmax, offset_m, reception_factor, curvature_margin, log_base,
+):
+    """One bounce of :func:`raytrace.sbr.shoot` for a chunk of live rays.
+
+    Reception: a ray of the receiver's material class whose segment passes the receiver
+    within ``reception_factor * (rad + t_along * ang)`` (the ray tube's half-width) makes a
+    candidate. Then each ray that hit a surface is absorbed along its segment
+    (``exp(-2 alpha L)``) and splits, about the smooth normal, into a reflected ray
+    (``d - 2 (d.n) n``) with the lossless Fresnel power reflectance of Re n (mean of TE and TM,
+    Born & Wolf 1.5.3) and a transmitted one (vector Snell law) with the rest, unless Snell has
+    no real solution (total internal reflection); a transparent surface passes the ray
+    unchanged. Children below ``threshold`` or unable to reach a receiver's class within
+    ``kmax`` events (``need``) are dropped. Tube angles grow as in :mod:`raytrace.sbr`.
+
+    Returns the children (reflected, then transmitted, then passed, each in ray order, as
+    the numpy reference did), the event-log entries of the reflected and transmitted
+    children (parent entry, code, face), and the receptions (receiver, log entry, events,
+    launch index, miss over radius), receiver-major.
+    """
+    n = len(prim)
+    n_rx = len(rx_m)
+    # receptions: count, then fill (receiver-major, ray order within a receiver)
+    count = 0
+    for r in range(n_rx):
+        for i in range(n):
+            if cls[med[i] + 1] != rx_cls[r]:
+                continue
+            vx, vy, vz = rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2]
+            tt = vx * d[i, 0] + vy * d[i, 1] + vz * d[i, 2]
+            reach = tfar[i] if prim[i] >= 0 else np.inf
+            if not (tt > 0.0 and tt < reach):
+                continue
+            px, py, pz = vx - tt * d[i, 0], vy - tt * d[i, 1], vz - tt * d[i, 2]
+            if math.sqrt(px * px + py * py + pz * pz) <= reception_factor * (rad[i] + tt * ang[i]):
+                count += 1
+    c_rx = np.empty(count, np.int64)
+    c_hist = np.empty(count, np.int64)
+    c_n = np.empty(count, np.int64)
+    c_src = np.empty(count, np.int64)
+    c_close = np.empty(count, np.float64)
+    c = 0
+    for r in range(n_rx):
+        for i in range(n):
+            if cls[med[i] + 1] != rx_cls[r]:
+                continue
+            vx, vy, vz = rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2]
+            tt = vx * d[i, 0] + vy * d[i, 1] + vz * d[i, 2]
+            reach = tfar[i] if prim[i] >= 0 else np.inf
+            if not (tt > 0.0 and tt < reach):
+                continue
+            px, py, pz = vx - tt * d[i, 0], vy - tt * d[i, 1], vz - tt * d[i, 2]
+            perp = math.sqrt(px * px + py * py + pz * pz)
+            radius = reception_factor * (rad[i] + tt * ang[i])
+            if perp <= radius:
+                c_rx[c], c_hist[c], c_n[c], c_src[c] = r, hist[i], nint[i], src[i]
+                c_close[c] = perp / max(radius, 1e-30)
+                c += 1
+
+    # interactions: per-ray outcome first (0/1 reflected, 0/1 transmitted, or passed)
+    kind = np.zeros(n, np.int8)  # bit 1: reflected child, bit 2: transmitted child, bit 4: passed
+    pt = np.empty((n, 3), np.float32)
+    dr = np.empty((n, 3), np.float32)
+    dt = np.empty((n, 3), np.float32)
+    push = np.empty((n, 3), np.float32)
+    w_r = np.empty(n, np.float32)
+    w_t = np.empty(n, np.float32)
+    rad_k = np.empty(n, np.float32)
+    ang_r = np.empty(n, np.float32)
+    ang_t = np.empty(n, np.float32)
+    len_k = np.empty(n, np.float32)
+    m_from_k = np.empty(n, np.int64)
+    m_to_k = np.empty(n, np.int64)
+    code_k = np.empty(n, np.int32)
+    face_k = np.empty(n, np.int32)
+    n_r = n_t = n_p = 0
+    for i in range(n):
+        if prim[i] < 0:
+            continue
+        f = face_map[prim[i]]
+        t = tfar[i]
+        m = med[i]
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        wk = w[i] * math.exp(-2.0 * alpha[m + 1] * t)
+        fx, fy, fz = face_normals32[f, 0], face_normals32[f, 1], face_normals32[f, 2]
+        dn = dx * fx + dy * fy + dz * fz
+        leaving = dn > 0.0
+        organ = face_organ[f]
+        par = parent[organ]
+        m_from = organ if leaving else par
+        m_to = par if leaving else organ
+        if cls[m_from + 1] != cls[m + 1] or not wk >= threshold:
+            continue
+        sg = 1.0 if leaving else -1.0
+        nk = nint[i]
+        radk = rad[i] + t * ang[i]
+        pt[i, 0], pt[i, 1], pt[i, 2] = o[i, 0] + t * dx, o[i, 1] + t * dy, o[i, 2] + t * dz
+        push[i, 0], push[i, 1], push[i, 2] = sg * offset_m * fx, sg * offset_m * fy, sg * offset_m * fz
+        rad_k[i] = radk
+        len_k[i] = length[i] + t / n_re[m + 1]
+        m_from_k[i] = m_from
+        m_to_k[i] = m_to
+        face_k[i] = f
+        if transparent[f]:
+            if nk + need[m_to + 1] <= kmax:
+                kind[i] = 4
+                w_t[i] = wk
+                n_p += 1
+            continue
+        if nk >= kmax:
+            continue
+        # smooth normal from Embree's barycentrics, the facet's if it flips
+        g = corner32[f]
+        nx = g[0] + bu[i] * g[3] + bv[i] * g[6]
+        ny = g[1] + bu[i] * g[4] + bv[i] * g[7]
+        nz = g[2] + bu[i] * g[5] + bv[i] * g[8]
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        nx, ny, nz = nx / norm, ny / norm, nz / norm
+        if not nx * fx + ny * fy + nz * fz > 0.0:
+            nx, ny, nz = fx, fy, fz
+        n1, n2 = n_re[m_from + 1], n_re[m_to + 1]
+        dns = dx * nx + dy * ny + dz * nz
+        s = -1.0 if dns < 0.0 else 1.0
+        ci = abs(dns)
+        eta = n1 / n2
+        sin2 = eta * eta * (1.0 - ci * ci)
+        tir = sin2 > 1.0
+        ct = math.sqrt(max(1.0 - sin2, 0.0))
+        tx = eta * (dx - ci * s * nx) + ct * s * nx
+        ty = eta * (dy - ci * s * ny) + ct * s * ny
+        tz = eta * (dz - ci * s * nz) + ct * s * nz
+        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx / tn, ty / tn, tz / tn
+        if tir:
+            refl_p = 1.0
+        else:
+            n1c, n2c, n1t, n2i = n1 * ci, n2 * ct, n1 * ct, n2 * ci
+            r_te = (n1c - n2c) / max(n1c + n2c, 1e-30)
+            r_tm = (n2i - n1t) / max(n2i + n1t, 1e-30)
+            refl_p = min(max(0.5 * (r_te * r_te + r_tm * r_tm), 0.0), 1.0)
+        rx_, ry_, rz_ = dx - 2.0 * dns * nx, dy - 2.0 * dns * ny, dz - 2.0 * dns * nz
+        wr = wk * refl_p
+        wt = wk - wr
+        bend = curvature_margin * curvature32[f] * radk
+        code_k[i] = (organ * 2 + (1 if leaving else 0)) * 2
+        if ((rx_ * fx + ry_ * fy + rz_ * fz) * sg < 0.0 and wr >= threshold
+                and nk + 1 + need[m_from + 1] <= kmax):
+            kind[i] |= 1
+            dr[i, 0], dr[i, 1], dr[i, 2] = rx_, ry_, rz_
+            w_r[i] = wr
+            ang_r[i] = ang[i] + 2.0 * bend
+            n_r += 1
+        if (not tir and wt >= threshold and (tx * fx + ty * fy + tz * fz) * sg > 0.0
+                and nk + 1 + need[m_to + 1] <= kmax):
+            kind[i] |= 2
+            dt[i, 0], dt[i, 1], dt[i, 2] = tx, ty, tz
+            w_t[i] = wt
+            mag = min(max(max(n1 * ci / max(n2 * ct, 1e-3), eta), 1.0), 50.0)
+            ang_t[i] = ang[i] * mag + bend * abs(1.0 - eta)
+            n_t += 1
+
+    total = n_r + n_t + n_p
+    c_o = np.empty((total, 3), np.float32)
+    c_d = np.empty((total, 3), np.float32)
+    c_med = np.empty(total, np.int64)
+    c_w = np.empty(total, np.float32)
+    c_rad = np.empty(total, np.float32)
+    c_ang = np.empty(total, np.float32)
+    c_len = np.empty(total, np.float32)
+    c_nint = np.empty(total, np.int64)
+    c_hist_next = np.empty(total, np.int64)
+    c_src_next = np.empty(total, np.int64)
+    log_parent = np.empty(n_r + n_t, np.int32)
+    log_code = np.empty(n_r + n_t, np.int32)
+    log_face = np.empty(n_r + n_t, np.int32)
+    a = 0
+    for block in range(3):
+        bit = 1 << block
+        for i in range(n):
+            if not kind[i] & bit:
+                continue
+            if block == 0:  # reflected: back to the side it came from
+                for q in range(3):
+                    c_o[a, q] = pt[i, q] - push[i, q]
+                    c_d[a, q] = dr[i, q]
+                c_med[a], c_w[a], c_ang[a] = m_from_k[i], w_r[i], ang_r[i]
+            else:  # transmitted / passed: on through the surface
+                for q in range(3):
+                    c_o[a, q] = pt[i, q] + push[i, q]
+                    c_d[a, q] = dt[i, q] if block == 1 else d[i, q]
+                c_med[a], c_w[a] = m_to_k[i], w_t[i]
+                c_ang[a] = ang_t[i] if block == 1 else ang[i]
+            c_rad[a], c_len[a], c_src_next[a] = rad_k[i], len_k[i], src[i]
+            if block < 2:
+                log_parent[a] = hist[i]
+                log_code[a] = code_k[i] + (1 if block == 0 else 0)
+                log_face[a] = face_k[i]
+                c_nint[a] = nint[i] + 1
+                c_hist_next[a] = log_base + a
+            else:
+                c_nint[a] = nint[i]
+                c_hist_next[a] = hist[i]
+            a += 1
+    return ((c_o, c_d, c_med, c_w, c_rad, c_ang, c_len, c_nint, c_hist_next, c_src_next),
+            (log_parent, log_code, log_face),
+            (c_rx, c_hist, c_n, c_src, c_close))
+
+
+@njit(cache=True, nogil=True)
+def walk_step(
+    ids, o, d, med, nint, prim, tfar, bu, bv,  # live walked rays (row r is ray ids[r]) and Embree's hits
+    exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes,  # receivers; per-ray outputs updated in place
+    face_map, face_normals, plane_d, frame, corner64, face_organ, parent, cls, n_re, offset_m, center,
+    max_events,
+):
+    """One event of :func:`raytrace.direct.refraction_walk` for every live ray.
+
+    Each leg in a receiver's material class updates the ray's closest approach to that
+    receiver (``ray_rx[i] >= 0``: only to its own receiver, column 0; else to every receiver,
+    one column each). Then the ray refracts (vector Snell law with Re n about the smooth
+    normal, Born & Wolf 1.5) and its event is appended to its signature; it stops at total
+    internal reflection, at a surface it is not in front of, or after ``max_events``.
+    ``exact``: float64 re-intersection and float64 smooth normal (else Embree's float32
+    distance and barycentric normal, ~1e-8 m, enough for seeds). Returns the surviving
+    rays, compacted, and their next float32 Embree query (centred origin + spawn push)."""
+    n = len(ids)
+    n_rx = len(rx_m)
+    own = len(ray_rx) > 0
+    keep = np.zeros(n, np.bool_)
+    new_o = np.empty((n, 3))
+    new_d = np.empty((n, 3))
+    new_med = np.empty(n, np.int64)
+    new_push = np.empty((n, 3))
+    survivors = 0
+    for r in range(n):
+        i = ids[r]
+        dx, dy, dz = d[r, 0], d[r, 1], d[r, 2]
+        ox, oy, oz = o[r, 0], o[r, 1], o[r, 2]
+        g = prim[r]
+        f = face_map[g] if g >= 0 else -1
+        t = np.inf
+        fx = fy = fz = 0.0
+        if f >= 0:
+            fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+            t = np.float64(tfar[r])
+            if exact:
+                denom = fx * dx + fy * dy + fz * dz
+                if abs(denom) > 1e-12:
+                    t64 = (plane_d[f] - (fx * ox + fy * oy + fz * oz)) / denom
+                    if math.isfinite(t64):
+                        t = max(t64, 0.0)
+        reach = min(t, 1e3)
+        ray_cls = cls[med[r] + 1]
+        for c in range(1 if own else n_rx):
+            target = ray_rx[i] if own else c
+            if rx_cls[target] != ray_cls:
+                continue
+            vx, vy, vz = rx_m[target, 0] - ox, rx_m[target, 1] - oy, rx_m[target, 2] - oz
+            tp = min(max(vx * dx + vy * dy + vz * dz, 0.0), reach)
+            ex, ey, ez = vx - tp * dx, vy - tp * dy, vz - tp * dz
+            dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if dist < miss[i, c]:
+                miss[i, c] = dist
+                nmiss[i, c] = nint[r]
+        if f < 0 or nint[r] >= max_events:
+            continue
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        leaving = fx * dx + fy * dy + fz * dz > 0.0
+        organ = face_organ[f]
+        par = parent[organ]
+        m_from = organ if leaving else par
+        m_to = par if leaving else organ
+        if cls[m_from + 1] != ray_cls:
+            continue
+        if exact:
+            nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
+        else:
+            cg = corner64[f]
+            nx = cg[0] + bu[r] * cg[3] + bv[r] * cg[6]
+            ny = cg[1] + bu[r] * cg[4] + bv[r] * cg[7]
+            nz = cg[2] + bu[r] * cg[5] + bv[r] * cg[8]
+            norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+            nx, ny, nz = nx / norm, ny / norm, nz / norm
+            if not nx * fx + ny * fy + nz * fz > 0.0:
+                nx, ny, nz = fx, fy, fz
+        dns = dx * nx + dy * ny + dz * nz
+        s = -1.0 if dns < 0.0 else 1.0
+        ci = abs(dns)
+        eta = n_re[m_from + 1] / n_re[m_to + 1]
+        sin2 = eta * eta * (1.0 - ci * ci)
+        if sin2 > 1.0:
+            continue  # total internal reflection ends a refraction-only walk
+        ct = math.sqrt(max(1.0 - sin2, 0.0))
+        tx = eta * (dx - ci * s * nx) + ct * s * nx
+        ty = eta * (dy - ci * s * ny) + ct * s * ny
+        tz = eta * (dz - ci * s * nz) + ct * s * nz
+        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx / tn, ty / tn, tz / tn
+        sg = 1.0 if leaving else -1.0
+        if (tx * fx + ty * fy + tz * fz) * sg <= 0.0:
+            continue
+        codes[i, nint[r]] = (organ * 2 + (1 if leaving else 0)) * 2
+        keep[r] = True
+        new_o[r, 0], new_o[r, 1], new_o[r, 2] = px, py, pz
+        new_d[r, 0], new_d[r, 1], new_d[r, 2] = tx, ty, tz
+        new_med[r] = m_to
+        new_push[r, 0], new_push[r, 1], new_push[r, 2] = sg * fx * offset_m, sg * fy * offset_m, sg * fz * offset_m
+        survivors += 1
+    out_ids = np.empty(survivors, np.int64)
+    out_o = np.empty((survivors, 3))
+    out_d = np.empty((survivors, 3))
+    out_med = np.empty(survivors, np.int64)
+    out_n = np.empty(survivors, np.int64)
+    q = np.empty((survivors, 3), np.float32)
+    dq = np.empty((survivors, 3), np.float32)
+    a = 0
+    for r in range(n):
+        if not keep[r]:
+            continue
+        out_ids[a], out_med[a], out_n[a] = ids[r], new_med[r], nint[r] + 1
+        for c in range(3):
+            out_o[a, c] = new_o[r, c]
+            out_d[a, c] = new_d[r, c]
+            q[a, c] = new_o[r, c] - center[c] + new_push[r, c]
+            dq[a, c] = new_d[r, c]
+        a += 1
+    return out_ids, out_o, out_d, out_med, out_n, q, dq

@@ -1,0 +1,158 @@
+"""The compiled per-ray kernels (raytrace/kernels.py) against closed forms that share no code
+with them: the vector laws of reflection and refraction and the Fresnel coefficients of
+raytrace/em.py (themselves checked against ``tmm`` in test_em.py), Beer-Lambert absorption
+from the Gabriel tissue model, the straight-line intersection with a plane, and the exact
+normal of a sphere. The tracer-level oracles (test_tracer_*.py) exercise the same kernels
+through whole paths."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from raytrace import em, kernels, sbr
+from raytrace.launch import fibonacci_sphere
+from raytrace.media import MediaTable
+from raytrace.phantom import Material
+from raytrace.scenarios import half_space, homogeneous_sphere
+from raytrace.scene import scene_for
+
+FREQUENCY_HZ = 402e6
+
+
+@pytest.fixture(scope="module")
+def one_bounce():
+    """One bounce of ~3500 rays from the half-space's transmitter (muscle, 30 mm behind the
+    planar muscle/air face y = 0) towards that face, through :func:`raytrace.sbr._bounce`."""
+    phantom = half_space()
+    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    tx = np.asarray(phantom.sites["tx"].position_m, float)
+    d = fibonacci_sphere(20_000)
+    d = d[d[:, 1] < -0.3]  # towards the face, hitting it within 0.1 m of the foot point
+    n = len(d)
+    ctx = sbr._context(scene, media, np.array([[0.0, -0.05, 0.0]]), np.array([-1]), kmax=6, dynamic_range_db=200.0)
+    state = sbr._State(
+        o=np.broadcast_to((tx - scene.center).astype(np.float32), (n, 3)).copy(), d=d.astype(np.float32),
+        med=np.full(n, 0, np.int64), w=np.ones(n, np.float32), rad=np.zeros(n, np.float32),
+        ang=np.full(n, 1e-3, np.float32), length=np.zeros(n, np.float32), nint=np.zeros(n, np.int64),
+        hist=np.full(n, -1, np.int64), src=np.arange(n),
+    )
+    log, found = sbr._Log(), sbr._Found()
+    children = sbr._bounce(ctx, state, log, found)
+    return scene, tx, d, children, log
+
+
+def _split(children):
+    """Reflected children (back in muscle, medium 0) and transmitted ones (air, -1)."""
+    refl = children.med == 0
+    return children.take(np.flatnonzero(refl)), children.take(np.flatnonzero(~refl))
+
+
+def test_bounce_directions_follow_the_laws_of_reflection_and_refraction(one_bounce):
+    scene, _tx, d, children, _log = one_bounce
+    refl, trans = _split(children)
+    normal = np.array([0.0, -1.0, 0.0])  # the face's outward normal (muscle -> air)
+    n_muscle = em.refractive_index(Material(tissue="muscle").complex_relative_permittivity(FREQUENCY_HZ))
+    # every ray reflects (R > 0 everywhere); float32 arithmetic: 1e-6 covers a few roundings
+    assert len(refl.d) == len(d)
+    expected_r = em.reflect_direction(d[refl.src], normal)
+    np.testing.assert_allclose(refl.d, expected_r, atol=1e-6)
+    expected_t, tir = em.refract_direction(d, normal, n_muscle, 1.0)
+    # transmitted children exactly for the rays inside the critical angle (~7 deg from muscle)
+    assert set(trans.src.tolist()) == set(np.flatnonzero(~tir).tolist())
+    assert 0 < len(trans.d) < len(d) // 4
+    # float32: cos_t = sqrt(1 - eta^2 sin^2 i) loses ~eta^2 eps32 / cos_t near grazing (eta = 8.6)
+    cos_t = -expected_t[trans.src, 1]
+    tol = 1e-6 + n_muscle.real ** 2 * 1.2e-7 / cos_t
+    assert (np.abs(trans.d - expected_t[trans.src]).max(axis=1) <= tol).all()
+    # Snell's law itself, n1 sin(theta_i) = n2 sin(theta_t), on the transmitted rays
+    sin_i = np.linalg.norm(np.cross(d[trans.src], normal), axis=1)
+    sin_t = np.linalg.norm(np.cross(trans.d.astype(float), normal), axis=1)
+    np.testing.assert_allclose(n_muscle.real * sin_i, sin_t, atol=2e-6)
+
+
+def test_bounce_hit_points_lie_on_the_plane_along_each_ray(one_bounce):
+    scene, tx, d, children, _log = one_bounce
+    refl, _trans = _split(children)
+    t = tx[1] / -d[refl.src, 1]  # straight line to the plane y = 0
+    expected = tx + t[:, None] * d[refl.src]
+    got = refl.o.astype(float) + scene.center  # reflected origins: the hit, pushed back into muscle
+    # float32 positions at the scene's 1 m scale (ulp 6e-8 m) plus the spawn offset (16 ulps)
+    np.testing.assert_allclose(got, expected, atol=scene.offset_m + 1e-6)
+    assert (got[:, 1] > 0.0).all()  # pushed to the muscle side
+    _r, trans = _split(children)
+    assert (trans.o[:, 1].astype(float) + scene.center[1] < 0.0).all()  # pushed to the air side
+
+
+def test_bounce_power_split_is_fresnel_times_beer_lambert(one_bounce):
+    _scene, tx, d, children, log = one_bounce
+    refl, trans = _split(children)
+    eps = Material(tissue="muscle").complex_relative_permittivity(FREQUENCY_HZ)
+    n_muscle = em.refractive_index(eps)
+    alpha = em.attenuation_np_per_m(eps, FREQUENCY_HZ)
+    t = tx[1] / -d[:, 1]
+    absorbed = np.exp(-2.0 * alpha * t)  # power: Beer-Lambert over the path in muscle
+    cos_i = -d[:, 1]
+    f = em.fresnel(n_muscle.real, 1.0, np.clip(cos_i, 0.0, 1.0))  # lossless Fresnel on Re n (pruning weight)
+    r_power = 0.5 * (em.power_reflectance(f.r_te) + em.power_reflectance(f.r_tm))
+    # float32 weights: 1e-5 relative
+    np.testing.assert_allclose(refl.w, (absorbed * r_power)[refl.src], rtol=1e-5)
+    np.testing.assert_allclose(trans.w, (absorbed * (1.0 - r_power))[trans.src], rtol=1e-5, atol=1e-9)
+    # every child is logged once with its code: face of organ 0 left (leaving = 1), reflect bit
+    codes = np.concatenate(log.code)
+    assert len(codes) == len(refl.w) + len(trans.w)
+    assert (codes[:len(refl.w)] == (0 * 2 + 1) * 2 + 1).all() and (codes[len(refl.w):] == (0 * 2 + 1) * 2).all()
+    # reduced length L / Re n and the tube radius grown by the launch angle over the leg
+    np.testing.assert_allclose(refl.length, (t / n_muscle.real)[refl.src], rtol=1e-5)
+    np.testing.assert_allclose(refl.rad, 1e-3 * t[refl.src], rtol=1e-5)
+
+
+def test_bounce_reception_is_the_ray_tube_width():
+    """A receiver at perpendicular distance h from a ray, a distance s along it, is a candidate
+    iff h <= rad + s * ang (the tube's half-width there)."""
+    phantom = half_space()
+    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    tx = np.asarray(phantom.sites["tx"].position_m, float)
+    d = np.array([0.0, -1.0, 0.0])
+    s, ang, rad = 0.02, 0.01, 1e-3
+    width = rad + s * ang
+    offsets = np.array([0.5, 0.9, 1.1, 2.0]) * width
+    rx = tx + s * d + offsets[:, None] * np.array([1.0, 0.0, 0.0])
+    ctx = sbr._context(scene, media, rx, np.zeros(len(rx), np.int64), kmax=6, dynamic_range_db=80.0)
+    state = sbr._State(
+        o=(tx - scene.center).astype(np.float32)[None, :], d=d.astype(np.float32)[None, :],
+        med=np.zeros(1, np.int64), w=np.ones(1, np.float32), rad=np.full(1, rad, np.float32),
+        ang=np.full(1, ang, np.float32), length=np.zeros(1, np.float32), nint=np.zeros(1, np.int64),
+        hist=np.full(1, -1, np.int64), src=np.zeros(1, np.int64),
+    )
+    found = sbr._Found()
+    sbr._bounce(ctx, state, sbr._Log(), found)
+    got = np.concatenate(found.rx)
+    assert got.tolist() == [0, 1]
+    np.testing.assert_allclose(np.concatenate(found.close), [0.5, 0.9], rtol=1e-4)
+
+
+def test_smooth_normal_is_the_sphere_normal():
+    """On a faceted sphere the interpolated normal (Max's vertex weights, exact on a sphere)
+    equals the radial direction at the vertices to rounding, and inside a facet deviates from
+    it by less than the angle between the facet's corners (linear interpolation)."""
+    phantom = homogeneous_sphere()
+    scene = scene_for(phantom)
+    tables = scene.kernel_tables
+    rng = np.random.default_rng(7)
+    faces = rng.choice(len(scene.faces), 300, replace=False)
+    for f in faces:
+        tri = scene.vertices[scene.faces[f]]
+        for corner in tri:
+            n = np.array(kernels._smooth_normal(tables.frame, scene.face_normals, f, *corner))
+            np.testing.assert_allclose(n, corner / np.linalg.norm(corner), atol=1e-9)
+        w = rng.dirichlet(np.ones(3))
+        point = w @ tri
+        n = np.array(kernels._smooth_normal(tables.frame, scene.face_normals, f, *point))
+        radial = point / np.linalg.norm(point)
+        spread = max(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))
+                     for a in tri for b in tri)
+        assert abs(np.linalg.norm(n) - 1.0) < 1e-12
+        assert np.arccos(np.clip(n @ radial, -1.0, 1.0)) <= spread
