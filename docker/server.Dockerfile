@@ -7,7 +7,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
     CAPSULE_RT_HOST=0.0.0.0 \
     CAPSULE_RT_PORT=8000 \
-    CAPSULE_RT_DATA_DIR=/data
+    CAPSULE_RT_DATA_DIR=/data \
+    NUMBA_CACHE_DIR=/var/cache/capsule-rt/numba
 
 WORKDIR /app
 
@@ -16,11 +17,16 @@ COPY pyproject.toml README.md ./
 COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
+# The warm-up compiles the tracer's numba kernels into the image, so a container's start does
+# not pay the ~4 s compile. numba only uses a cache directory it can write to: the cache is
+# handed to the service's user.
 RUN pip install --no-cache-dir . \
+    && python -c "from raytrace.tracer import warm_up; warm_up()" \
     && groupadd --system --gid 10001 capsule \
     && useradd --system --create-home --uid 10001 --gid 10001 capsule \
     && mkdir -p /data \
-    && chown capsule:capsule /data
+    && chown capsule:capsule /data \
+    && chown -R capsule:capsule "$NUMBA_CACHE_DIR"
 
 USER 10001:10001
 EXPOSE 8000

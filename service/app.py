@@ -12,6 +12,7 @@ from contextlib import asynccontextmanager
 import anyio.to_thread
 from fastapi import FastAPI
 
+from raytrace.tracer import warm_up
 from service import __version__
 from service.compute import ComputeGate
 from service.deps import AppState
@@ -61,9 +62,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI):
         if not registry.ready:
             await anyio.to_thread.run_sync(registry.load_builtins, settings.load_builtins)
+        # compile (or load from cache) the tracer's kernels before /readyz says ready
+        warm_up_s = await anyio.to_thread.run_sync(warm_up)
         log.info(
             "ready",
-            extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios), "data_dir": str(settings.data_dir)},
+            extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios), "data_dir": str(settings.data_dir),
+                   "kernels_warm_up_s": round(warm_up_s, 3)},
         )
         try:
             yield
