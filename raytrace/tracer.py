@@ -159,13 +159,15 @@ def trace_channel(
     scene = scene_for(phantom, ~media.face_transparent)
     segments = 0
 
-    # --- shooting and bouncing rays (every other signature) and the refinement of their seeds
-    # do not depend on the direct-path search: they run in a worker thread meanwhile (Embree
-    # and large numpy operations release the GIL), so neither core idles while the other
-    # refines; the result is the same as a serial run's
+    # --- shooting and bouncing rays (every other signature) first, on both cores (its launch
+    # batches run in two threads); then the Newton refinement of its seeds runs in a worker
+    # thread while this one searches the direct paths: both spend most of their time in the
+    # GIL-free kernels and Embree, so they overlap (docs/tracer.md, "Performance"); the result
+    # is the same as a serial run's
+    cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
+                  float(dynamic_range_db), budget)
     with ThreadPoolExecutor(max_workers=1) as worker:
-        shot = worker.submit(_shoot_and_refine, scene, media, tx, tx_medium, rx, rx_medium, int(rays),
-                             int(max_interactions), float(dynamic_range_db), budget)
+        shot = worker.submit(_refine_shot_seeds, scene, media, tx, tx_medium, rx, cands, budget)
         # --- direct paths first: the straight line's signature (homotopy on the indices when its
         # launch is totally reflected on the way), then, for receivers still without one,
         # refraction-only rays walked from the transmitter (their own signatures), zoomed in
@@ -215,8 +217,8 @@ def trace_channel(
                 segments += ref_b.segments
                 groups.append((back.receiver, back.codes, back.nint, ref_b))
 
-        # --- shooting and bouncing rays (started above, in parallel): every other signature
-        cands, s_rx, s_codes, s_n, ref_s = shot.result()
+        # --- the shot seeds' refinement (started above, in parallel): every other signature
+        s_rx, s_codes, s_n, ref_s = shot.result()
     segments += cands.segments + ref_s.segments
     groups.append((s_rx, s_codes, s_n, ref_s))
     # --- the echo of a direct path off the receiver's own organ surface (a contact sensor's
@@ -295,16 +297,12 @@ def trace_channel(
 
 
 # ------------------------------------------------------------------ helpers
-def _shoot_and_refine(scene, media, tx, tx_medium, rx, rx_medium, rays, max_interactions, dynamic_range_db,
-                      budget):
-    """Shooting and bouncing rays, seed selection and Newton refinement of those seeds (the
-    worker thread's share of a request): ``(candidates, seed receivers, codes, nint, Refined)``."""
-    cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, rays, max_interactions, dynamic_range_db, budget)
+def _refine_shot_seeds(scene, media, tx, tx_medium, rx, cands, budget):
+    """Seed selection and Newton refinement of the shooting's candidates (the worker thread's
+    share of a request): ``(seed receivers, codes, nint, Refined)``."""
     s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
-    if budget is not None:
-        budget.charge(0)
     ref_s = refine(scene, media, tx, tx_medium, rx[s_rx], s_dir, s_codes, s_n, budget=budget)
-    return cands, s_rx, s_codes, s_n, ref_s
+    return s_rx, s_codes, s_n, ref_s
 
 
 def _surface_echo_seeds(groups, rx_medium, max_interactions):
