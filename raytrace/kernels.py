@@ -29,12 +29,16 @@ import math
 import numpy as np
 from numba import njit
 
+#: Every kernel: compiled once and cached on disk, without the GIL, and with numpy's float
+#: semantics (a division by zero gives inf / nan, as in the numpy reference, never an exception).
+_kernel = njit(cache=True, nogil=True, error_model="numpy")
+
 KIND_REFRACTION = 0
 KIND_REFLECTION = 1
 KIND_PASS = 2
 
 
-@njit(cache=True, nogil=True)
+@_kernel
 def _smooth_normal(frame, face_normals, f, x, y, z):
     """Smooth unit normal at point (x, y, z) of face f: barycentrics from the face's frame row,
     clipped to [0, 1], corner normals interpolated; the facet normal if the result degenerates
@@ -63,7 +67,69 @@ def _smooth_normal(frame, face_normals, f, x, y, z):
     return nx, ny, nz
 
 
-@njit(cache=True, nogil=True)
+@_kernel
+def _smooth_normal_uv(corner, face_normals, f, bu, bv):
+    """Smooth unit normal of face f from Embree's barycentrics ``(u, v)``:
+    ``n0 + u (n1 - n0) + v (n2 - n0)`` over the face's corner-table row, normalised; the facet
+    normal if it degenerates or flips (float32-accurate: enough for seeds)."""
+    g = corner[f]
+    nx = g[0] + bu * g[3] + bv * g[6]
+    ny = g[1] + bu * g[4] + bv * g[7]
+    nz = g[2] + bu * g[5] + bv * g[8]
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+    nx, ny, nz = nx / norm, ny / norm, nz / norm
+    if not nx * fx + ny * fy + nz * fz > 0.0:
+        return fx, fy, fz
+    return nx, ny, nz
+
+
+@_kernel
+def _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32):
+    """Float64 distance along the unit direction from the true origin to face f's plane
+    (``(n.v0 - n.o) / (n.d)``, clamped at 0), Embree's float32 ``t32`` if the ray is parallel."""
+    fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+    denom = fx * dx + fy * dy + fz * dz
+    if abs(denom) > 1e-12:
+        t64 = (plane_d[f] - (fx * ox + fy * oy + fz * oz)) / denom
+        if math.isfinite(t64):
+            return max(t64, 0.0)
+    return np.float64(t32)
+
+
+@_kernel
+def _refract(dx, dy, dz, nx, ny, nz, eta):
+    """Vector Snell law (Born & Wolf 1.5): ``t = eta (d - ci nf) + ct nf`` with ``nf`` the normal
+    oriented along ``d``, ``eta = Re n1 / Re n2``. Returns ``(tir, tx, ty, tz, ci, ct)``;
+    under total internal reflection (``eta^2 (1 - ci^2) > 1``) ``t`` is meaningless."""
+    dns = dx * nx + dy * ny + dz * nz
+    s = -1.0 if dns < 0.0 else 1.0
+    ci = abs(dns)
+    sin2 = eta * eta * (1.0 - ci * ci)
+    ct = math.sqrt(max(1.0 - sin2, 0.0))
+    tx = eta * (dx - ci * s * nx) + ct * s * nx
+    ty = eta * (dy - ci * s * ny) + ct * s * ny
+    tz = eta * (dz - ci * s * nz) + ct * s * nz
+    tn = math.sqrt(tx * tx + ty * ty + tz * tz)
+    return sin2 > 1.0, tx / tn, ty / tn, tz / tn, ci, ct
+
+
+@_kernel
+def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
+    """Whether ray i's segment (length ``reach``) passes receiver r within the ray tube's
+    half-width ``reception_factor * (rad + s * ang)`` at the closest point, ``s`` along the ray;
+    returns ``(received, miss, radius)``."""
+    vx, vy, vz = rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2]
+    tt = vx * d[i, 0] + vy * d[i, 1] + vz * d[i, 2]
+    if not (tt > 0.0 and tt < reach):
+        return False, 0.0, 0.0
+    px, py, pz = vx - tt * d[i, 0], vy - tt * d[i, 1], vz - tt * d[i, 2]
+    perp = math.sqrt(px * px + py * py + pz * pz)
+    radius = reception_factor * (rad[i] + tt * ang[i])
+    return perp <= radius, perp, radius
+
+
+@_kernel
 def follow_prepare(ok, done, k, nint, o, d, push, targets, record, center):
     """Active rays of one :func:`raytrace.refine.follow` step and their float32 Embree query
     (origin in the scene's centred frame plus the spawn push, direction). In record mode a
@@ -92,7 +158,7 @@ def follow_prepare(ok, done, k, nint, o, d, push, targets, record, center):
     return idx, q, dq
 
 
-@njit(cache=True, nogil=True)
+@_kernel
 def follow_advance(
     idx, prim, tfar,  # this step's rays and Embree's answer (primitive id or -1, float32 distance)
     o, d, med, push, k, nint, ok, done, codes, targets, record,  # per-ray state, updated in place
@@ -120,19 +186,14 @@ def follow_advance(
         f = face_map[g]
         fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
         # float64 re-intersection with the hit triangle's plane from the true origin
-        denom = fx * dx + fy * dy + fz * dz
-        t = np.float64(tfar[j])
-        if abs(denom) > 1e-12:
-            t64 = (plane_d[f] - (fx * ox + fy * oy + fz * oz)) / denom
-            if math.isfinite(t64):
-                t = max(t64, 0.0)
+        t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, tfar[j])
         if record and final:
             tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
             if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
                 done[i] = True  # the target comes before the hit
                 continue
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        leaving = denom > 0.0
+        leaving = fx * dx + fy * dy + fz * dz > 0.0
         organ = face_organ[f]
         par = parent[organ]
         m_from = organ if leaving else par
@@ -166,22 +227,9 @@ def follow_advance(
                 ok[i] = False  # the smooth normal sent the reflection through the facet
                 continue
         elif event:
-            dns = dx * nx + dy * ny + dz * nz
-            eta = n_re[m_from + 1] / n_re[m_to + 1]
-            s = -1.0 if dns < 0.0 else 1.0
-            ci = abs(dns)
-            sin2 = eta * eta * (1.0 - ci * ci)
-            if sin2 > 1.0:
-                ok[i] = False  # total internal reflection: no refracted ray
-                continue
-            ct = math.sqrt(max(1.0 - sin2, 0.0))
-            ndx = eta * (dx - ci * s * nx) + ct * s * nx
-            ndy = eta * (dy - ci * s * ny) + ct * s * ny
-            ndz = eta * (dz - ci * s * nz) + ct * s * nz
-            norm = math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
-            ndx, ndy, ndz = ndx / norm, ndy / norm, ndz / norm
-            if (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
-                ok[i] = False
+            tir, ndx, ndy, ndz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
+            if tir or (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
+                ok[i] = False  # total internal reflection, or refracted back through the facet
                 continue
         o[i, 0], o[i, 1], o[i, 2] = px, py, pz
         d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
@@ -203,7 +251,7 @@ def follow_advance(
     return len(idx)
 
 
-@njit(cache=True, nogil=True)
+@_kernel
 def bounce(
     o, d, med, w, rad, ang, length, nint, hist, src,  # live rays (float32 geometry in the centred frame)
     prim, tfar, bu, bv,  # Embree's first hits of those rays
@@ -233,16 +281,9 @@ def bounce(
     count = 0
     for r in range(n_rx):
         for i in range(n):
-            if cls[med[i] + 1] != rx_cls[r]:
-                continue
-            vx, vy, vz = rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2]
-            tt = vx * d[i, 0] + vy * d[i, 1] + vz * d[i, 2]
-            reach = tfar[i] if prim[i] >= 0 else np.inf
-            if not (tt > 0.0 and tt < reach):
-                continue
-            px, py, pz = vx - tt * d[i, 0], vy - tt * d[i, 1], vz - tt * d[i, 2]
-            if math.sqrt(px * px + py * py + pz * pz) <= reception_factor * (rad[i] + tt * ang[i]):
-                count += 1
+            if cls[med[i] + 1] == rx_cls[r]:
+                reach = tfar[i] if prim[i] >= 0 else np.inf
+                count += _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)[0]
     c_rx = np.empty(count, np.int64)
     c_hist = np.empty(count, np.int64)
     c_n = np.empty(count, np.int64)
@@ -253,15 +294,9 @@ def bounce(
         for i in range(n):
             if cls[med[i] + 1] != rx_cls[r]:
                 continue
-            vx, vy, vz = rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2]
-            tt = vx * d[i, 0] + vy * d[i, 1] + vz * d[i, 2]
             reach = tfar[i] if prim[i] >= 0 else np.inf
-            if not (tt > 0.0 and tt < reach):
-                continue
-            px, py, pz = vx - tt * d[i, 0], vy - tt * d[i, 1], vz - tt * d[i, 2]
-            perp = math.sqrt(px * px + py * py + pz * pz)
-            radius = reception_factor * (rad[i] + tt * ang[i])
-            if perp <= radius:
+            received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)
+            if received:
                 c_rx[c], c_hist[c], c_n[c], c_src[c] = r, hist[i], nint[i], src[i]
                 c_close[c] = perp / max(radius, 1e-30)
                 c += 1
@@ -319,27 +354,11 @@ def bounce(
         if nk >= kmax:
             continue
         # smooth normal from Embree's barycentrics, the facet's if it flips
-        g = corner32[f]
-        nx = g[0] + bu[i] * g[3] + bv[i] * g[6]
-        ny = g[1] + bu[i] * g[4] + bv[i] * g[7]
-        nz = g[2] + bu[i] * g[5] + bv[i] * g[8]
-        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-        nx, ny, nz = nx / norm, ny / norm, nz / norm
-        if not nx * fx + ny * fy + nz * fz > 0.0:
-            nx, ny, nz = fx, fy, fz
+        nx, ny, nz = _smooth_normal_uv(corner32, face_normals32, f, bu[i], bv[i])
         n1, n2 = n_re[m_from + 1], n_re[m_to + 1]
-        dns = dx * nx + dy * ny + dz * nz
-        s = -1.0 if dns < 0.0 else 1.0
-        ci = abs(dns)
         eta = n1 / n2
-        sin2 = eta * eta * (1.0 - ci * ci)
-        tir = sin2 > 1.0
-        ct = math.sqrt(max(1.0 - sin2, 0.0))
-        tx = eta * (dx - ci * s * nx) + ct * s * nx
-        ty = eta * (dy - ci * s * ny) + ct * s * ny
-        tz = eta * (dz - ci * s * nz) + ct * s * nz
-        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
-        tx, ty, tz = tx / tn, ty / tn, tz / tn
+        dns = dx * nx + dy * ny + dz * nz
+        tir, tx, ty, tz, ci, ct = _refract(dx, dy, dz, nx, ny, nz, eta)
         if tir:
             refl_p = 1.0
         else:
@@ -415,7 +434,7 @@ def bounce(
             (c_rx, c_hist, c_n, c_src, c_close))
 
 
-@njit(cache=True, nogil=True)
+@_kernel
 def walk_step(
     ids, o, d, med, nint, prim, tfar, bu, bv,  # live walked rays (row r is ray ids[r]) and Embree's hits
     exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes,  # receivers; per-ray outputs updated in place
@@ -451,13 +470,10 @@ def walk_step(
         fx = fy = fz = 0.0
         if f >= 0:
             fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
-            t = np.float64(tfar[r])
             if exact:
-                denom = fx * dx + fy * dy + fz * dz
-                if abs(denom) > 1e-12:
-                    t64 = (plane_d[f] - (fx * ox + fy * oy + fz * oz)) / denom
-                    if math.isfinite(t64):
-                        t = max(t64, 0.0)
+                t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, tfar[r])
+            else:
+                t = np.float64(tfar[r])
         reach = min(t, 1e3)
         ray_cls = cls[med[r] + 1]
         for c in range(1 if own else n_rx):
@@ -484,30 +500,11 @@ def walk_step(
         if exact:
             nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
         else:
-            cg = corner64[f]
-            nx = cg[0] + bu[r] * cg[3] + bv[r] * cg[6]
-            ny = cg[1] + bu[r] * cg[4] + bv[r] * cg[7]
-            nz = cg[2] + bu[r] * cg[5] + bv[r] * cg[8]
-            norm = math.sqrt(nx * nx + ny * ny + nz * nz)
-            nx, ny, nz = nx / norm, ny / norm, nz / norm
-            if not nx * fx + ny * fy + nz * fz > 0.0:
-                nx, ny, nz = fx, fy, fz
-        dns = dx * nx + dy * ny + dz * nz
-        s = -1.0 if dns < 0.0 else 1.0
-        ci = abs(dns)
-        eta = n_re[m_from + 1] / n_re[m_to + 1]
-        sin2 = eta * eta * (1.0 - ci * ci)
-        if sin2 > 1.0:
-            continue  # total internal reflection ends a refraction-only walk
-        ct = math.sqrt(max(1.0 - sin2, 0.0))
-        tx = eta * (dx - ci * s * nx) + ct * s * nx
-        ty = eta * (dy - ci * s * ny) + ct * s * ny
-        tz = eta * (dz - ci * s * nz) + ct * s * nz
-        tn = math.sqrt(tx * tx + ty * ty + tz * tz)
-        tx, ty, tz = tx / tn, ty / tn, tz / tn
+            nx, ny, nz = _smooth_normal_uv(corner64, face_normals, f, bu[r], bv[r])
+        tir, tx, ty, tz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
         sg = 1.0 if leaving else -1.0
-        if (tx * fx + ty * fy + tz * fz) * sg <= 0.0:
-            continue
+        if tir or (tx * fx + ty * fy + tz * fz) * sg <= 0.0:
+            continue  # total internal reflection ends a refraction-only walk
         codes[i, nint[r]] = (organ * 2 + (1 if leaving else 0)) * 2
         keep[r] = True
         new_o[r, 0], new_o[r, 1], new_o[r, 2] = px, py, pz
