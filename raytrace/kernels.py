@@ -1,25 +1,28 @@
-"""Compiled per-ray kernels (numba, ``nogil``) for the tracer's small-batch hot loops.
+"""Compiled per-ray kernels (numba, without the GIL) for the tracer's inner loops.
 
 Why compiled code and not numpy here: Newton refinement (:mod:`raytrace.refine`)
 re-traces a few thousand rays per iteration, a few dozen times, with a dozen
 numpy operations per ray step. At that batch size each numpy call costs more
 in interpreter overhead than in arithmetic, and the work holds the GIL, so two
-threads do not help (docs/tracer.md, "Tried and dropped"). These kernels do the
-same arithmetic one ray at a time in compiled code, release the GIL, and leave
-Embree (the first-hit query) to the caller. The large shooting batches stay in
-numpy, where the arrays are big enough for it to be efficient.
+threads did not help (docs/tracer.md, "Tried and dropped"). The shooting's
+bounce and the refraction-only walk were large-batch numpy, but made a dozen
+temporaries of every ray per bounce. These kernels do the same arithmetic one
+ray at a time in compiled code and leave Embree (the first-hit query, one call
+per batch) to the caller. Python still drives the loops over bounces and steps.
 
-The formulas are those of the numpy reference they replace, written per ray:
+The formulas are those of the numpy code they replaced, written per ray:
 the float64 re-intersection of :meth:`raytrace.scene.TracerScene.first_hit`,
 the smooth normal of :meth:`raytrace.scene.TracerScene.smooth_normals`, the
-law of reflection and the vector Snell law of :func:`raytrace.refine.snell_refract`
-(``t = eta (d - cos_i n) + cos_t n``, Born & Wolf 1.5). They are tested against
-the independent closed forms of :mod:`raytrace.em` in tests/test_kernels.py and,
-through the tracer, against every oracle of docs/tracer.md.
+law of reflection and the vector Snell law of :func:`raytrace.em.refract_direction`
+(``t = eta (d - cos_i n) + cos_t n``, Born & Wolf 1.5) without its input
+checks. They are tested against the independent closed forms of
+:mod:`raytrace.em` in tests/test_kernels.py and, through the tracer, against
+every oracle of docs/tracer.md.
 
-``cache=True``: the machine code is cached on disk (next to this file or in
-the user's cache directory), so only the first process after an install pays
-the compile (~seconds); :func:`warm_up` compiles or loads it ahead of a request.
+``cache=True``: the machine code is cached on disk (beside this file, or in
+``NUMBA_CACHE_DIR`` / the user's cache directory when this one is read-only),
+so only the first process after an install compiles (~4 s);
+:func:`raytrace.tracer.warm_up` does it ahead of the first request.
 """
 
 from __future__ import annotations

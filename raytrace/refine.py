@@ -163,21 +163,6 @@ _NO_RECORD = (np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0, np.int64), np.zer
               np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
 
 
-def snell_refract(d: np.ndarray, ns: np.ndarray, dns: np.ndarray, eta: np.ndarray):
-    """Vector Snell law ``t = eta (d - ci nf) + ct nf`` (``nf`` the normal oriented along
-    ``d``, ``eta = Re n1 / Re n2``): the formula of :func:`raytrace.em.refract_direction`
-    without its input checks (hot loop). Returns ``(t, tir, cos_i, cos_t)``."""
-    one = np.ones((), dtype=dns.dtype)  # keep the caller's precision (float32 when shooting)
-    sgn = np.where(dns < 0.0, -one, one)
-    ci = np.abs(dns)
-    sin2 = eta * eta * (1.0 - ci * ci)
-    tir = sin2 > 1.0
-    ct = np.sqrt(np.clip(1.0 - sin2, 0.0, None))
-    t = eta[:, None] * (d - (ci * sgn)[:, None] * ns) + (ct * sgn)[:, None] * ns
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    return t, tir, ci, ct
-
-
 def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors orthogonal to each unit direction and to each other (right-handed)."""
     ref = np.where(np.abs(d[:, 0:1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
