@@ -94,67 +94,33 @@ class TracerScene:
         )
 
     # ----------------------------------------------------------- queries
-    def first_hit(
-        self,
-        origins_m: np.ndarray,
-        directions: np.ndarray,
-        push: np.ndarray | None = None,
-        *,
-        barycentric: bool = False,
-        exact: bool = True,
-    ):
+    def first_hit(self, origins_m: np.ndarray, directions: np.ndarray, push: np.ndarray | None = None):
         """First triangle hit by each ray and the float64 distance to it.
 
         ``push`` (N, 3): offset added to the float32 query origin only (the
         spawn offset off the surface just left). Returns ``(face, t_m)``:
         ``face = -1`` and ``t = inf`` on a miss; ``t`` is measured from the
-        true origin along the unit direction to the hit triangle's plane.
-        With ``barycentric=True`` also Embree's float32 ``(u, v)`` of each hit
-        (point = (1 - u - v) v0 + u v1 + v v2), enough for smooth normals.
-        ``exact=False`` skips the float64 re-intersection (Embree's float32
-        distance from the query origin; the shooting phase only needs seeds).
+        true origin along the unit direction to the hit triangle's plane
+        (Embree's float32 distance where the ray is parallel to it).
         """
-        n = len(origins_m)
-        if n == 0 or (self.face_map is not None and len(self.face_map) == 0):
-            empty = (np.full(n, -1, np.int64), np.full(n, np.inf))
-            return empty + (np.zeros((n, 2)),) if barycentric else empty
         q = origins_m - self.center
         if push is not None:
             q = q + push
-        res = self.embree.run(
-            np.ascontiguousarray(q, dtype=np.float32),
-            np.ascontiguousarray(directions, dtype=np.float32),
-            output=1,
-        )
-        face = res["primID"].astype(np.int64)
-        hit = face >= 0
-        every = bool(hit.all())  # the common case in refinement: no boolean gathers needed
-        if self.face_map is not None:
-            if every:
-                face = self.face_map[face]
-            else:
-                face[hit] = self.face_map[face[hit]]
-        t = np.full(n, np.inf)
-        if not exact:
-            t[hit] = res["tfar"][hit]
-        elif hit.any():
-            f = face if every else face[hit]
+        prim, tfar = self.query(np.ascontiguousarray(q, dtype=np.float32),
+                                np.ascontiguousarray(directions, dtype=np.float32))
+        hit = prim >= 0
+        face = np.full(len(prim), -1, np.int64)
+        face[hit] = self.kernel_tables.face_map[prim[hit]]
+        t = np.full(len(prim), np.inf)
+        if hit.any():
+            f = face[hit]
             nrm = self.face_normals[f]
-            denom = np.einsum("ij,ij->i", nrm, directions if every else directions[hit])
-            num = self.plane_d[f] - np.einsum("ij,ij->i", nrm, origins_m if every else origins_m[hit])
+            denom = np.einsum("ij,ij->i", nrm, directions[hit])
+            num = self.plane_d[f] - np.einsum("ij,ij->i", nrm, origins_m[hit])
             with np.errstate(divide="ignore", invalid="ignore"):
                 t64 = num / denom
-            t32 = (res["tfar"] if every else res["tfar"][hit]).astype(float)
             good = np.isfinite(t64) & (np.abs(denom) > 1e-12)
-            t64 = np.where(good, np.maximum(t64, 0.0), t32)
-            if every:
-                t = t64
-            else:
-                t[hit] = t64
-        if not every:
-            face[~hit] = -1
-        if barycentric:
-            return face, t, np.stack([res["u"], res["v"]], axis=1).astype(float)
+            t[hit] = np.where(good, np.maximum(t64, 0.0), tfar[hit].astype(float))
         return face, t
 
     def query(self, origins_c: np.ndarray, directions: np.ndarray, *, barycentric: bool = False) -> tuple:
