@@ -7,8 +7,11 @@ in interpreter overhead than in arithmetic, and the work holds the GIL, so two
 threads did not help (docs/tracer.md, "Tried and dropped"). The shooting's
 bounce and the refraction-only walk were large-batch numpy, but made a dozen
 temporaries of every ray per bounce. These kernels do the same arithmetic one
-ray at a time in compiled code and leave Embree (the first-hit query, one call
-per batch) to the caller. Python still drives the loops over bounces and steps.
+ray at a time in compiled code. :func:`follow` and :func:`bounce` call Embree
+themselves (:mod:`raytrace.embree`): Newton's re-tracing takes each ray
+through its whole signature in one call, and the shooting casts and splits a
+generation of rays in one call; Python drives only the Newton iterations and
+the generations. :func:`walk_step` still gets Embree's answers from the caller.
 
 The formulas are those of the numpy code they replaced, written per ray:
 the float64 re-intersection of :meth:`raytrace.scene.TracerScene.first_hit`,
@@ -21,8 +24,9 @@ every oracle of docs/tracer.md.
 
 ``cache=True``: the machine code is cached on disk (beside this file, or in
 ``NUMBA_CACHE_DIR`` / the user's cache directory when this one is read-only),
-so only the first process after an install compiles (~4 s);
-:func:`raytrace.tracer.warm_up` does it ahead of the first request.
+so only the first process after an install compiles (~5 s);
+:func:`raytrace.tracer.warm_up` does it ahead of the first request. Embree is
+called by symbol name, so the cached code stays valid in a new process.
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from raytrace import embree
 
 #: Every kernel: compiled once and cached on disk, without the GIL, and with numpy's float
 #: semantics (a division by zero gives inf / nan, as in the numpy reference, never an exception).
@@ -118,6 +124,13 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
 
 
 @_kernel
+def _grow(a, size):
+    out = np.empty(size, a.dtype)
+    out[:len(a)] = a
+    return out
+
+
+@_kernel
 def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
     """Whether ray i's segment (length ``reach``) passes receiver r within the ray tube's
     half-width ``reception_factor * (rad + s * ang)`` at the closest point, ``s`` along the ray;
@@ -133,131 +146,121 @@ def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
 
 
 @_kernel
-def follow_prepare(ok, done, k, nint, o, d, push, targets, record, center):
-    """Active rays of one :func:`raytrace.refine.follow` step and their float32 Embree query
-    (origin in the scene's centred frame plus the spawn push, direction). In record mode a
-    ray past its last event is first aimed at its target."""
-    p = len(ok)
-    count = 0
-    for i in range(p):
-        if ok[i] and not done[i]:
-            count += 1
-    idx = np.empty(count, np.int64)
-    q = np.empty((count, 3), np.float32)
-    dq = np.empty((count, 3), np.float32)
-    j = 0
-    for i in range(p):
-        if not (ok[i] and not done[i]):
-            continue
-        if record and k[i] >= nint[i]:
-            tx, ty, tz = targets[i, 0] - o[i, 0], targets[i, 1] - o[i, 1], targets[i, 2] - o[i, 2]
-            nrm = math.sqrt(tx * tx + ty * ty + tz * tz)
-            d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
-        idx[j] = i
-        for c in range(3):
-            q[j, c] = o[i, c] - center[c] + push[i, c]
-            dq[j, c] = d[i, c]
-        j += 1
-    return idx, q, dq
-
-
-@_kernel
-def follow_advance(
-    idx, prim, tfar,  # this step's rays and Embree's answer (primitive id or -1, float32 distance)
+def follow(
+    handle, center, max_steps,  # Embree scene, its centring offset, the step cap per ray
     o, d, med, push, k, nint, ok, done, codes, targets, record,  # per-ray state, updated in place
     face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
-    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # record mode
+    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # (S, P) record mode
 ):
-    """One step of :func:`raytrace.refine.follow` for every active ray: float64 hit point on the
-    hit triangle's plane, side and media from the facet normal, the signature's expected event
-    checked, then reflection (``d - 2 (d.n) n``) or refraction (vector Snell law with the real
-    parts of the indices) about the smooth normal. A ray that leaves its signature is marked
-    ``ok = False``. Returns the number of rays cast (segments)."""
+    """:func:`raytrace.refine.follow`, every ray traced to its end: per step, Embree's float32
+    first hit from the centred origin plus the spawn push (in record mode a ray past its last
+    event is first aimed at its target), then the float64 hit point on the hit triangle's plane,
+    side and media from the facet normal, the signature's expected event checked, then
+    reflection (``d - 2 (d.n) n``) or refraction (vector Snell law with the real parts of the
+    indices) about the smooth normal. A ray that leaves its signature is marked ``ok = False``.
+    Returns ``(segments, steps)``: rays cast, and the largest number of steps a ray took (the
+    record rows used)."""
     n_codes = codes.shape[1]
-    for j in range(len(idx)):
-        i = idx[j]
-        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
-        final = k[i] >= nint[i]
-        g = prim[j]
-        if g < 0:
+    buf = embree.ray_buffer()
+    words, ptr = buf.view(np.uint32), buf.ctypes.data
+    segments = 0
+    steps = 0
+    for i in range(len(ok)):
+        s = 0
+        while ok[i] and not done[i] and s < max_steps:
+            final = k[i] >= nint[i]
             if record and final:
-                done[i] = True  # nothing between the last event and the target
-            else:
+                tx, ty, tz = targets[i, 0] - o[i, 0], targets[i, 1] - o[i, 1], targets[i, 2] - o[i, 2]
+                nrm = math.sqrt(tx * tx + ty * ty + tz * tz)
+                d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
+            dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+            ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+            g, t32, _u, _v = embree.intersect(
+                handle, buf, words, ptr, np.float32(ox - center[0] + push[i, 0]),
+                np.float32(oy - center[1] + push[i, 1]), np.float32(oz - center[2] + push[i, 2]),
+                np.float32(dx), np.float32(dy), np.float32(dz))
+            s += 1
+            segments += 1
+            if g < 0:
+                if record and final:
+                    done[i] = True  # nothing between the last event and the target
+                else:
+                    ok[i] = False
+                break
+            f = face_map[g]
+            fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+            # float64 re-intersection with the hit triangle's plane from the true origin
+            t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32)
+            if record and final:
+                tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
+                if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
+                    done[i] = True  # the target comes before the hit
+                    break
+            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            leaving = fx * dx + fy * dy + fz * dz > 0.0
+            organ = face_organ[f]
+            par = parent[organ]
+            m_from = organ if leaving else par
+            m_to = par if leaving else organ
+            sgn = 1.0 if leaving else -1.0
+            is_transparent = transparent[f]
+            expected = -1
+            if not final and n_codes > 0:
+                expected = codes[i, min(k[i], n_codes - 1)]
+            reflect = (expected & 1) == 1
+            event = not is_transparent and not final
+            bad = cls[m_from + 1] != cls[med[i] + 1]  # the ray is not in the medium it thinks
+            bad = bad or (not is_transparent and final)  # a real surface blocks the last leg
+            code = (organ * 2 + (1 if leaving else 0)) * 2 + (1 if reflect else 0)
+            bad = bad or (event and code != expected)
+            if bad:
                 ok[i] = False
-            continue
-        f = face_map[g]
-        fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
-        # float64 re-intersection with the hit triangle's plane from the true origin
-        t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, tfar[j])
-        if record and final:
-            tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
-            if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
-                done[i] = True  # the target comes before the hit
-                continue
-        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        leaving = fx * dx + fy * dy + fz * dz > 0.0
-        organ = face_organ[f]
-        par = parent[organ]
-        m_from = organ if leaving else par
-        m_to = par if leaving else organ
-        sgn = 1.0 if leaving else -1.0
-        is_transparent = transparent[f]
-        expected = -1
-        if not final and n_codes > 0:
-            expected = codes[i, min(k[i], n_codes - 1)]
-        reflect = (expected & 1) == 1
-        event = not is_transparent and not final
-        bad = cls[m_from + 1] != cls[med[i] + 1]  # the ray is not in the medium it thinks
-        bad = bad or (not is_transparent and final)  # a real surface blocks the last leg
-        code = (organ * 2 + (1 if leaving else 0)) * 2 + (1 if reflect else 0)
-        bad = bad or (event and code != expected)
-        if bad:
-            ok[i] = False
-            continue
-        nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
-        ndx, ndy, ndz = dx, dy, dz
-        pfac = sgn
-        if is_transparent or not reflect:
-            new_med = m_to
-        else:
-            new_med = m_from
-        if event and reflect:
-            dn = dx * nx + dy * ny + dz * nz
-            ndx, ndy, ndz = dx - 2.0 * dn * nx, dy - 2.0 * dn * ny, dz - 2.0 * dn * nz
-            pfac = -sgn
-            if (ndx * fx + ndy * fy + ndz * fz) * sgn >= 0.0:
-                ok[i] = False  # the smooth normal sent the reflection through the facet
-                continue
-        elif event:
-            tir, ndx, ndy, ndz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
-            if tir or (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
-                ok[i] = False  # total internal reflection, or refracted back through the facet
-                continue
-        o[i, 0], o[i, 1], o[i, 2] = px, py, pz
-        d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
-        med[i] = new_med
-        push[i, 0], push[i, 1], push[i, 2] = pfac * fx * offset_m, pfac * fy * offset_m, pfac * fz * offset_m
-        if event:
-            k[i] += 1
-        if not record:
-            done[i] = k[i] >= nint[i]
-        else:
-            rec_valid[i] = True
-            rec_point[i, 0], rec_point[i, 1], rec_point[i, 2] = px, py, pz
-            rec_face[i] = f
-            rec_kind[i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
-            rec_from[i] = m_from
-            rec_to[i] = m_to
-            rec_normal[i, 0], rec_normal[i, 1], rec_normal[i, 2] = nx, ny, nz
-            rec_dir[i, 0], rec_dir[i, 1], rec_dir[i, 2] = dx, dy, dz
-    return len(idx)
+                break
+            nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
+            ndx, ndy, ndz = dx, dy, dz
+            pfac = sgn
+            if is_transparent or not reflect:
+                new_med = m_to
+            else:
+                new_med = m_from
+            if event and reflect:
+                dn = dx * nx + dy * ny + dz * nz
+                ndx, ndy, ndz = dx - 2.0 * dn * nx, dy - 2.0 * dn * ny, dz - 2.0 * dn * nz
+                pfac = -sgn
+                if (ndx * fx + ndy * fy + ndz * fz) * sgn >= 0.0:
+                    ok[i] = False  # the smooth normal sent the reflection through the facet
+                    break
+            elif event:
+                tir, ndx, ndy, ndz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
+                if tir or (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
+                    ok[i] = False  # total internal reflection, or refracted back through the facet
+                    break
+            o[i, 0], o[i, 1], o[i, 2] = px, py, pz
+            d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
+            med[i] = new_med
+            push[i, 0], push[i, 1], push[i, 2] = pfac * fx * offset_m, pfac * fy * offset_m, pfac * fz * offset_m
+            if event:
+                k[i] += 1
+            if not record:
+                done[i] = k[i] >= nint[i]
+            else:
+                r = s - 1
+                rec_valid[r, i] = True
+                rec_point[r, i, 0], rec_point[r, i, 1], rec_point[r, i, 2] = px, py, pz
+                rec_face[r, i] = f
+                rec_kind[r, i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
+                rec_from[r, i] = m_from
+                rec_to[r, i] = m_to
+                rec_normal[r, i, 0], rec_normal[r, i, 1], rec_normal[r, i, 2] = nx, ny, nz
+                rec_dir[r, i, 0], rec_dir[r, i, 1], rec_dir[r, i, 2] = dx, dy, dz
+        steps = max(steps, s)
+    return segments, steps
 
 
 @_kernel
 def bounce(
     o, d, med, w, rad, ang, length, nint, hist, src,  # live rays (float32 geometry in the centred frame)
-    prim, tfar, bu, bv,  # Embree's first hits of those rays
+    handle,  # the Embree scene they are cast into
     face_map, face_normals32, face_organ, parent, cls, transparent, n_re, alpha, corner32, curvature32,
     need, rx_m, rx_cls, threshold, kmax, offset_m, reception_factor, curvature_margin, log_base,
 ):
@@ -278,20 +281,24 @@ def bounce(
     children (parent entry, code, face), and the receptions (receiver, log entry, events,
     launch index, miss over radius), receiver-major.
     """
-    n = len(prim)
+    n = len(o)
     n_rx = len(rx_m)
-    # receptions: count, then fill (receiver-major, ray order within a receiver)
-    count = 0
-    for r in range(n_rx):
-        for i in range(n):
-            if cls[med[i] + 1] == rx_cls[r]:
-                reach = tfar[i] if prim[i] >= 0 else np.inf
-                count += _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)[0]
-    c_rx = np.empty(count, np.int64)
-    c_hist = np.empty(count, np.int64)
-    c_n = np.empty(count, np.int64)
-    c_src = np.empty(count, np.int64)
-    c_close = np.empty(count, np.float64)
+    prim = np.empty(n, np.int64)
+    tfar = np.empty(n, np.float32)
+    bu = np.empty(n, np.float32)
+    bv = np.empty(n, np.float32)
+    buf = embree.ray_buffer()
+    words, ptr = buf.view(np.uint32), buf.ctypes.data
+    for i in range(n):
+        prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, buf, words, ptr, o[i, 0], o[i, 1], o[i, 2],
+                                                          d[i, 0], d[i, 1], d[i, 2])
+    # receptions, receiver-major (ray order within a receiver), into arrays grown by doubling
+    cap = 256
+    c_rx = np.empty(cap, np.int64)
+    c_hist = np.empty(cap, np.int64)
+    c_n = np.empty(cap, np.int64)
+    c_src = np.empty(cap, np.int64)
+    c_close = np.empty(cap, np.float64)
     c = 0
     for r in range(n_rx):
         for i in range(n):
@@ -299,10 +306,17 @@ def bounce(
                 continue
             reach = tfar[i] if prim[i] >= 0 else np.inf
             received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)
-            if received:
-                c_rx[c], c_hist[c], c_n[c], c_src[c] = r, hist[i], nint[i], src[i]
-                c_close[c] = perp / max(radius, 1e-30)
-                c += 1
+            if not received:
+                continue
+            if c == cap:
+                cap *= 2
+                c_rx, c_hist, c_n, c_src = _grow(c_rx, cap), _grow(c_hist, cap), _grow(c_n, cap), _grow(c_src, cap)
+                c_close = _grow(c_close, cap)
+            c_rx[c], c_hist[c], c_n[c], c_src[c] = r, hist[i], nint[i], src[i]
+            c_close[c] = perp / max(radius, 1e-30)
+            c += 1
+    c_rx, c_hist, c_n, c_src, c_close = c_rx[:c].copy(), c_hist[:c].copy(), c_n[:c].copy(), c_src[:c].copy(), \
+        c_close[:c].copy()
 
     # interactions: per-ray outcome first (0/1 reflected, 0/1 transmitted, or passed)
     kind = np.zeros(n, np.int8)  # bit 1: reflected child, bit 2: transmitted child, bit 4: passed

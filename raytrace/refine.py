@@ -123,25 +123,16 @@ def follow(
     ok = np.ones(p, dtype=bool)
     done = np.zeros(p, dtype=bool) if record else (nint == 0)
     targets = np.ascontiguousarray(targets_m, dtype=float) if record else np.zeros((0, 3))
-    steps = Steps() if record else None
-    tables = scene.kernel_tables
-    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
-               *media.kernel_tables, scene.offset_m)
-    segments = 0
     max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
-    for _ in range(max_steps):
-        idx, q, dq = kernels.follow_prepare(ok, done, k, nint, o, d, push, targets, record, scene.center)
-        if len(idx) == 0:
-            break
-        prim, tfar = scene.query(q, dq)
-        if record:
-            out = _new_step_records(p)
-            for name, value in zip(_STEP_FIELDS, out):
-                getattr(steps, name).append(value)
-        else:
-            out = _NO_RECORD
-        segments += kernels.follow_advance(idx, prim, tfar, o, d, med, push, k, nint, ok, done, codes,
-                                           targets, record, *statics, *out)
+    out = _new_step_records(max_steps if record else 0, p if record else 0)
+    tables = scene.kernel_tables
+    segments, used = kernels.follow(
+        scene.embree.handle, scene.center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
+        tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ, *media.kernel_tables,
+        scene.offset_m, *out)
+    steps = None
+    if record:
+        steps = Steps(*([rows[r] for r in range(used)] for rows in out))
     ok &= done
     if record:
         d_last = np.where(ok[:, None], d, np.nan)
@@ -150,17 +141,12 @@ def follow(
     return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps)
 
 
-_STEP_FIELDS = ("valid", "point", "face", "kind", "med_from", "med_to", "normal", "dir_in")
-
-
-def _new_step_records(p: int) -> tuple:
-    """One step's record arrays, in :data:`_STEP_FIELDS` order (a ray not advanced keeps these)."""
-    return (np.zeros(p, bool), np.zeros((p, 3)), np.full(p, -1, np.int64), np.full(p, -1, np.int64),
-            np.full(p, -2, np.int64), np.full(p, -2, np.int64), np.zeros((p, 3)), np.zeros((p, 3)))
-
-
-_NO_RECORD = (np.zeros(0, bool), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64),
-              np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+def _new_step_records(steps: int, p: int) -> tuple:
+    """Per-step record arrays (steps, P, ...), in :class:`Steps` field order (a ray not advanced
+    at a step keeps these)."""
+    return (np.zeros((steps, p), bool), np.zeros((steps, p, 3)), np.full((steps, p), -1, np.int64),
+            np.full((steps, p), -1, np.int64), np.full((steps, p), -2, np.int64),
+            np.full((steps, p), -2, np.int64), np.zeros((steps, p, 3)), np.zeros((steps, p, 3)))
 
 
 def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -165,10 +165,9 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
     """Cast one chunk of live rays, record receptions, and spawn the next generation
     (the per-ray work is :func:`raytrace.kernels.bounce`)."""
     scene = ctx.scene
-    prim, tfar, bu, bv = scene.query(s.o, s.d, barycentric=True)
     children, entries, got = kernels.bounce(
-        s.o, s.d, s.med, s.w, s.rad, s.ang, s.length, s.nint, s.hist, s.src, prim, tfar, bu, bv,
-        *ctx.tables, ctx.threshold, ctx.kmax, scene.offset_m, RECEPTION_FACTOR, CURVATURE_MARGIN, log.size,
+        s.o, s.d, s.med, s.w, s.rad, s.ang, s.length, s.nint, s.hist, s.src, scene.embree_shooting.handle, *ctx.tables,
+        ctx.threshold, ctx.kmax, scene.offset_m, RECEPTION_FACTOR, CURVATURE_MARGIN, log.size,
     )
     if len(got[0]):
         for name, value in zip(("rx", "hist", "n", "src", "close"), got):
