@@ -105,10 +105,12 @@ def refraction_walk(
     q = (o - scene.center).astype(np.float32)
     dq = d.astype(np.float32)
     segments = 0
+    # the seed walk casts into the shooting's fast scene (raytrace.scene: seeds only)
+    embree = scene.embree if exact else scene.embree_shooting
     for _ in range(MAX_EVENTS + 1):
         if len(ids) == 0:
             break
-        prim, tfar, bu, bv = scene.query(q, dq, barycentric=True)
+        prim, tfar, bu, bv = embree.intersect(q, dq)
         segments += len(ids)
         ids, o, d, med, nint, q, dq = kernels.walk_step(
             ids, o, d, med, nint, prim, tfar, bu, bv, exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes, *statics)

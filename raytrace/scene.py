@@ -12,9 +12,10 @@ query never re-hits the surface it starts on; the float64 geometry still
 starts exactly on the surface (``shared/design/tracer.md``, "Numerical care").
 
 Two Embree scenes of the same triangles: the robust (watertight) one answers
-every query whose answer is final (Newton's re-tracing, the refraction-only
-walk, the straight-line signatures); the shooting, which only proposes seeds
-that Newton then re-traces in the robust scene, casts into one built without
+every query whose answer is final (Newton's re-tracing, the zoomed
+refraction-only walk, the straight-line signatures); the shooting and the
+global refraction-only walk, which only propose seeds that Newton then
+re-traces in the robust scene, cast into one built without
 ``RTC_SCENE_FLAG_ROBUST``: 18-22 % more rays per second on the torso, at the
 price of a ray now and then slipping through a shared edge. Measured on 6
 capsules x 24 receivers: the same 5732 paths either way.
@@ -50,7 +51,7 @@ class TracerScene:
     """Everything the tracer needs about a phantom's triangles, float64 plus an Embree scene."""
 
     embree: EmbreeScene  # watertight traversal: every exact query (refinement, walks, signatures)
-    embree_shooting: EmbreeScene  # Embree's fast traversal: the shooting's seeds only (module doc)
+    embree_shooting: EmbreeScene  # Embree's fast traversal: for seeds only (module doc)
     center: np.ndarray  # (3,) float64 translation applied before float32 conversion
     vertices: np.ndarray  # (V, 3) float64
     faces: np.ndarray  # (F, 3) int64
@@ -110,8 +111,7 @@ class TracerScene:
         q = origins_m - self.center
         if push is not None:
             q = q + push
-        prim, tfar = self.query(np.ascontiguousarray(q, dtype=np.float32),
-                                np.ascontiguousarray(directions, dtype=np.float32))
+        prim, tfar, _u, _v = self.embree.intersect(q, directions)
         hit = prim >= 0
         face = np.full(len(prim), -1, np.int64)
         face[hit] = self.kernel_tables.face_map[prim[hit]]
@@ -126,15 +126,6 @@ class TracerScene:
             good = np.isfinite(t64) & (np.abs(denom) > 1e-12)
             t[hit] = np.where(good, np.maximum(t64, 0.0), tfar[hit].astype(float))
         return face, t
-
-    def query(self, origins_c: np.ndarray, directions: np.ndarray, *, barycentric: bool = False) -> tuple:
-        """Raw Embree first hits for the compiled kernels: float32 ``origins_c`` (centred frame,
-        spawn push included) and directions. Returns Embree's ``(primID, tfar)``: the primitive
-        of the visible scene (``-1`` on a miss; :attr:`kernel_tables` maps it to a phantom face)
-        and the float32 distance from the query origin; with ``barycentric`` also the hit's
-        ``(u, v)`` (point = (1 - u - v) v0 + u v1 + v v2)."""
-        prim, tfar, u, v = self.embree.intersect(origins_c, directions)
-        return (prim, tfar, u, v) if barycentric else (prim, tfar)
 
     @cached_property
     def kernel_tables(self) -> "KernelTables":
