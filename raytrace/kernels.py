@@ -43,6 +43,7 @@ from raytrace import embree
 _kernel = njit(cache=True, nogil=True, error_model="numpy")
 
 KIND_REFRACTION = 0
+_ZERO_GRADIENT = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 KIND_REFLECTION = 1
 KIND_PASS = 2
 
@@ -74,6 +75,33 @@ def _smooth_normal(frame, face_normals, f, x, y, z):
     if nx * fx + ny * fy + nz * fz <= 0.0:
         return fx, fy, fz
     return nx, ny, nz
+
+
+@_kernel
+def _smooth_normal_gradient(frame, face_normals, f, x, y, z):
+    """What the differential of :func:`_smooth_normal` at point (x, y, z) of face f needs:
+    the barycentrics are affine in the point, ``dv = gv.dP``, ``dw = gw.dP``, so the
+    interpolated normal moves by ``dM = (n1 - n0)(gv.dP) + (n2 - n0)(gw.dP)`` and the unit one
+    by ``dN = (dM - N (N.dM)) / |M|``. Returns ``(gv, gw, n1 - n0, n2 - n0, 1 / |M|)`` as 13
+    scalars; all zero where the facet normal stands in (degenerate or flipped: dN = 0)."""
+    fr = frame[f]
+    v2x, v2y, v2z = x - fr[0], y - fr[1], z - fr[2]
+    d20 = v2x * fr[3] + v2y * fr[4] + v2z * fr[5]
+    d21 = v2x * fr[6] + v2y * fr[7] + v2z * fr[8]
+    d00, d01, d11, den = fr[9], fr[10], fr[11], fr[12]
+    bv = min(max((d11 * d20 - d01 * d21) / den, 0.0), 1.0)
+    bw = min(max((d00 * d21 - d01 * d20) / den, 0.0), 1.0)
+    bu = min(max(1.0 - (d11 * d20 - d01 * d21) / den - (d00 * d21 - d01 * d20) / den, 0.0), 1.0)
+    mx = bu * fr[13] + bv * fr[16] + bw * fr[19]
+    my = bu * fr[14] + bv * fr[17] + bw * fr[20]
+    mz = bu * fr[15] + bv * fr[18] + bw * fr[21]
+    norm = math.sqrt(mx * mx + my * my + mz * mz)
+    if not norm > 1e-12 or mx * face_normals[f, 0] + my * face_normals[f, 1] + mz * face_normals[f, 2] <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return ((d11 * fr[3] - d01 * fr[6]) / den, (d11 * fr[4] - d01 * fr[7]) / den, (d11 * fr[5] - d01 * fr[8]) / den,
+            (d00 * fr[6] - d01 * fr[3]) / den, (d00 * fr[7] - d01 * fr[4]) / den, (d00 * fr[8] - d01 * fr[5]) / den,
+            fr[16] - fr[13], fr[17] - fr[14], fr[18] - fr[15], fr[19] - fr[13], fr[20] - fr[14], fr[21] - fr[15],
+            1.0 / norm)
 
 
 @_kernel
@@ -151,6 +179,8 @@ def follow(
     o, d, med, push, k, nint, ok, done, codes, targets, record,  # per-ray state, updated in place
     face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
     rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # (S, P) record mode
+    launch_d, d_point, d_dir,  # ray differentials: (P, 2, 3) launch tangents in; (P, 2, 3) out, or (0, 2, 3)
+    fractions, base_dir, step, rx, old_miss, won, trial_dir,  # line-search mode, or empty arrays
 ):
     """:func:`raytrace.refine.follow`, every ray traced to its end: per step, Embree's float32
     first hit from the centred origin plus the spawn push (in record mode a ray past its last
@@ -159,102 +189,229 @@ def follow(
     reflection (``d - 2 (d.n) n``) or refraction (vector Snell law with the real parts of the
     indices) about the smooth normal. A ray that leaves its signature is marked ``ok = False``.
     Returns ``(segments, steps)``: rays cast, and the largest number of steps a ray took (the
-    record rows used)."""
-    n_codes = codes.shape[1]
+    record rows used).
+
+    Ray differentials (Igehy, "Tracing ray differentials", SIGGRAPH 1999), when ``launch_d``
+    has a row per ray: the derivatives of the point and the direction with respect to two
+    launch angles, whose direction derivatives are ``launch_d[i]``, carried through every
+    step and left in ``d_point`` / ``d_dir`` (of the last event point and direction).
+    Transfer to the facet plane ``n.p = c``: ``dt = -n.(dP + t dD) / n.D``,
+    ``dP' = dP + t dD + dt D``; reflection ``dD' = dD - 2 ((dD.N + D.dN) N + (D.N) dN)``;
+    refraction (``T = eta D + (s cos_t - eta D.N) N``) ``dT = eta dD + (s dcos_t - eta
+    d(D.N)) N + (s cos_t - eta D.N) dN`` with ``dcos_t = eta^2 (D.N) d(D.N) / cos_t``; ``dN``
+    from :func:`_smooth_normal_gradient`.
+
+    Line-search mode (``fractions`` not empty; Newton's backtracking in
+    :func:`raytrace.refine.refine`): ray i is launched from its start along
+    ``normalize(base_dir + f (step_0 u + step_1 v))`` (``u, v`` the tangents of ``base_dir``)
+    for each fraction f in turn, with differentials along the trial's own tangents, until its
+    last leg passes the receiver ``rx[i]`` closer than ``old_miss[i]``: ``won[i]`` is that
+    fraction's index (-1 if none), ``trial_dir[i]`` its launch, and the ray's state its trace."""
+    differentials = len(launch_d) > 0 or len(fractions) > 0
+    line_search = len(fractions) > 0
+    dp = np.zeros((2, 3))
+    dd = np.zeros((2, 3))
     buf = embree.ray_buffer()
     words, ptr = buf.view(np.uint32), buf.ctypes.data
+    n_codes = codes.shape[1]
     segments = 0
     steps = 0
     for i in range(len(ok)):
-        s = 0
-        while ok[i] and not done[i] and s < max_steps:
-            final = k[i] >= nint[i]
-            if record and final:
-                tx, ty, tz = targets[i, 0] - o[i, 0], targets[i, 1] - o[i, 1], targets[i, 2] - o[i, 2]
-                nrm = math.sqrt(tx * tx + ty * ty + tz * tz)
-                d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
-            dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-            ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
-            g, t32, _u, _v = embree.intersect(
-                handle, buf, words, ptr, np.float32(ox - center[0] + push[i, 0]),
-                np.float32(oy - center[1] + push[i, 1]), np.float32(oz - center[2] + push[i, 2]),
-                np.float32(dx), np.float32(dy), np.float32(dz))
-            s += 1
-            segments += 1
-            if g < 0:
+        o0x, o0y, o0z, med0 = o[i, 0], o[i, 1], o[i, 2], med[i]
+        if line_search:
+            won[i] = -1
+        for trial in range(max(len(fractions), 1)):
+            if line_search:  # the trial launch, from the ray's start, and its tangents
+                lam = fractions[trial]
+                ux, uy, uz, vx, vy, vz = _tangents(base_dir[i, 0], base_dir[i, 1], base_dir[i, 2])
+                a_, b_ = lam * step[i, 0], lam * step[i, 1]
+                lx, ly, lz = (base_dir[i, 0] + a_ * ux + b_ * vx, base_dir[i, 1] + a_ * uy + b_ * vy,
+                              base_dir[i, 2] + a_ * uz + b_ * vz)
+                nrm = math.sqrt(lx * lx + ly * ly + lz * lz)
+                d[i, 0], d[i, 1], d[i, 2] = lx / nrm, ly / nrm, lz / nrm
+                trial_dir[i, 0], trial_dir[i, 1], trial_dir[i, 2] = d[i, 0], d[i, 1], d[i, 2]
+                o[i, 0], o[i, 1], o[i, 2], med[i] = o0x, o0y, o0z, med0
+                push[i, 0] = push[i, 1] = push[i, 2] = 0.0
+                k[i] = 0
+                ok[i] = True
+                done[i] = nint[i] == 0
+                ux, uy, uz, vx, vy, vz = _tangents(d[i, 0], d[i, 1], d[i, 2])
+                dd[0, 0], dd[0, 1], dd[0, 2], dd[1, 0], dd[1, 1], dd[1, 2] = ux, uy, uz, vx, vy, vz
+            elif differentials:
+                for c in range(2):
+                    for q in range(3):
+                        dd[c, q] = launch_d[i, c, q]
+            for c in range(2):
+                for q in range(3):
+                    dp[c, q] = 0.0
+            s = 0
+            while ok[i] and not done[i] and s < max_steps:
+                final = k[i] >= nint[i]
                 if record and final:
-                    done[i] = True  # nothing between the last event and the target
-                else:
+                    tx, ty, tz = targets[i, 0] - o[i, 0], targets[i, 1] - o[i, 1], targets[i, 2] - o[i, 2]
+                    nrm = math.sqrt(tx * tx + ty * ty + tz * tz)
+                    d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
+                dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+                ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+                g, t32, _u, _v = embree.intersect(
+                    handle, buf, words, ptr, np.float32(ox - center[0] + push[i, 0]),
+                    np.float32(oy - center[1] + push[i, 1]), np.float32(oz - center[2] + push[i, 2]),
+                    np.float32(dx), np.float32(dy), np.float32(dz))
+                s += 1
+                if g < 0:
+                    if record and final:
+                        done[i] = True  # nothing between the last event and the target
+                    else:
+                        ok[i] = False
+                    break
+                f = face_map[g]
+                fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+                # float64 re-intersection with the hit triangle's plane from the true origin
+                t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32)
+                if record and final:
+                    tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
+                    if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
+                        done[i] = True  # the target comes before the hit
+                        break
+                px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+                leaving = fx * dx + fy * dy + fz * dz > 0.0
+                organ = face_organ[f]
+                par = parent[organ]
+                m_from = organ if leaving else par
+                m_to = par if leaving else organ
+                sgn = 1.0 if leaving else -1.0
+                is_transparent = transparent[f]
+                expected = -1
+                if not final and n_codes > 0:
+                    expected = codes[i, min(k[i], n_codes - 1)]
+                reflect = (expected & 1) == 1
+                event = not is_transparent and not final
+                bad = cls[m_from + 1] != cls[med[i] + 1]  # the ray is not in the medium it thinks
+                bad = bad or (not is_transparent and final)  # a real surface blocks the last leg
+                code = (organ * 2 + (1 if leaving else 0)) * 2 + (1 if reflect else 0)
+                bad = bad or (event and code != expected)
+                if bad:
                     ok[i] = False
-                break
-            f = face_map[g]
-            fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
-            # float64 re-intersection with the hit triangle's plane from the true origin
-            t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32)
-            if record and final:
-                tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
-                if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
-                    done[i] = True  # the target comes before the hit
                     break
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            leaving = fx * dx + fy * dy + fz * dz > 0.0
-            organ = face_organ[f]
-            par = parent[organ]
-            m_from = organ if leaving else par
-            m_to = par if leaving else organ
-            sgn = 1.0 if leaving else -1.0
-            is_transparent = transparent[f]
-            expected = -1
-            if not final and n_codes > 0:
-                expected = codes[i, min(k[i], n_codes - 1)]
-            reflect = (expected & 1) == 1
-            event = not is_transparent and not final
-            bad = cls[m_from + 1] != cls[med[i] + 1]  # the ray is not in the medium it thinks
-            bad = bad or (not is_transparent and final)  # a real surface blocks the last leg
-            code = (organ * 2 + (1 if leaving else 0)) * 2 + (1 if reflect else 0)
-            bad = bad or (event and code != expected)
-            if bad:
-                ok[i] = False
-                break
-            nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
-            ndx, ndy, ndz = dx, dy, dz
-            pfac = sgn
-            if is_transparent or not reflect:
-                new_med = m_to
-            else:
-                new_med = m_from
-            if event and reflect:
-                dn = dx * nx + dy * ny + dz * nz
-                ndx, ndy, ndz = dx - 2.0 * dn * nx, dy - 2.0 * dn * ny, dz - 2.0 * dn * nz
-                pfac = -sgn
-                if (ndx * fx + ndy * fy + ndz * fz) * sgn >= 0.0:
-                    ok[i] = False  # the smooth normal sent the reflection through the facet
+                nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
+                ndx, ndy, ndz = dx, dy, dz
+                pfac = sgn
+                if is_transparent or not reflect:
+                    new_med = m_to
+                else:
+                    new_med = m_from
+                if event and reflect:
+                    dn = dx * nx + dy * ny + dz * nz
+                    ndx, ndy, ndz = dx - 2.0 * dn * nx, dy - 2.0 * dn * ny, dz - 2.0 * dn * nz
+                    pfac = -sgn
+                    if (ndx * fx + ndy * fy + ndz * fz) * sgn >= 0.0:
+                        ok[i] = False  # the smooth normal sent the reflection through the facet
+                        break
+                elif event:
+                    tir, ndx, ndy, ndz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
+                    if tir or (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
+                        ok[i] = False  # total internal reflection, or refracted back through the facet
+                        break
+                if differentials:
+                    grad = _ZERO_GRADIENT
+                    if event:
+                        grad = _smooth_normal_gradient(frame, face_normals, f, px, py, pz)
+                    _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, ndx, ndy, ndz, event, reflect,
+                                         n_re[m_from + 1] / n_re[m_to + 1], grad)
+                o[i, 0], o[i, 1], o[i, 2] = px, py, pz
+                d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
+                med[i] = new_med
+                push[i, 0], push[i, 1], push[i, 2] = pfac * fx * offset_m, pfac * fy * offset_m, pfac * fz * offset_m
+                if event:
+                    k[i] += 1
+                if not record:
+                    done[i] = k[i] >= nint[i]
+                else:
+                    r = s - 1
+                    rec_valid[r, i] = True
+                    rec_point[r, i, 0], rec_point[r, i, 1], rec_point[r, i, 2] = px, py, pz
+                    rec_face[r, i] = f
+                    rec_kind[r, i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
+                    rec_from[r, i] = m_from
+                    rec_to[r, i] = m_to
+                    rec_normal[r, i, 0], rec_normal[r, i, 1], rec_normal[r, i, 2] = nx, ny, nz
+                    rec_dir[r, i, 0], rec_dir[r, i, 1], rec_dir[r, i, 2] = dx, dy, dz
+            segments += s
+            steps = max(steps, s)
+            if line_search and ok[i] and done[i]:
+                miss = _miss(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], rx[i, 0], rx[i, 1], rx[i, 2])
+                if miss < old_miss[i]:
+                    won[i] = trial
                     break
-            elif event:
-                tir, ndx, ndy, ndz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
-                if tir or (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
-                    ok[i] = False  # total internal reflection, or refracted back through the facet
-                    break
-            o[i, 0], o[i, 1], o[i, 2] = px, py, pz
-            d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
-            med[i] = new_med
-            push[i, 0], push[i, 1], push[i, 2] = pfac * fx * offset_m, pfac * fy * offset_m, pfac * fz * offset_m
-            if event:
-                k[i] += 1
-            if not record:
-                done[i] = k[i] >= nint[i]
-            else:
-                r = s - 1
-                rec_valid[r, i] = True
-                rec_point[r, i, 0], rec_point[r, i, 1], rec_point[r, i, 2] = px, py, pz
-                rec_face[r, i] = f
-                rec_kind[r, i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
-                rec_from[r, i] = m_from
-                rec_to[r, i] = m_to
-                rec_normal[r, i, 0], rec_normal[r, i, 1], rec_normal[r, i, 2] = nx, ny, nz
-                rec_dir[r, i, 0], rec_dir[r, i, 1], rec_dir[r, i, 2] = dx, dy, dz
-        steps = max(steps, s)
+        if differentials:
+            for c in range(2):
+                for q in range(3):
+                    d_point[i, c, q] = dp[c, q]
+                    d_dir[i, c, q] = dd[c, q]
     return segments, steps
+
+
+@_kernel
+def _tangents(dx, dy, dz):
+    """:func:`raytrace.refine.tangent_basis` of one unit direction: ``u = d x r / |d x r|``
+    with ``r`` the x axis (the y axis when ``|d_x| >= 0.9``), ``v = d x u``."""
+    rx, ry = (1.0, 0.0) if abs(dx) < 0.9 else (0.0, 1.0)
+    ux, uy, uz = dy * 0.0 - dz * ry, dz * rx - dx * 0.0, dx * ry - dy * rx
+    n = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / n, uy / n, uz / n
+    return ux, uy, uz, dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+
+
+@_kernel
+def _miss(px, py, pz, dx, dy, dz, rx, ry, rz):
+    """Distance from the receiver to a last leg (point, unit direction) if it lies ahead of it
+    (:func:`raytrace.refine._landing`'s offset, in the plane normal to the leg), else inf."""
+    wx, wy, wz = rx - px, ry - py, rz - pz
+    tau = wx * dx + wy * dy + wz * dz
+    if not tau > 0.0:
+        return np.inf
+    ex, ey, ez = wx - tau * dx, wy - tau * dy, wz - tau * dz
+    return math.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@_kernel
+def _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, tx, ty, tz, event, reflect, eta, grad):
+    """Carry both ray differentials (rows of ``dp``, ``dd``) across one step of :func:`follow`:
+    transfer to the hit facet's plane, then the event's law about the smooth normal (formulas
+    in :func:`follow`'s docstring); (tx, ty, tz) is the new direction, ``grad`` the
+    :func:`_smooth_normal_gradient` at the hit."""
+    gvx, gvy, gvz, gwx, gwy, gwz, ax, ay, az, bx, by, bz, inv_m = grad
+    dn_f = fx * dx + fy * dy + fz * dz
+    dns = dx * nx + dy * ny + dz * nz
+    ct = 0.0
+    if event and not reflect:
+        ct = math.sqrt(max(1.0 - eta * eta * (1.0 - dns * dns), 1e-300))
+    sg = -1.0 if dns < 0.0 else 1.0
+    for c in range(2):
+        qx, qy, qz = dp[c, 0] + t * dd[c, 0], dp[c, 1] + t * dd[c, 1], dp[c, 2] + t * dd[c, 2]
+        dt = -(fx * qx + fy * qy + fz * qz) / dn_f
+        ex, ey, ez = qx + dt * dx, qy + dt * dy, qz + dt * dz
+        dp[c, 0], dp[c, 1], dp[c, 2] = ex, ey, ez
+        if not event:
+            continue  # a transparent surface: the direction is unchanged
+        sv = gvx * ex + gvy * ey + gvz * ez
+        sw = gwx * ex + gwy * ey + gwz * ez
+        mx, my, mz = ax * sv + bx * sw, ay * sv + by * sw, az * sv + bz * sw
+        proj = nx * mx + ny * my + nz * mz
+        gx, gy, gz = (mx - nx * proj) * inv_m, (my - ny * proj) * inv_m, (mz - nz * proj) * inv_m
+        ddx, ddy, ddz = dd[c, 0], dd[c, 1], dd[c, 2]
+        d_dns = ddx * nx + ddy * ny + ddz * nz + dx * gx + dy * gy + dz * gz
+        if reflect:
+            dd[c, 0] = ddx - 2.0 * (d_dns * nx + dns * gx)
+            dd[c, 1] = ddy - 2.0 * (d_dns * ny + dns * gy)
+            dd[c, 2] = ddz - 2.0 * (d_dns * nz + dns * gz)
+        else:
+            d_ct = eta * eta * dns * d_dns / ct
+            a = sg * ct - eta * dns
+            da = sg * d_ct - eta * d_dns
+            ux, uy, uz = eta * ddx + da * nx + a * gx, eta * ddy + da * ny + a * gy, eta * ddz + da * nz + a * gz
+            proj = ux * tx + uy * ty + uz * tz  # zero in exact arithmetic: T stays a unit vector
+            dd[c, 0], dd[c, 1], dd[c, 2] = ux - proj * tx, uy - proj * ty, uz - proj * tz
 
 
 @_kernel

@@ -13,10 +13,11 @@ hit in the scene of every non-transparent surface, so nothing can be
 skipped) the surface must be the one
 the signature names, and the new direction follows the law of reflection or
 Snell's law (real parts of the indices, smooth normals). :func:`refine` then
-drives the launch direction by Newton's method (finite-difference Jacobian on
-two tangent angles) until the last leg passes through the receiver; the
-stationary optical path (Fermat) is automatically satisfied since every
-vertex obeys Snell / reflection. The same Jacobian is the numerical ray tube:
+drives the launch direction by Newton's method (Jacobian on two tangent
+angles from ray differentials carried through every event, Igehy 1999) until
+the last leg passes through the receiver; the stationary optical path (Fermat)
+is automatically satisfied since every vertex obeys Snell / reflection. The
+same Jacobian is the ray tube:
 ``|det J|`` is the tube cross-section at the receiver per unit launch solid
 angle [m^2/sr], i.e. the geometric spreading (1 m^2/sr at 1 m in a homogeneous
 medium, d^2 at distance d). Everything is vectorised over all candidate paths.
@@ -37,8 +38,6 @@ from raytrace.scene import TracerScene
 
 #: Newton stops when the last leg misses the receiver by less than this [m].
 MISS_TOLERANCE_M = 1e-9
-#: Finite-difference step of the launch angles [rad].
-FD_STEP_RAD = 1e-7
 #: Largest Newton step on the launch angles [rad].
 MAX_STEP_RAD = 0.25
 MAX_ITERATIONS = 40
@@ -54,15 +53,11 @@ MAX_ITERATIONS = 40
 STALL_WINDOW = 10
 STALL_FACTOR = 0.97
 LINE_SEARCH_HALVINGS = 10
-#: Batches of halvings traced together. A few hundred seeds: all ten in one trace call (the
-#: per-call cost of the vectorised walk dominates, not the rays; a third of the seeds need a
-#: halved step on most iterations, so sequential batches cost more calls). From
-#: LINE_SEARCH_SPLIT_SEEDS seeds on, the rays dominate: the full step first, the halvings only
-#: for the seeds it did not improve (same choice: the largest improving fraction; measured on
-#: 2225 torso seeds: 0.89 -> 0.65 s, 0.97e6 -> 0.62e6 segments, identical result).
-_LINE_SEARCH_SCHEDULE = [(0, LINE_SEARCH_HALVINGS)]
-_LINE_SEARCH_SCHEDULE_MANY = [(0, 1), (1, 4), (4, LINE_SEARCH_HALVINGS)]
-LINE_SEARCH_SPLIT_SEEDS = 1000
+#: Step fractions of the backtracking line search, tried in this order per seed (in the compiled
+#: trace, one seed at a time, stopping at the first that reduces the miss: only the rays needed
+#: are cast; batches of fractions traced together cast 0.62e6 segments on 2225 torso seeds where
+#: this casts 0.2e6, same result).
+_LINE_SEARCH_FRACTIONS = 0.5 ** np.arange(LINE_SEARCH_HALVINGS)
 
 
 def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.ndarray:
@@ -91,6 +86,10 @@ class FollowResult:
     last_med: np.ndarray  # (P,)
     segments: int  # ray casts done
     steps: Steps | None = None
+    d_point: np.ndarray | None = None  # (P, 2, 3) derivatives of last_point by the two launch angles
+    d_dir: np.ndarray | None = None  # (P, 2, 3) derivatives of last_dir by the two launch angles
+    won: np.ndarray | None = None  # (P,) line search: index of the accepted fraction, -1 for none
+    launch_dir: np.ndarray | None = None  # (P, 3) line search: the accepted (else last) trial launch
 
 
 def follow(
@@ -103,6 +102,8 @@ def follow(
     nint: np.ndarray,
     *,
     targets_m: np.ndarray | None = None,
+    tangents: tuple[np.ndarray, np.ndarray] | None = None,
+    line_search: tuple | None = None,
 ) -> FollowResult:
     """Trace each ray through its signature (vectorised over rays).
 
@@ -110,6 +111,13 @@ def follow(
     With ``targets_m`` (record mode) it continues along the straight line to
     each target, through transparent surfaces, and fails (``ok = False``) if
     a real surface blocks the last leg; every step is recorded.
+    ``tangents`` (two (P, 3) unit vectors normal to each launch direction, without
+    ``targets_m``): also the derivatives of the last point and direction with respect to
+    tilting the launch along them (ray differentials, :func:`raytrace.kernels.follow`).
+    ``line_search = (fractions, step, rx_m, old_miss_m)``: ``dirs`` are Newton's base
+    directions, and each ray tries the steps ``fractions * step`` in turn until one brings its
+    last leg closer to its receiver than ``old_miss_m`` (differentials included; see the
+    kernel's line-search mode).
     """
     p = len(dirs)
     record = targets_m is not None
@@ -126,10 +134,22 @@ def follow(
     max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
     out = _new_step_records(max_steps if record else 0, p if record else 0)
     tables = scene.kernel_tables
+    launch_d = np.zeros((0, 2, 3))
+    if tangents is not None and not record:
+        launch_d = np.ascontiguousarray(np.stack(tangents, axis=1), dtype=float)
+    search = (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64),
+              np.zeros((0, 3)))
+    if line_search is not None and not record:
+        fractions, step, rx_m, old_miss = line_search
+        search = (np.ascontiguousarray(fractions, dtype=float), d.copy(), np.ascontiguousarray(step, dtype=float),
+                  np.ascontiguousarray(rx_m, dtype=float), np.ascontiguousarray(old_miss, dtype=float),
+                  np.full(p, -1, np.int64), np.zeros((p, 3)))
+    with_differentials = len(launch_d) > 0 or len(search[0]) > 0
+    d_point, d_dir = (np.zeros((p, 2, 3)), np.zeros((p, 2, 3))) if with_differentials else (launch_d, launch_d)
     segments, used = kernels.follow(
         scene.embree.handle, scene.center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
         tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ, *media.kernel_tables,
-        scene.offset_m, *out)
+        scene.offset_m, *out, launch_d, d_point, d_dir, *search)
     steps = None
     if record:
         steps = Steps(*([rows[r] for r in range(used)] for rows in out))
@@ -138,7 +158,10 @@ def follow(
         d_last = np.where(ok[:, None], d, np.nan)
     else:
         d_last = d
-    return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps)
+    searched = len(search[0]) > 0
+    return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps,
+                        d_point=d_point if with_differentials else None, d_dir=d_dir if with_differentials else None,
+                        won=search[5] if searched else None, launch_dir=search[6] if searched else None)
 
 
 def _new_step_records(steps: int, p: int) -> tuple:
@@ -240,11 +263,12 @@ def refine(
     """Newton on the two launch angles until each path's last leg hits its receiver.
 
     Residual: the offset, in the plane through the receiver normal to the
-    last leg, of where the last leg crosses that plane. Jacobian: forward
-    differences of the same residual for launch directions tilted by
-    :data:`FD_STEP_RAD` along two orthonormal tangents (so the Jacobian
-    determinant is the ray-tube area per steradian). Steps are limited to
-    :data:`MAX_STEP_RAD` and backtracked (halved) until the miss decreases.
+    last leg, of where the last leg crosses that plane. Jacobian: the same
+    offset's derivatives with respect to tilting the launch along two
+    orthonormal tangents, from the ray differentials the trace carries
+    (:func:`follow` with ``tangents``), so the Jacobian determinant is the
+    ray-tube area per steradian. Steps are limited to :data:`MAX_STEP_RAD` and
+    backtracked (halved) until the miss decreases.
     """
     p = len(dirs0)
     dirs = _normalize(np.asarray(dirs0, float).copy())
@@ -252,69 +276,49 @@ def refine(
     failed = np.zeros(p, bool)
     tube = np.full(p, np.nan)
     segments = 0
-    h = FD_STEP_RAD
-    cached = np.zeros(p, bool)  # last trace of dirs[i] known (from the line search)
+    # the last trace of dirs[i] with its differentials (the accepted line-search trial's)
+    cached = np.zeros(p, bool)
     cache_ok = np.zeros(p, bool)
     cache_point = np.zeros((p, 3))
     cache_dir = np.zeros((p, 3))
-    # finite-difference neighbours of dirs[i] already traced (speculatively, with the full-step
-    # line-search trial, which is usually accepted and becomes the next base ray)
-    fd_cached = np.zeros(p, bool)
-    fd_ok = np.zeros((2, p), bool)
-    fd_point = np.zeros((2, p, 3))
-    fd_dir = np.zeros((2, p, 3))
-    fd_med = np.zeros((2, p), np.int64)
+    cache_dpoint = np.zeros((p, 2, 3))
+    cache_ddir = np.zeros((p, 2, 3))
 
-    def run(sel, dd):
+    def run(sel, dd, line_search=None):
         nonlocal segments
-        res = follow(scene, media, tx_m, tx_medium, dd, codes[sel], nint[sel])
+        res = follow(scene, media, tx_m, tx_medium, dd, codes[sel], nint[sel],
+                     tangents=None if line_search else tangent_basis(dd), line_search=line_search)
         segments += res.segments
         if budget is not None:
             budget.charge(res.segments)
         return res
+
+    def keep(rows, res, picked):
+        cache_ok[rows] = res.ok[picked]
+        cache_point[rows] = res.last_point[picked]
+        cache_dir[rows] = res.last_dir[picked]
+        cache_dpoint[rows] = res.d_point[picked]
+        cache_ddir[rows] = res.d_dir[picked]
+        cached[rows] = True
 
     history = np.full((MAX_ITERATIONS, p), np.inf)  # miss per iteration
     for it in range(MAX_ITERATIONS):
         act = np.flatnonzero(~converged & ~failed)
         if len(act) == 0:
             break
+        fresh = act[~cached[act]]
+        if len(fresh):
+            keep(fresh, run(fresh, dirs[fresh]), slice(None))
         d0 = dirs[act]
         rx = rx_m[act]
-        u, v = tangent_basis(d0)
-        m = len(act)
-        # base rays (unless the accepted line-search trial already traced them) and the two
-        # finite-difference neighbours (unless traced with that trial), in one batch
-        fresh = act[~cached[act]]
-        need = ~fd_cached[act]
-        nfd = act[need]
-        batch = run(np.concatenate([fresh, nfd, nfd]),
-                    np.concatenate([dirs[fresh], _normalize(d0[need] + h * u[need]),
-                                    _normalize(d0[need] + h * v[need])]))
-        nf0, m2 = len(fresh), len(nfd)
-        cache_ok[fresh] = batch.ok[:nf0]
-        cache_point[fresh] = batch.last_point[:nf0]
-        cache_dir[fresh] = batch.last_dir[:nf0]
-        for k in range(2):
-            part = slice(nf0 + k * m2, nf0 + (k + 1) * m2)
-            fd_ok[k, nfd] = batch.ok[part]
-            fd_point[k, nfd] = batch.last_point[part]
-            fd_dir[k, nfd] = batch.last_dir[part]
-            fd_med[k, nfd] = batch.last_med[part]
         base = FollowResult(ok=cache_ok[act], last_point=cache_point[act], last_dir=cache_dir[act],
-                            last_med=np.zeros(m, np.int64), segments=0)
-        parts = [base] + [
-            FollowResult(ok=fd_ok[k, act], last_point=fd_point[k, act], last_dir=fd_dir[k, act],
-                         last_med=fd_med[k, act], segments=0)
-            for k in range(2)
-        ]
+                            last_med=np.zeros(len(act), np.int64), segments=0)
         db = np.where(base.ok[:, None], base.last_dir, np.array([0.0, 0.0, 1.0]))
         e1, e2 = tangent_basis(db)
         r0, ok0 = _landing(base, rx, db, e1, e2)
-        ra, oka = _landing(parts[1], rx, db, e1, e2)
-        rb, okb = _landing(parts[2], rx, db, e1, e2)
-        jac = np.stack([(ra - r0) / h, (rb - r0) / h], axis=2)  # (n, 2, 2)
+        jac = _landing_jacobian(base, cache_dpoint[act], cache_ddir[act], rx, e1, e2)  # (n, 2, 2)
         det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-        good = ok0 & oka & okb & np.isfinite(det) & (np.abs(det) > 0.0)
+        good = ok0 & np.isfinite(det) & (np.abs(det) > 0.0)
         miss = np.linalg.norm(r0, axis=1)
         conv = good & (miss < MISS_TOLERANCE_M)
         converged[act[conv]] = True
@@ -333,59 +337,27 @@ def refine(
         norm = np.linalg.norm(step, axis=1)
         step *= np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))[:, None]
         sel = act[todo]
-        du, dv = u[todo], v[todo]
         base_dir = d0[todo]
         old = miss[todo]
-        pending = np.ones(len(sel), bool)
-        fd_cached[sel] = False  # their directions change (or they fail)
-        # backtracking: step fractions 1, 1/2, ... tried at once (one trace call), the largest
-        # that reduces the miss is taken; the full step's finite-difference neighbours are
-        # traced with it (it usually wins and is then the next iteration's base ray)
-        for first, last in (_LINE_SEARCH_SCHEDULE if p < LINE_SEARCH_SPLIT_SEEDS else _LINE_SEARCH_SCHEDULE_MANY):
-            pi = np.flatnonzero(pending)
-            if len(pi) == 0:
-                break
-            fractions = 0.5 ** np.arange(first, last)
-            nf = len(fractions)
-            lam = np.repeat(fractions, len(pi))  # fraction-major: all seeds at 1, then at 1/2...
-            rows = np.tile(pi, nf)
-            trial = _normalize(base_dir[rows] + lam[:, None] * (step[rows, 0:1] * du[rows] + step[rows, 1:2] * dv[rows]))
-            speculate = first == 0  # the full step: trace its finite-difference neighbours too
-            if speculate:
-                nt = len(pi)  # fraction-major: the full-step trials are the first len(pi) rows
-                tu, tv = tangent_basis(trial[:nt])
-                nr = len(trial)
-                res3 = run(np.concatenate([sel[rows], sel[pi], sel[pi]]),
-                           np.concatenate([trial, _normalize(trial[:nt] + h * tu), _normalize(trial[:nt] + h * tv)]))
-                res = FollowResult(ok=res3.ok[:nr], last_point=res3.last_point[:nr], last_dir=res3.last_dir[:nr],
-                                   last_med=res3.last_med[:nr], segments=0)
-            else:
-                res = run(sel[rows], trial)
-            dd = np.where(res.ok[:, None], res.last_dir, np.array([0.0, 0.0, 1.0]))
-            a1, a2 = tangent_basis(dd)
-            rt, okt = _landing(res, rx_m[sel[rows]], dd, a1, a2)
-            better = (okt & (np.linalg.norm(rt, axis=1) < old[rows])).reshape(nf, len(pi))
-            any_better = better.any(axis=0)
-            pick = np.argmax(better, axis=0)  # first (largest) improving fraction
-            chosen = pick * len(pi) + np.arange(len(pi))
-            won = np.flatnonzero(any_better)
-            dirs[sel[pi[won]]] = trial[chosen[won]]
-            pending[pi[won]] = False
-            # the accepted trial is the next iteration's base ray: keep its trace
-            winners = sel[pi[won]]
-            cache_ok[winners] = res.ok[chosen[won]]
-            cache_point[winners] = res.last_point[chosen[won]]
-            cache_dir[winners] = res.last_dir[chosen[won]]
-            cached[winners] = True
-            if speculate:
-                full = won[pick[won] == 0]  # the full step won: its neighbours are the next FD rays
-                winners = sel[pi[full]]
-                for k in range(2):
-                    part = nr + k * nt + full
-                    fd_ok[k, winners] = res3.ok[part]
-                    fd_point[k, winners] = res3.last_point[part]
-                    fd_dir[k, winners] = res3.last_dir[part]
-                    fd_med[k, winners] = res3.last_med[part]
-                fd_cached[winners] = True
-        failed[sel[pending]] = True
+        # backtracking: step fractions 1, 1/2, ... tried in turn per seed (in the kernel) until the
+        # miss decreases; the accepted trial's trace, with its differentials, is the next base ray
+        res = run(sel, base_dir, line_search=(_LINE_SEARCH_FRACTIONS, step, rx_m[sel], old))
+        won = res.won >= 0
+        dirs[sel[won]] = res.launch_dir[won]
+        keep(sel[won], res, won)
+        cached[sel[~won]] = False
+        failed[sel[~won]] = True
     return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=segments)
+
+
+def _landing_jacobian(base: FollowResult, d_point: np.ndarray, d_dir: np.ndarray, rx: np.ndarray,
+                      e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    """(n, 2, 2) derivatives of :func:`_landing`'s offset (in the fixed plane through the
+    receiver normal to the base ray's last leg ``D``) by the two launch angles: the crossing
+    ``x = L + tau D' - rx`` with ``tau = (rx - L).D / (D'.D)`` gives, at ``D' = D`` (unit, so
+    ``dD.D = 0``), ``dtau = -dL.D`` and ``dx = dL + dtau D + tau dD``."""
+    d = base.last_dir
+    tau = np.einsum("ij,ij->i", rx - base.last_point, d)
+    dtau = -np.einsum("icj,ij->ic", d_point, d)
+    dx = d_point + dtau[:, :, None] * d[:, None, :] + tau[:, None, None] * d_dir  # (n, 2, 3): per angle
+    return np.stack([np.einsum("icj,ij->ic", dx, e1), np.einsum("icj,ij->ic", dx, e2)], axis=1)

@@ -27,7 +27,8 @@ Design choices (where this departs from or sharpens ``shared/design/tracer.md``)
   Fermat minimisation over interaction points: every vertex then obeys
   Snell / reflection with *smooth* normals on faceted organs (so Fermat holds
   on the smoothed surface), blocking is detected by construction, and the
-  finite-difference Jacobian is the numerical ray tube at no extra cost.
+  Jacobian (ray differentials carried through every event) is the ray tube at
+  no extra cost.
 * Direct paths whose straight launch would be totally reflected (a capsule
   deep in muscle, a sensor in air) are found by homotopy on the indices
   (``n_i^s``, s: 0 -> 1), starting from the exact straight line at s = 0.

@@ -156,3 +156,77 @@ def test_smooth_normal_is_the_sphere_normal():
                      for a in tri for b in tri)
         assert abs(np.linalg.norm(n) - 1.0) < 1e-12
         assert np.arccos(np.clip(n @ radial, -1.0, 1.0)) <= spread
+
+
+# ------------------------------------------------------------------ ray differentials (follow)
+def _closed_form_last_leg(tx, d, n_muscle, reflect):
+    """The half-space's one-event path in closed form: straight to the plane y = 0, then the
+    law of reflection or Snell's law (raytrace.em, checked against tmm in test_em.py)."""
+    t = tx[1] / -d[:, 1]
+    point = tx + t[:, None] * d
+    normal = np.array([0.0, -1.0, 0.0])
+    if reflect:
+        return point, em.reflect_direction(d, normal)
+    out, _tir = em.refract_direction(d, normal, n_muscle, 1.0)
+    return point, out
+
+
+@pytest.mark.parametrize("reflect", [False, True])
+def test_ray_differentials_equal_the_closed_form_derivatives_at_a_plane(reflect):
+    """Derivatives of the last point and direction by the two launch angles: the kernel's
+    differentials against central differences (h = 1e-6 rad, truncation ~h^2) of the closed
+    form, for refraction into air and reflection back into muscle at the half-space's face.
+    Tolerance 1e-7 relative to the derivative's size (the closed form's rounding / h)."""
+    from raytrace import refine
+
+    phantom = half_space()
+    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    tx = np.asarray(phantom.sites["tx"].position_m, float)
+    tx_medium = int(phantom.medium_index(tx[None])[0])
+    n_muscle = em.refractive_index(Material(tissue="muscle").complex_relative_permittivity(FREQUENCY_HZ))
+    d = fibonacci_sphere(40_000)
+    limit = 0.99 if reflect else 0.995  # inside the ~7 deg critical cone for refraction
+    d = d[-d[:, 1] > limit]
+    assert len(d) > 10
+    code = refine.encode(0, True, reflect)
+    res = refine.follow(scene, media, tx, tx_medium, d, np.full((len(d), 1), code), np.ones(len(d), np.int64),
+                        tangents=refine.tangent_basis(d))
+    assert res.ok.all()
+    u, v = refine.tangent_basis(d)
+    h = 1e-6
+    for c, t in enumerate((u, v)):
+        plus = _closed_form_last_leg(tx, refine._normalize(d + h * t), n_muscle, reflect)
+        minus = _closed_form_last_leg(tx, refine._normalize(d - h * t), n_muscle, reflect)
+        for got, hi, lo in ((res.d_point[:, c], plus[0], minus[0]), (res.d_dir[:, c], plus[1], minus[1])):
+            expected = (hi - lo) / (2 * h)
+            scale = np.linalg.norm(expected, axis=1, keepdims=True)
+            assert (np.abs(got - expected) <= 1e-7 * np.maximum(scale, 1.0)).all()
+
+
+def test_smooth_normal_gradient_is_the_derivative_of_the_smooth_normal():
+    """Inside a facet of the faceted sphere, the differential the kernels use for the smooth
+    normal equals the central difference of the smooth normal itself (h = 1e-7 m, inside the
+    facet; tolerance 1e-6 of the gradient's scale 1/R = 10 /m)."""
+    phantom = homogeneous_sphere()
+    scene = scene_for(phantom)
+    tables = scene.kernel_tables
+    rng = np.random.default_rng(5)
+    faces = rng.choice(len(scene.faces), 200, replace=False)
+    for f in faces:
+        tri = scene.vertices[scene.faces[f]]
+        b = rng.dirichlet([4.0, 4.0, 4.0])  # well inside the triangle
+        point = b @ tri
+        e1 = tri[1] - tri[0]
+        e2 = np.cross(scene.face_normals[f], e1)
+        grad = kernels._smooth_normal_gradient(tables.frame, scene.face_normals, f, *point)
+        gv, gw, a1, a2, inv_m = np.array(grad[0:3]), np.array(grad[3:6]), np.array(grad[6:9]), \
+            np.array(grad[9:12]), grad[12]
+        n0 = np.array(kernels._smooth_normal(tables.frame, scene.face_normals, f, *point))
+        for e in (e1 / np.linalg.norm(e1), e2 / np.linalg.norm(e2)):
+            dm = a1 * (gv @ e) + a2 * (gw @ e)
+            dn = (dm - n0 * (n0 @ dm)) * inv_m
+            h = 1e-7
+            hi = np.array(kernels._smooth_normal(tables.frame, scene.face_normals, f, *(point + h * e)))
+            lo = np.array(kernels._smooth_normal(tables.frame, scene.face_normals, f, *(point - h * e)))
+            np.testing.assert_allclose(dn, (hi - lo) / (2 * h), atol=1e-5)
