@@ -24,6 +24,8 @@ Newton refinement; these are only seeds.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +43,8 @@ MAX_EVENTS = 24
 SEEDS_PER_RECEIVER = 12
 #: Rays walked together.
 BATCH = 50_000
+#: Walk batches traced concurrently (threads: the walk's kernels and Embree release the GIL).
+WALK_THREADS = min(2, os.cpu_count() or 1)
 #: Zoom grid: GRID x GRID launch directions per seed and level.
 GRID = 11
 #: Zoom levels (the grid half-width halves per level).
@@ -161,12 +165,20 @@ def direct_seeds(
     min_cos = np.cos(2.0 * angular_spacing_rad(rays))
     segments = 0
     pool: dict[int, list[tuple[float, np.ndarray, np.ndarray, int]]] = {int(r): [] for r in receivers}
-    for first in range(0, rays, BATCH):
-        dirs = launch[first:first + BATCH]
-        w = refraction_walk(scene, media, tx_m, tx_medium, dirs, rx_m[receivers], rx_medium[receivers],
-                            exact=False)
-        segments += w.segments
+
+    def walk(first: int) -> Walk:
+        w = refraction_walk(scene, media, tx_m, tx_medium, launch[first:first + BATCH], rx_m[receivers],
+                            rx_medium[receivers], exact=False)
         _charge(budget, w.segments)
+        return w
+
+    firsts = list(range(0, rays, BATCH))
+    # the walk's kernels and Embree run without the GIL: batches in two threads, merged in order
+    with ThreadPoolExecutor(max_workers=min(WALK_THREADS, len(firsts))) as workers:
+        walks = list(workers.map(walk, firsts))
+    for first, w in zip(firsts, walks):
+        dirs = launch[first:first + BATCH]
+        segments += w.segments
         for c, r in enumerate(receivers):
             top = _closest(w.miss_m[:, c], 8 * SEEDS_PER_RECEIVER)
             pool[int(r)].extend(zip(w.miss_m[top, c].tolist(), dirs[top], w.codes(top, c), w.nint[top, c].tolist()))
