@@ -173,15 +173,18 @@ def direct_seeds(
         return w
 
     firsts = list(range(0, rays, BATCH))
-    # the walk's kernels and Embree run without the GIL: batches in two threads, merged in order
+    # the walk's kernels and Embree run without the GIL: batches in two threads, in waves (so only
+    # a wave's walks are held at once), merged in batch order
     with ThreadPoolExecutor(max_workers=min(WALK_THREADS, len(firsts))) as workers:
-        walks = list(workers.map(walk, firsts))
-    for first, w in zip(firsts, walks):
-        dirs = launch[first:first + BATCH]
-        segments += w.segments
-        for c, r in enumerate(receivers):
-            top = _closest(w.miss_m[:, c], 8 * SEEDS_PER_RECEIVER)
-            pool[int(r)].extend(zip(w.miss_m[top, c].tolist(), dirs[top], w.codes(top, c), w.nint[top, c].tolist()))
+        for wave in range(0, len(firsts), WALK_THREADS):
+            batch = firsts[wave:wave + WALK_THREADS]
+            for first, w in zip(batch, workers.map(walk, batch)):
+                dirs = launch[first:first + BATCH]
+                segments += w.segments
+                for c, r in enumerate(receivers):
+                    top = _closest(w.miss_m[:, c], 8 * SEEDS_PER_RECEIVER)
+                    pool[int(r)].extend(zip(w.miss_m[top, c].tolist(), dirs[top], w.codes(top, c),
+                                            w.nint[top, c].tolist()))
     out = []
     for r in receivers:  # a few dozen candidates per receiver: loops over seeds, not rays
         kept: list[tuple] = []

@@ -326,7 +326,7 @@ def follow(
                     k[i] += 1
                 if not record:
                     done[i] = k[i] >= nint[i]
-                else:
+                elif s <= rec_valid.shape[0]:  # record mode (a counting pass has no rows)
                     r = s - 1
                     rec_valid[r, i] = True
                     rec_point[r, i, 0], rec_point[r, i, 1], rec_point[r, i, 2] = px, py, pz

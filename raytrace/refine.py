@@ -132,13 +132,22 @@ def follow(
     done = np.zeros(p, dtype=bool) if record else (nint == 0)
     targets = np.ascontiguousarray(targets_m, dtype=float) if record else np.zeros((0, 3))
     max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
-    out = _new_step_records(max_steps if record else 0, p if record else 0)
     tables = scene.kernel_tables
-    launch_d = np.zeros((0, 2, 3))
+    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
+               *media.kernel_tables, scene.offset_m)
+    out = _new_step_records(0, 0)
+    counted = 0
+    if record:
+        # a counting pass first, so the step records are allocated for the steps taken (about a
+        # dozen), not for the cap (~70: 160 MB at 20k paths)
+        state = [a.copy() for a in (o, d, med, push, k, ok, done)]
+        counted, used = kernels.follow(scene.embree.handle, scene.center, max_steps, *state[:5], nint, *state[5:], codes,
+                                 targets, record, *statics, *out, *_NO_DIFFERENTIALS, *_NO_LINE_SEARCH)
+        out = _new_step_records(used, p)
+    launch_d = _NO_DIFFERENTIALS[0]
     if tangents is not None and not record:
         launch_d = np.ascontiguousarray(np.stack(tangents, axis=1), dtype=float)
-    search = (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64),
-              np.zeros((0, 3)))
+    search = _NO_LINE_SEARCH
     if line_search is not None and not record:
         fractions, step, rx_m, old_miss = line_search
         search = (np.ascontiguousarray(fractions, dtype=float), d.copy(), np.ascontiguousarray(step, dtype=float),
@@ -146,10 +155,9 @@ def follow(
                   np.full(p, -1, np.int64), np.zeros((p, 3)))
     with_differentials = len(launch_d) > 0 or len(search[0]) > 0
     d_point, d_dir = (np.zeros((p, 2, 3)), np.zeros((p, 2, 3))) if with_differentials else (launch_d, launch_d)
-    segments, used = kernels.follow(
-        scene.embree.handle, scene.center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
-        tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ, *media.kernel_tables,
-        scene.offset_m, *out, launch_d, d_point, d_dir, *search)
+    segments, used = kernels.follow(scene.embree.handle, scene.center, max_steps, o, d, med, push, k, nint, ok, done,
+                                    codes, targets, record, *statics, *out, launch_d, d_point, d_dir, *search)
+    segments += counted
     steps = None
     if record:
         steps = Steps(*([rows[r] for r in range(used)] for rows in out))
@@ -162,6 +170,11 @@ def follow(
     return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps,
                         d_point=d_point if with_differentials else None, d_dir=d_dir if with_differentials else None,
                         won=search[5] if searched else None, launch_dir=search[6] if searched else None)
+
+
+_NO_DIFFERENTIALS = (np.zeros((0, 2, 3)), np.zeros((0, 2, 3)), np.zeros((0, 2, 3)))
+_NO_LINE_SEARCH = (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0),
+                   np.zeros(0, np.int64), np.zeros((0, 3)))
 
 
 def _new_step_records(steps: int, p: int) -> tuple:

@@ -31,7 +31,8 @@ def test_ceiling_counts_primary_and_secondary_rays() -> None:
     phantom = Phantom.build("s", [Organ("body", Material(relative_permittivity=50.0), sphere)])
     out = embree_ceiling(phantom, np.array([0.01, 0.0, 0.0]), rays=2000, repeat=1)
     # Every primary ray from inside a closed sphere hits it, so each spawns one secondary.
-    assert out["rays_cast"] == 4000 and out["rays_per_s"] > 0 and out["triangles"] == 1280
+    assert out["rays_cast"] == 4000 and out["triangles"] == 1280
+    assert min(out["rays_per_s"], out["robust_rays_per_s"], out["embreex_rays_per_s"]) > 0
 
 
 @pytest.mark.slow
