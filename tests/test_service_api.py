@@ -12,6 +12,8 @@ import math
 
 import pytest
 
+from service.schemas import ChannelResponse
+
 C0 = 299_792_458.0
 
 SMALL_CHANNEL = {
@@ -241,6 +243,10 @@ def test_channel_happy_path_on_the_default_torso(api):
             assert [g["frequency_hz"] for g in p["band_gains"]] == [400e6, 410e6, 420e6]
             assert p["gain_db"] >= -400.0
     assert out["stats"]["rays_launched"] == 2000
+    # the route serialises the tracer's dict itself (not through the model): it must be exactly
+    # a ChannelResponse, field for field (extra fields and NaN / infinity are forbidden there)
+    assert ChannelResponse.model_validate(out).model_dump(mode="json") == out
+    assert r.headers["content-type"] == "application/json"
 
 
 def test_channel_scenario_lookup(api):
