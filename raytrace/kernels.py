@@ -122,6 +122,17 @@ def _smooth_normal_uv(corner, face_normals, f, bu, bv):
 
 
 @_kernel
+def _sides(face_organ, parent, f, d_dot_n):
+    """Which side of face f a ray with ``d . n_facet = d_dot_n`` crosses: ``(leaving, organ,
+    m_from, m_to)``; leaving its organ into the parent when the direction is along the outward
+    facet normal, else entering it from the parent (the containment tree of docs/tracer.md)."""
+    organ = face_organ[f]
+    leaving = d_dot_n > 0.0
+    par = parent[organ]
+    return leaving, organ, (organ if leaving else par), (par if leaving else organ)
+
+
+@_kernel
 def _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32):
     """Float64 distance along the unit direction from the true origin to face f's plane
     (``(n.v0 - n.o) / (n.d)``, clamped at 0), Embree's float32 ``t32`` if the ray is parallel."""
@@ -274,11 +285,7 @@ def follow(
                         done[i] = True  # the target comes before the hit
                         break
                 px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-                leaving = fx * dx + fy * dy + fz * dz > 0.0
-                organ = face_organ[f]
-                par = parent[organ]
-                m_from = organ if leaving else par
-                m_to = par if leaving else organ
+                leaving, organ, m_from, m_to = _sides(face_organ, parent, f, fx * dx + fy * dy + fz * dz)
                 sgn = 1.0 if leaving else -1.0
                 is_transparent = transparent[f]
                 expected = -1
@@ -502,11 +509,7 @@ def bounce(
         wk = w[i] * math.exp(-2.0 * alpha[m + 1] * t)
         fx, fy, fz = face_normals32[f, 0], face_normals32[f, 1], face_normals32[f, 2]
         dn = dx * fx + dy * fy + dz * fz
-        leaving = dn > 0.0
-        organ = face_organ[f]
-        par = parent[organ]
-        m_from = organ if leaving else par
-        m_to = par if leaving else organ
+        leaving, organ, m_from, m_to = _sides(face_organ, parent, f, dn)
         if cls[m_from + 1] != cls[m + 1] or not wk >= threshold:
             continue
         sg = 1.0 if leaving else -1.0
@@ -664,11 +667,7 @@ def walk_step(
         if f < 0 or nint[r] >= max_events:
             continue
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        leaving = fx * dx + fy * dy + fz * dz > 0.0
-        organ = face_organ[f]
-        par = parent[organ]
-        m_from = organ if leaving else par
-        m_to = par if leaving else organ
+        leaving, organ, m_from, m_to = _sides(face_organ, parent, f, fx * dx + fy * dy + fz * dz)
         if cls[m_from + 1] != ray_cls:
             continue
         if exact:
