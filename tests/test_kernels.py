@@ -134,15 +134,19 @@ def test_bounce_reception_is_the_ray_tube_width():
     np.testing.assert_allclose(np.concatenate(found.close), [0.5, 0.9], rtol=1e-4)
 
 
+def _sphere_faces(count: int, seed: int):
+    """The faceted sphere's scene, its kernel tables, ``count`` of its faces at random and the
+    generator that chose them."""
+    scene = scene_for(homogeneous_sphere())
+    rng = np.random.default_rng(seed)
+    return scene, scene.kernel_tables, rng.choice(len(scene.faces), count, replace=False), rng
+
+
 def test_smooth_normal_is_the_sphere_normal():
     """On a faceted sphere the interpolated normal (Max's vertex weights, exact on a sphere)
     equals the radial direction at the vertices to rounding, and inside a facet deviates from
     it by less than the angle between the facet's corners (linear interpolation)."""
-    phantom = homogeneous_sphere()
-    scene = scene_for(phantom)
-    tables = scene.kernel_tables
-    rng = np.random.default_rng(7)
-    faces = rng.choice(len(scene.faces), 300, replace=False)
+    scene, tables, faces, rng = _sphere_faces(300, seed=7)
     for f in faces:
         tri = scene.vertices[scene.faces[f]]
         for corner in tri:
@@ -208,11 +212,7 @@ def test_smooth_normal_gradient_is_the_derivative_of_the_smooth_normal():
     """Inside a facet of the faceted sphere, the differential the kernels use for the smooth
     normal equals the central difference of the smooth normal itself (h = 1e-7 m, inside the
     facet; tolerance 1e-6 of the gradient's scale 1/R = 10 /m)."""
-    phantom = homogeneous_sphere()
-    scene = scene_for(phantom)
-    tables = scene.kernel_tables
-    rng = np.random.default_rng(5)
-    faces = rng.choice(len(scene.faces), 200, replace=False)
+    scene, tables, faces, rng = _sphere_faces(200, seed=5)
     for f in faces:
         tri = scene.vertices[scene.faces[f]]
         b = rng.dirichlet([4.0, 4.0, 4.0])  # well inside the triangle
