@@ -231,13 +231,13 @@ def follow(
         o0x, o0y, o0z, med0 = o[i, 0], o[i, 1], o[i, 2], med[i]
         if line_search:
             won[i] = -1
+            bx, by, bz = base_dir[i, 0], base_dir[i, 1], base_dir[i, 2]
+            bux, buy, buz, bvx, bvy, bvz = _tangents(bx, by, bz)
         for trial in range(max(len(fractions), 1)):
             if line_search:  # the trial launch, from the ray's start, and its tangents
                 lam = fractions[trial]
-                ux, uy, uz, vx, vy, vz = _tangents(base_dir[i, 0], base_dir[i, 1], base_dir[i, 2])
                 a_, b_ = lam * step[i, 0], lam * step[i, 1]
-                lx, ly, lz = (base_dir[i, 0] + a_ * ux + b_ * vx, base_dir[i, 1] + a_ * uy + b_ * vy,
-                              base_dir[i, 2] + a_ * uz + b_ * vz)
+                lx, ly, lz = bx + a_ * bux + b_ * bvx, by + a_ * buy + b_ * bvy, bz + a_ * buz + b_ * bvz
                 nrm = math.sqrt(lx * lx + ly * ly + lz * lz)
                 d[i, 0], d[i, 1], d[i, 2] = lx / nrm, ly / nrm, lz / nrm
                 trial_dir[i, 0], trial_dir[i, 1], trial_dir[i, 2] = d[i, 0], d[i, 1], d[i, 2]

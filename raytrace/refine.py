@@ -289,8 +289,8 @@ def refine(
     failed = np.zeros(p, bool)
     tube = np.full(p, np.nan)
     segments = 0
-    # the last trace of dirs[i] with its differentials (the accepted line-search trial's)
-    cached = np.zeros(p, bool)
+    # the last trace of dirs[i] with its differentials: the first launch's, then the accepted
+    # line-search trial's (a seed whose line search fails is given up, so every active seed has one)
     cache_ok = np.zeros(p, bool)
     cache_point = np.zeros((p, 3))
     cache_dir = np.zeros((p, 3))
@@ -312,16 +312,14 @@ def refine(
         cache_dir[rows] = res.last_dir[picked]
         cache_dpoint[rows] = res.d_point[picked]
         cache_ddir[rows] = res.d_dir[picked]
-        cached[rows] = True
 
+    if p:
+        keep(slice(None), run(np.arange(p), dirs), slice(None))
     history = np.full((MAX_ITERATIONS, p), np.inf)  # miss per iteration
     for it in range(MAX_ITERATIONS):
         act = np.flatnonzero(~converged & ~failed)
         if len(act) == 0:
             break
-        fresh = act[~cached[act]]
-        if len(fresh):
-            keep(fresh, run(fresh, dirs[fresh]), slice(None))
         d0 = dirs[act]
         rx = rx_m[act]
         base = FollowResult(ok=cache_ok[act], last_point=cache_point[act], last_dir=cache_dir[act],
@@ -358,7 +356,6 @@ def refine(
         won = res.won >= 0
         dirs[sel[won]] = res.launch_dir[won]
         keep(sel[won], res, won)
-        cached[sel[~won]] = False
         failed[sel[~won]] = True
     return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=segments)
 

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import threading
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -51,7 +51,6 @@ class TracerScene:
     """Everything the tracer needs about a phantom's triangles, float64 plus an Embree scene."""
 
     embree: EmbreeScene  # watertight traversal: every exact query (refinement, walks, signatures)
-    embree_shooting: EmbreeScene  # Embree's fast traversal: for seeds only (module doc)
     center: np.ndarray  # (3,) float64 translation applied before float32 conversion
     vertices: np.ndarray  # (V, 3) float64
     faces: np.ndarray  # (F, 3) int64
@@ -62,6 +61,19 @@ class TracerScene:
     scale_m: float  # bounding-box diagonal
     offset_m: float  # spawn offset
     face_map: np.ndarray | None = None  # Embree primitive -> phantom face (None: identity)
+    _shooting: EmbreeScene | None = field(default=None, repr=False, compare=False)
+    _shooting_lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
+
+    @property
+    def embree_shooting(self) -> EmbreeScene:
+        """The same triangles with Embree's fast (non-robust) traversal, for seed searches only
+        (module doc); built on first use (the full scene of the final re-trace never needs it),
+        once, whichever thread asks first."""
+        with self._shooting_lock:
+            if self._shooting is None:
+                kept = self.faces if self.face_map is None else self.faces[self.face_map]
+                self._shooting = EmbreeScene(self.vertices - self.center, kept, robust=False)
+            return self._shooting
 
     @classmethod
     def build(cls, phantom: Phantom, visible: np.ndarray | None = None) -> "TracerScene":
@@ -73,9 +85,7 @@ class TracerScene:
         center = 0.5 * (lo + hi)
         centred = vertices - center
         face_map = None if visible is None else np.flatnonzero(visible)
-        kept = faces if face_map is None else faces[face_map]
-        embree = EmbreeScene(centred, kept)
-        fast = EmbreeScene(centred, kept, robust=False)
+        embree = EmbreeScene(centred, faces if face_map is None else faces[face_map])
         fn = np.asarray(phantom.face_normals, dtype=float)
         fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
         corners = vertex_normals_max(vertices, faces)[faces]  # (F, 3, 3)
@@ -85,7 +95,6 @@ class TracerScene:
         ulp = np.spacing(np.float32(max(magnitude, 1e-6)))
         return cls(
             embree=embree,
-            embree_shooting=fast,
             center=center,
             vertices=vertices,
             faces=faces,
