@@ -215,9 +215,10 @@ def follow(
     Line-search mode (``fractions`` not empty; Newton's backtracking in
     :func:`raytrace.refine.refine`): ray i is launched from its start along
     ``normalize(base_dir + f (step_0 u + step_1 v))`` (``u, v`` the tangents of ``base_dir``)
-    for each fraction f in turn, with differentials along the trial's own tangents, until its
-    last leg passes the receiver ``rx[i]`` closer than ``old_miss[i]``: ``won[i]`` is that
-    fraction's index (-1 if none), ``trial_dir[i]`` its launch, and the ray's state its trace."""
+    for each fraction f in turn from index ``won[i]`` on (in: where to start), with
+    differentials along the trial's own tangents, until its last leg passes the receiver
+    ``rx[i]`` closer than ``old_miss[i]``: ``won[i]`` is then that fraction's index (-1 if
+    none), ``trial_dir[i]`` its launch, and the ray's state its trace."""
     differentials = len(launch_d) > 0 or len(fractions) > 0
     line_search = len(fractions) > 0
     dp = np.zeros((2, 3))
@@ -229,11 +230,13 @@ def follow(
     steps = 0
     for i in range(len(ok)):
         o0x, o0y, o0z, med0 = o[i, 0], o[i, 1], o[i, 2], med[i]
+        first = 0
         if line_search:
+            first = won[i]
             won[i] = -1
             bx, by, bz = base_dir[i, 0], base_dir[i, 1], base_dir[i, 2]
             bux, buy, buz, bvx, bvy, bvz = _tangents(bx, by, bz)
-        for trial in range(max(len(fractions), 1)):
+        for trial in range(first, max(len(fractions), 1)):
             if line_search:  # the trial launch, from the ray's start, and its tangents
                 lam = fractions[trial]
                 a_, b_ = lam * step[i, 0], lam * step[i, 1]

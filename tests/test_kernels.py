@@ -230,3 +230,55 @@ def test_smooth_normal_gradient_is_the_derivative_of_the_smooth_normal():
             hi = np.array(kernels._smooth_normal(tables.frame, scene.face_normals, f, *(point + h * e)))
             lo = np.array(kernels._smooth_normal(tables.frame, scene.face_normals, f, *(point - h * e)))
             np.testing.assert_allclose(dn, (hi - lo) / (2 * h), atol=1e-5)
+
+
+@pytest.mark.parametrize("first", [0, 2])
+def test_line_search_accepts_the_first_fraction_from_its_start_that_reduces_the_miss(first):
+    """Newton's backtracking in the kernel (line-search mode of follow): from each ray's start
+    index on, the fractions are tried in order and the first whose last leg passes the receiver
+    closer than the old miss wins. Oracle: the half-space's closed-form last leg for every trial
+    launch (a trial beyond the critical angle breaks the signature and never wins). Receivers
+    lie on the last legs of nearby launches, so some trials reduce the miss and some overshoot."""
+    from raytrace import refine
+
+    phantom = half_space()
+    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    tx = np.asarray(phantom.sites["tx"].position_m, float)
+    tx_medium = int(phantom.medium_index(tx[None])[0])
+    n_muscle = em.refractive_index(Material(tissue="muscle").complex_relative_permittivity(FREQUENCY_HZ))
+    rng = np.random.default_rng(3)
+    d = fibonacci_sphere(40_000)
+    base = d[-d[:, 1] > 0.997][:60]
+    target = refine._normalize(base + rng.normal(scale=0.03, size=base.shape))
+    p_t, d_t = _closed_form_last_leg(tx, target, n_muscle, reflect=False)
+    rx = p_t + 0.1 * d_t
+    step = rng.normal(scale=0.08, size=(len(base), 2))
+
+    def miss(launch):
+        point, out = _closed_form_last_leg(tx, launch, n_muscle, reflect=False)
+        _out, tir = em.refract_direction(launch, np.array([0.0, -1.0, 0.0]), n_muscle, 1.0)
+        w = rx - point
+        tau = np.einsum("ij,ij->i", w, out)
+        off = np.linalg.norm(w - tau[:, None] * out, axis=1)
+        return np.where(tir | ~np.isfinite(off) | (tau <= 0), np.inf, off)
+
+    old = miss(base)
+    u, v = refine.tangent_basis(base)
+    fractions = 0.5 ** np.arange(6)
+    trial_miss = np.stack([miss(refine._normalize(base + f * (step[:, :1] * u + step[:, 1:] * v)))
+                           for f in fractions], axis=1)
+    expected = np.full(len(base), -1)
+    for i in range(len(base)):
+        wins = np.flatnonzero(trial_miss[i, first:] < old[i])
+        if len(wins):
+            expected[i] = first + wins[0]
+    assert len(set(expected.tolist())) >= 3  # the cases are not all alike
+    code = refine.encode(0, True, False)
+    res = refine.follow(scene, media, tx, tx_medium, base, np.full((len(base), 1), code),
+                        np.ones(len(base), np.int64),
+                        line_search=(fractions, step, rx, old, np.full(len(base), first)))
+    np.testing.assert_array_equal(res.won, expected)
+    ok = expected >= 0
+    won_launch = refine._normalize(base[ok] + fractions[expected[ok], None] * (step[ok, :1] * u[ok] + step[ok, 1:] * v[ok]))
+    np.testing.assert_allclose(res.launch_dir[ok], won_launch, atol=1e-12)
