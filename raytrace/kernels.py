@@ -185,6 +185,16 @@ def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
 
 
 @_kernel
+def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
+    """Whether :func:`_tube_miss` could receive ray i at some receiver of its material class
+    for any segment length (the test with an unbounded segment)."""
+    for r in range(len(rx_m)):
+        if rx_cls[r] == ray_cls and _tube_miss(rx_m, r, o, d, i, np.inf, rad, ang, reception_factor)[0]:
+            return True
+    return False
+
+
+@_kernel
 def follow(
     handle, center, max_steps,  # Embree scene, its centring offset, the step cap per ray
     o, d, med, push, k, nint, ok, done, codes, targets, record,  # per-ray state, updated in place
@@ -429,7 +439,7 @@ def bounce(
     o, d, med, w, rad, ang, length, nint, hist, src,  # live rays (float32 geometry in the centred frame)
     handle,  # the Embree scene they are cast into
     face_map, face_normals32, face_organ, parent, cls, transparent, n_re, alpha, corner32, curvature32,
-    need, rx_m, rx_cls, threshold, kmax, offset_m, reception_factor, curvature_margin, log_base,
+    need, rx_m, rx_cls, threshold, kmax, offset_m, reception_factor, curvature_margin, log_base, no_passes,
 ):
     """One bounce of :func:`raytrace.sbr.shoot` for a chunk of live rays.
 
@@ -443,7 +453,13 @@ def bounce(
     unchanged. Children below ``threshold`` or unable to reach a receiver's class within
     ``kmax`` events (``need``) are dropped. Tube angles grow as in :mod:`raytrace.sbr`.
 
-    Returns the children (reflected, then transmitted, then passed, each in ray order, as
+    A ray that already has ``kmax`` events can have no children (``no_passes``: the scene
+    has no transparent surface to pass on through), so it is cast only if the receiver test
+    could pass for some segment length, i.e. some receiver of its class lies within the tube
+    half-width of its unbounded line; otherwise it is not cast at all (exact: the
+    receptions are unchanged).
+
+    Returns the number of rays cast, the children (reflected, then transmitted, then passed, each in ray order, as
     the numpy reference did), the event-log entries of the reflected and transmitted
     children (parent entry, code, face), and the receptions (receiver, log entry, events,
     launch index, miss over radius), receiver-major.
@@ -456,9 +472,15 @@ def bounce(
     bv = np.empty(n, np.float32)
     buf = embree.ray_buffer()
     words, ptr = buf.view(np.uint32), buf.ctypes.data
+    cast = 0
     for i in range(n):
+        if nint[i] >= kmax and no_passes and not _may_receive(rx_m, rx_cls, cls[med[i] + 1], o, d, i, rad, ang,
+                                                              reception_factor):
+            prim[i], tfar[i] = -1, np.inf  # no children possible, and no receiver on its line: not cast
+            continue
         prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, buf, words, ptr, o[i, 0], o[i, 1], o[i, 2],
                                                           d[i, 0], d[i, 1], d[i, 2])
+        cast += 1
     # receptions, receiver-major (ray order within a receiver), into arrays grown by doubling
     cap = 256
     c_rx = np.empty(cap, np.int64)
@@ -609,7 +631,7 @@ def bounce(
                 c_nint[a] = nint[i]
                 c_hist_next[a] = hist[i]
             a += 1
-    return ((c_o, c_d, c_med, c_w, c_rad, c_ang, c_len, c_nint, c_hist_next, c_src_next),
+    return (cast, (c_o, c_d, c_med, c_w, c_rad, c_ang, c_len, c_nint, c_hist_next, c_src_next),
             (log_parent, log_code, log_face),
             (c_rx, c_hist, c_n, c_src, c_close))
 

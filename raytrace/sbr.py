@@ -84,6 +84,7 @@ class _Context:
     tables: tuple  # per-face and per-medium tables, receivers: the arguments of kernels.bounce
     threshold: float
     kmax: int
+    no_passes: bool  # no transparent surface in the scene (a ray with kmax events has no children)
 
 
 @dataclass
@@ -158,16 +159,18 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
         ),
         threshold=10.0 ** (-dynamic_range_db / 10.0),
         kmax=int(kmax),
+        no_passes=not bool(transparent[scene.kernel_tables.face_map].any()),
     )
 
 
-def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | None":
+def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "tuple[int, _State | None]":
     """Cast one chunk of live rays, record receptions, and spawn the next generation
-    (the per-ray work is :func:`raytrace.kernels.bounce`)."""
+    (the per-ray work is :func:`raytrace.kernels.bounce`); returns the rays cast and the
+    children."""
     scene = ctx.scene
-    children, entries, got = kernels.bounce(
+    cast, children, entries, got = kernels.bounce(
         s.o, s.d, s.med, s.w, s.rad, s.ang, s.length, s.nint, s.hist, s.src, scene.embree_shooting.handle, *ctx.tables,
-        ctx.threshold, ctx.kmax, scene.offset_m, RECEPTION_FACTOR, CURVATURE_MARGIN, log.size,
+        ctx.threshold, ctx.kmax, scene.offset_m, RECEPTION_FACTOR, CURVATURE_MARGIN, log.size, ctx.no_passes,
     )
     if len(got[0]):
         for name, value in zip(("rx", "hist", "n", "src", "close"), got):
@@ -178,8 +181,8 @@ def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found) -> "_State | Non
         log.face.append(entries[2])
         log.size += len(entries[0])
     if len(children[0]) == 0:
-        return None
-    return _State(*children)
+        return cast, None
+    return cast, _State(*children)
 
 
 def shoot(
@@ -230,14 +233,15 @@ def shoot(
             n_live = len(state.o)
             if n_live == 0:
                 break
-            children = [
+            bounced = [
                 _bounce(ctx, state.take(slice(a, a + CHUNK_RAYS)), log, found)
                 for a in range(0, n_live, CHUNK_RAYS)
             ]
-            segments += n_live
+            cast = sum(n for n, _c in bounced)
+            segments += cast
             if budget is not None:
-                budget.charge(n_live)
-            state = _State.concat([c for c in children if c is not None])
+                budget.charge(cast)
+            state = _State.concat([c for _n, c in bounced if c is not None])
             if state is None:
                 break
             if len(state.o) > MAX_LIVE_RAYS:

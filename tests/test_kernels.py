@@ -39,7 +39,7 @@ def one_bounce():
         hist=np.full(n, -1, np.int64), src=np.arange(n),
     )
     log, found = sbr._Log(), sbr._Found()
-    children = sbr._bounce(ctx, state, log, found)
+    _cast, children = sbr._bounce(ctx, state, log, found)
     return scene, tx, d, children, log
 
 
@@ -108,9 +108,11 @@ def test_bounce_power_split_is_fresnel_times_beer_lambert(one_bounce):
     np.testing.assert_allclose(refl.rad, 1e-3 * t[refl.src], rtol=1e-5)
 
 
-def test_bounce_reception_is_the_ray_tube_width():
+@pytest.mark.parametrize("events", [0, 6])
+def test_bounce_reception_is_the_ray_tube_width(events):
     """A receiver at perpendicular distance h from a ray, a distance s along it, is a candidate
-    iff h <= rad + s * ang (the tube's half-width there)."""
+    iff h <= rad + s * ang (the tube's half-width there); the same for a ray that already has
+    max_interactions events (cast only to be received: no children)."""
     phantom = half_space()
     media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -124,14 +126,41 @@ def test_bounce_reception_is_the_ray_tube_width():
     state = sbr._State(
         o=(tx - scene.center).astype(np.float32)[None, :], d=d.astype(np.float32)[None, :],
         med=np.zeros(1, np.int64), w=np.ones(1, np.float32), rad=np.full(1, rad, np.float32),
-        ang=np.full(1, ang, np.float32), length=np.zeros(1, np.float32), nint=np.zeros(1, np.int64),
+        ang=np.full(1, ang, np.float32), length=np.zeros(1, np.float32), nint=np.full(1, events, np.int64),
         hist=np.full(1, -1, np.int64), src=np.zeros(1, np.int64),
     )
     found = sbr._Found()
-    sbr._bounce(ctx, state, sbr._Log(), found)
+    cast, children = sbr._bounce(ctx, state, sbr._Log(), found)
+    assert cast == 1
+    assert (children is None) == (events == 6)
     got = np.concatenate(found.rx)
     assert got.tolist() == [0, 1]
     np.testing.assert_allclose(np.concatenate(found.close), [0.5, 0.9], rtol=1e-4)
+
+
+def test_bounce_casts_a_ray_without_children_only_if_a_receiver_is_on_its_line():
+    """A ray with max_interactions events is cast only when a receiver of its class lies within
+    its tube's width of its unbounded line; even then a receiver past the surface it hits (on
+    the line, 1 cm beyond the face) is not received. Rays with events left are always cast."""
+    phantom = half_space()
+    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    tx = np.asarray(phantom.sites["tx"].position_m, float)
+    d = np.array([0.0, -1.0, 0.0])
+    beyond = np.array([tx[0], -0.01, tx[2]])  # on the ray's line, past the plane y = 0
+    off_line = tx + 0.02 * d + np.array([0.05, 0.0, 0.0])
+    for rx, events, cast_expected in ((off_line, 6, 0), (off_line, 5, 1), (beyond, 6, 1)):
+        ctx = sbr._context(scene, media, rx[None, :], np.zeros(1, np.int64), kmax=6, dynamic_range_db=80.0)
+        state = sbr._State(
+            o=(tx - scene.center).astype(np.float32)[None, :], d=d.astype(np.float32)[None, :],
+            med=np.zeros(1, np.int64), w=np.ones(1, np.float32), rad=np.full(1, 1e-3, np.float32),
+            ang=np.full(1, 0.01, np.float32), length=np.zeros(1, np.float32), nint=np.full(1, events, np.int64),
+            hist=np.full(1, -1, np.int64), src=np.zeros(1, np.int64),
+        )
+        found = sbr._Found()
+        cast, _children = sbr._bounce(ctx, state, sbr._Log(), found)
+        assert cast == cast_expected
+        assert not found.rx
 
 
 def _sphere_faces(count: int, seed: int):
