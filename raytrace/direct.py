@@ -117,7 +117,7 @@ def refraction_walk(
         prim, tfar, bu, bv = embree.intersect(q, dq)
         segments += len(ids)
         ids, o, d, med, nint, q, dq = kernels.walk_step(
-            ids, o, d, med, nint, prim, tfar, bu, bv, exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes, *statics)
+            ids, o, d, med, nint, q, prim, tfar, bu, bv, exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes, *statics)
     return Walk(miss_m=miss, events=codes, nint=nmiss, segments=segments)
 
 

@@ -638,7 +638,7 @@ def bounce(
 
 @_kernel
 def walk_step(
-    ids, o, d, med, nint, prim, tfar, bu, bv,  # live walked rays (row r is ray ids[r]) and Embree's hits
+    ids, o, d, med, nint, q, prim, tfar, bu, bv,  # live walked rays (row r is ray ids[r]), their query, Embree's hits
     exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes,  # receivers; per-ray outputs updated in place
     face_map, face_normals, plane_d, frame, corner64, face_organ, parent, cls, n_re, offset_m, center,
     max_events,
@@ -651,8 +651,9 @@ def walk_step(
     normal, Born & Wolf 1.5) and its event is appended to its signature; it stops at total
     internal reflection, at a surface it is not in front of, or after ``max_events``.
     ``exact``: float64 re-intersection and float64 smooth normal (else Embree's float32
-    distance and barycentric normal, ~1e-8 m, enough for seeds). Returns the surviving
-    rays, compacted, and their next float32 Embree query (centred origin + spawn push)."""
+    distance, from the query origin ``q`` (centred, pushed off the surface), and barycentric
+    normal, ~1e-8 m, enough for seeds). Returns the surviving rays, compacted, and their next
+    float32 Embree query (centred origin + spawn push)."""
     n = len(ids)
     n_rx = len(rx_m)
     own = len(ray_rx) > 0
@@ -666,6 +667,8 @@ def walk_step(
         i = ids[r]
         dx, dy, dz = d[r, 0], d[r, 1], d[r, 2]
         ox, oy, oz = o[r, 0], o[r, 1], o[r, 2]
+        if not exact:  # Embree's distance is from the query's origin, pushed off the surface
+            ox, oy, oz = q[r, 0] + center[0], q[r, 1] + center[1], q[r, 2] + center[2]
         g = prim[r]
         f = face_map[g] if g >= 0 else -1
         t = np.inf

@@ -272,3 +272,31 @@ def test_every_pair_has_a_direct_path_in_the_ism_band_too(contact_torso):
                             max_interactions=1)
         missing += [(cap, p.receiver) for p in res.profiles if not any(_is_direct(q) for q in p.paths)]
     assert missing == []
+
+
+def test_seed_walk_in_float32_follows_the_same_surfaces_as_the_exact_walk(phantom):
+    """The global seed walk runs on Embree's float32 distances from the pushed-off query origin
+    (``exact=False``); it must cross the same surfaces as the float64 walk. Measured: 0 of
+    3 x 20000 launches differ; when the distance was applied from the un-pushed origin, the
+    next ray started on the surface it had just crossed and re-hit it at ~1e-9 m, cutting 1.7-5 %
+    of the walks short. Tolerance 0.1 % of launches (a ray grazing an edge may legitimately
+    split differently in float32)."""
+    from raytrace import direct
+    from raytrace.launch import fibonacci_sphere
+    from raytrace.media import MediaTable
+    from raytrace.scene import scene_for
+
+    media = MediaTable.build(phantom, np.array([402e6]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    sensors = [s.position_m for s in phantom.sites.values() if s.kind == "sensor"]
+    rx = np.array(sensors, float)
+    rx_medium = phantom.medium_index(rx)
+    launch = fibonacci_sphere(20_000)
+    capsules = [n for n, s in phantom.sites.items() if s.kind == "capsule"][:3]
+    for name in capsules:
+        tx = np.asarray(phantom.sites[name].position_m, float)
+        tx_medium = int(phantom.medium_index(tx[None])[0])
+        exact = direct.refraction_walk(scene, media, tx, tx_medium, launch, rx, rx_medium, exact=True)
+        fast = direct.refraction_walk(scene, media, tx, tx_medium, launch, rx, rx_medium, exact=False)
+        differ = int((exact.events != fast.events).any(axis=1).sum())
+        assert differ <= 0.001 * len(launch), (name, differ)
