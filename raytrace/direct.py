@@ -19,7 +19,9 @@ per receiver the closest rays with distinct launch directions;
 (derivative-free, so it cannot overshoot into total reflection the way a
 Newton step does near a critical angle) until the miss is small enough for
 :func:`raytrace.refine.refine` to converge. Every path is still made exact by
-Newton refinement; these are only seeds.
+Newton refinement; these are only seeds. The tracer's forward walk rides on the
+shooting's rays (:mod:`raytrace.sbr`); :func:`direct_seeds` itself serves the search from the
+receiver's side (:func:`reverse_seeds`).
 """
 
 from __future__ import annotations
@@ -159,12 +161,12 @@ def direct_seeds(
     budget: Budget | None = None,
 ) -> Seeds:
     """Per receiver in ``receivers``, the :data:`SEEDS_PER_RECEIVER` launch directions (of a
-    ``rays``-direction Fibonacci launch) whose refraction-only rays pass closest to it."""
+    ``rays``-direction Fibonacci launch) whose refraction-only rays pass closest to it.
+    (:func:`raytrace.sbr.shoot` does the same walk on the shooting's own rays.)"""
     receivers = np.asarray(receivers, np.int64)
     launch = fibonacci_sphere(rays)
-    min_cos = np.cos(2.0 * angular_spacing_rad(rays))
     segments = 0
-    pool: dict[int, list[tuple[float, np.ndarray, np.ndarray, int]]] = {int(r): [] for r in receivers}
+    pools: list[list] = [[] for _ in receivers]
 
     def walk(first: int) -> Walk:
         w = refraction_walk(scene, media, tx_m, tx_medium, launch[first:first + BATCH], rx_m[receivers],
@@ -179,16 +181,32 @@ def direct_seeds(
         for wave in range(0, len(firsts), WALK_THREADS):
             batch = firsts[wave:wave + WALK_THREADS]
             for first, w in zip(batch, workers.map(walk, batch)):
-                dirs = launch[first:first + BATCH]
                 segments += w.segments
-                for c, r in enumerate(receivers):
-                    top = _closest(w.miss_m[:, c], 8 * SEEDS_PER_RECEIVER)
-                    pool[int(r)].extend(zip(w.miss_m[top, c].tolist(), dirs[top], w.codes(top, c),
-                                            w.nint[top, c].tolist()))
+                for pool, offer in zip(pools, closest_launches(w.miss_m, w.nint, w.codes, launch[first:first + BATCH])):
+                    pool.extend(offer)
+    return pick_seeds(pools, receivers, rays, segments)
+
+
+def closest_launches(miss_m: np.ndarray, nint: np.ndarray, codes_of, dirs: np.ndarray) -> list[list[tuple]]:
+    """Per receiver column of one batch of walked launches (``miss_m``, ``nint``: (B, R)),
+    the ``8 * SEEDS_PER_RECEIVER`` closest as ``(miss, launch direction, signature, events)``,
+    closest first; ``codes_of(rows, column)`` gives the signatures."""
     out = []
-    for r in receivers:  # a few dozen candidates per receiver: loops over seeds, not rays
+    for c in range(miss_m.shape[1]):
+        top = _closest(miss_m[:, c], 8 * SEEDS_PER_RECEIVER)
+        out.append(list(zip(miss_m[top, c].tolist(), dirs[top], codes_of(top, c), nint[top, c].tolist())))
+    return out
+
+
+def pick_seeds(pools: list[list[tuple]], receivers: np.ndarray, rays: int, segments: int) -> Seeds:
+    """From each receiver's pool of closest launches (``receivers[j]``'s is ``pools[j]``, in
+    launch-batch order), the :data:`SEEDS_PER_RECEIVER` closest whose launch directions are
+    two launch spacings apart."""
+    min_cos = np.cos(2.0 * angular_spacing_rad(rays))
+    out = []
+    for r, pool in zip(np.asarray(receivers, np.int64), pools):  # a few dozen candidates per receiver
         kept: list[tuple] = []
-        for cand in sorted(pool[int(r)], key=lambda x: x[0]):
+        for cand in sorted(pool, key=lambda x: x[0]):
             if all(float(cand[1] @ k[1]) < min_cos for k in kept):
                 kept.append(cand)
                 if len(kept) == SEEDS_PER_RECEIVER:

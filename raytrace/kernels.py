@@ -436,10 +436,11 @@ def _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, tx, ty, 
 
 @_kernel
 def bounce(
-    o, d, med, w, rad, ang, length, nint, hist, src,  # live rays (float32 geometry in the centred frame)
+    o, d, med, w, rad, ang, length, nint, hist, src, mode,  # live rays (float32 geometry in the centred frame)
     handle,  # the Embree scene they are cast into
     face_map, face_normals32, face_organ, parent, cls, transparent, n_re, alpha, corner32, curvature32,
     need, rx_m, rx_cls, threshold, kmax, offset_m, reception_factor, curvature_margin, log_base, no_passes,
+    walk_miss, walk_n, walk_hist, src_base, walk_events,  # the refraction-only walk's records, or (0, R) arrays
 ):
     """One bounce of :func:`raytrace.sbr.shoot` for a chunk of live rays.
 
@@ -459,6 +460,17 @@ def bounce(
     half-width of its unbounded line; otherwise it is not cast at all (exact: the
     receptions are unchanged).
 
+    The refraction-only walk (:func:`raytrace.direct.refraction_walk`'s seed search) rides on
+    the same rays when ``walk_miss`` has a row per launch direction of the batch (row
+    ``src - src_base``): ``mode`` 1 marks a ray with no reflection so far, 2 a ray that only
+    the walk still follows. Every leg of a mode 1 or 2 ray in a receiver's material class
+    updates that launch's closest approach to the receiver (``walk_miss``, the segment
+    clamped to its hit, at most 1 km) with the events so far (``walk_n``) and the ray's last
+    log entry (``walk_hist``), as the walk does; a mode 1 ray's transmitted child is mode 1,
+    and where the shooting drops it (below ``threshold``, or ``kmax`` / ``need``) it carries on
+    as mode 2: refracted only, unpruned, up to ``walk_events`` events, never received or
+    split. Mode 0: not walked (or no walk).
+
     Returns the number of rays cast, the children (reflected, then transmitted, then passed, each in ray order, as
     the numpy reference did), the event-log entries of the reflected and transmitted
     children (parent entry, code, face), and the receptions (receiver, log entry, events,
@@ -474,8 +486,8 @@ def bounce(
     words, ptr = buf.view(np.uint32), buf.ctypes.data
     cast = 0
     for i in range(n):
-        if nint[i] >= kmax and no_passes and not _may_receive(rx_m, rx_cls, cls[med[i] + 1], o, d, i, rad, ang,
-                                                              reception_factor):
+        if nint[i] >= kmax and no_passes and mode[i] == 0 and not _may_receive(rx_m, rx_cls, cls[med[i] + 1], o, d,
+                                                                               i, rad, ang, reception_factor):
             prim[i], tfar[i] = -1, np.inf  # no children possible, and no receiver on its line: not cast
             continue
         prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, buf, words, ptr, o[i, 0], o[i, 1], o[i, 2],
@@ -491,7 +503,7 @@ def bounce(
     c = 0
     for r in range(n_rx):
         for i in range(n):
-            if cls[med[i] + 1] != rx_cls[r]:
+            if cls[med[i] + 1] != rx_cls[r] or mode[i] == 2:
                 continue
             reach = tfar[i] if prim[i] >= 0 else np.inf
             received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)
@@ -506,9 +518,29 @@ def bounce(
             c += 1
     c_rx, c_hist, c_n, c_src, c_close = c_rx[:c].copy(), c_hist[:c].copy(), c_n[:c].copy(), c_src[:c].copy(), \
         c_close[:c].copy()
+    walking = walk_miss.shape[0] > 0
+    if walking:
+        for i in range(n):
+            if mode[i] == 0:
+                continue
+            ray_cls = cls[med[i] + 1]
+            reach = min(np.float64(tfar[i]) if prim[i] >= 0 else np.inf, 1e3)
+            row = src[i] - src_base
+            for r in range(n_rx):
+                if rx_cls[r] != ray_cls:
+                    continue
+                vx, vy, vz = rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2]
+                tp = min(max(np.float64(vx * d[i, 0] + vy * d[i, 1] + vz * d[i, 2]), 0.0), reach)
+                ex, ey, ez = vx - tp * d[i, 0], vy - tp * d[i, 1], vz - tp * d[i, 2]
+                dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+                if dist < walk_miss[row, r]:
+                    walk_miss[row, r] = dist
+                    walk_n[row, r] = nint[i]
+                    walk_hist[row, r] = hist[i]
 
     # interactions: per-ray outcome first (0/1 reflected, 0/1 transmitted, or passed)
     kind = np.zeros(n, np.int8)  # bit 1: reflected child, bit 2: transmitted child, bit 4: passed
+    mode_t = np.zeros(n, np.int8)  # the transmitted child's mode
     pt = np.empty((n, 3), np.float32)
     dr = np.empty((n, 3), np.float32)
     dt = np.empty((n, 3), np.float32)
@@ -535,10 +567,14 @@ def bounce(
         fx, fy, fz = face_normals32[f, 0], face_normals32[f, 1], face_normals32[f, 2]
         dn = dx * fx + dy * fy + dz * fz
         leaving, organ, m_from, m_to = _sides(face_organ, parent, f, dn)
-        if cls[m_from + 1] != cls[m + 1] or not wk >= threshold:
+        if cls[m_from + 1] != cls[m + 1]:
+            continue
+        nk = nint[i]
+        shot = mode[i] < 2 and wk >= threshold  # the shooting goes on from here
+        walked = walking and mode[i] >= 1 and nk < walk_events  # the walk goes on from here
+        if not shot and not walked:
             continue
         sg = 1.0 if leaving else -1.0
-        nk = nint[i]
         radk = rad[i] + t * ang[i]
         pt[i, 0], pt[i, 1], pt[i, 2] = o[i, 0] + t * dx, o[i, 1] + t * dy, o[i, 2] + t * dz
         push[i, 0], push[i, 1], push[i, 2] = sg * offset_m * fx, sg * offset_m * fy, sg * offset_m * fz
@@ -547,13 +583,14 @@ def bounce(
         m_from_k[i] = m_from
         m_to_k[i] = m_to
         face_k[i] = f
-        if transparent[f]:
-            if nk + need[m_to + 1] <= kmax:
+        if transparent[f]:  # never with the walk (raytrace.sbr: its scene has no transparent surface)
+            if shot and nk + need[m_to + 1] <= kmax:
                 kind[i] = 4
                 w_t[i] = wk
                 n_p += 1
             continue
-        if nk >= kmax:
+        shot = shot and nk < kmax
+        if not shot and not walked:
             continue
         # smooth normal from Embree's barycentrics, the facet's if it flips
         nx, ny, nz = _smooth_normal_uv(corner32, face_normals32, f, bu[i], bv[i])
@@ -573,15 +610,21 @@ def bounce(
         wt = wk - wr
         bend = curvature_margin * curvature32[f] * radk
         code_k[i] = (organ * 2 + (1 if leaving else 0)) * 2
-        if ((rx_ * fx + ry_ * fy + rz_ * fz) * sg < 0.0 and wr >= threshold
+        if (shot and (rx_ * fx + ry_ * fy + rz_ * fz) * sg < 0.0 and wr >= threshold
                 and nk + 1 + need[m_from + 1] <= kmax):
             kind[i] |= 1
             dr[i, 0], dr[i, 1], dr[i, 2] = rx_, ry_, rz_
             w_r[i] = wr
             ang_r[i] = ang[i] + 2.0 * bend
             n_r += 1
-        if (not tir and wt >= threshold and (tx * fx + ty * fy + tz * fz) * sg > 0.0
-                and nk + 1 + need[m_to + 1] <= kmax):
+        through = not tir and (tx * fx + ty * fy + tz * fz) * sg > 0.0
+        if shot and through and wt >= threshold and nk + 1 + need[m_to + 1] <= kmax:
+            mode_t[i] = mode[i]
+        elif walked and through:
+            mode_t[i] = 2
+        else:
+            through = False
+        if through:
             kind[i] |= 2
             dt[i, 0], dt[i, 1], dt[i, 2] = tx, ty, tz
             w_t[i] = wt
@@ -600,6 +643,7 @@ def bounce(
     c_nint = np.empty(total, np.int64)
     c_hist_next = np.empty(total, np.int64)
     c_src_next = np.empty(total, np.int64)
+    c_mode = np.empty(total, np.int8)
     log_parent = np.empty(n_r + n_t, np.int32)
     log_code = np.empty(n_r + n_t, np.int32)
     log_face = np.empty(n_r + n_t, np.int32)
@@ -614,12 +658,14 @@ def bounce(
                     c_o[a, q] = pt[i, q] - push[i, q]
                     c_d[a, q] = dr[i, q]
                 c_med[a], c_w[a], c_ang[a] = m_from_k[i], w_r[i], ang_r[i]
+                c_mode[a] = 0
             else:  # transmitted / passed: on through the surface
                 for q in range(3):
                     c_o[a, q] = pt[i, q] + push[i, q]
                     c_d[a, q] = dt[i, q] if block == 1 else d[i, q]
                 c_med[a], c_w[a] = m_to_k[i], w_t[i]
                 c_ang[a] = ang_t[i] if block == 1 else ang[i]
+                c_mode[a] = mode_t[i] if block == 1 else mode[i]
             c_rad[a], c_len[a], c_src_next[a] = rad_k[i], len_k[i], src[i]
             if block < 2:
                 log_parent[a] = hist[i]
@@ -631,7 +677,7 @@ def bounce(
                 c_nint[a] = nint[i]
                 c_hist_next[a] = hist[i]
             a += 1
-    return (cast, (c_o, c_d, c_med, c_w, c_rad, c_ang, c_len, c_nint, c_hist_next, c_src_next),
+    return (cast, (c_o, c_d, c_med, c_w, c_rad, c_ang, c_len, c_nint, c_hist_next, c_src_next, c_mode),
             (log_parent, log_code, log_face),
             (c_rx, c_hist, c_n, c_src, c_close))
 
@@ -732,3 +778,4 @@ def walk_step(
             dq[a, c] = new_d[r, c]
         a += 1
     return out_ids, out_o, out_d, out_med, out_n, q, dq
+

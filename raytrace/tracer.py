@@ -65,7 +65,7 @@ from typing import Sequence
 import numpy as np
 
 from raytrace.budget import Budget
-from raytrace.direct import Seeds, direct_seeds, reverse_seeds, zoom_seeds
+from raytrace.direct import Seeds, reverse_seeds, zoom_seeds
 from raytrace.errors import InputError, InvalidGeometryError
 from raytrace.field import path_gains
 from raytrace.launch import angular_spacing_rad
@@ -166,7 +166,7 @@ def trace_channel(
     # GIL-free kernels and Embree, so they overlap (docs/tracer.md, "Performance"); the result
     # is the same as a serial run's
     cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
-                  float(dynamic_range_db), budget)
+                  float(dynamic_range_db), budget, walk=True)
     with ThreadPoolExecutor(max_workers=1) as worker:
         shot = worker.submit(_refine_shot_seeds, scene, media, tx, tx_medium, rx, cands, budget)
         # --- direct paths first: the straight line's signature (homotopy on the indices when its
@@ -189,8 +189,7 @@ def trace_channel(
         groups = [(np.arange(len(rx)), d_codes, d_n, found)]
         missing = np.flatnonzero(~found.converged)
         if len(missing):
-            walk = direct_seeds(scene, media, tx, tx_medium, rx, rx_medium, int(rays), missing, budget)
-            segments += walk.segments
+            walk = cands.direct_seeds(missing)  # the refraction-only walk rode on the shooting's rays
             ref_w = refine(scene, media, tx, tx_medium, rx[walk.receiver], walk.launch_dir, walk.codes, walk.nint,
                            budget=budget)
             segments += ref_w.segments

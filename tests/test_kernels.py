@@ -36,7 +36,7 @@ def one_bounce():
         o=np.broadcast_to((tx - scene.center).astype(np.float32), (n, 3)).copy(), d=d.astype(np.float32),
         med=np.full(n, 0, np.int64), w=np.ones(n, np.float32), rad=np.zeros(n, np.float32),
         ang=np.full(n, 1e-3, np.float32), length=np.zeros(n, np.float32), nint=np.zeros(n, np.int64),
-        hist=np.full(n, -1, np.int64), src=np.arange(n),
+        hist=np.full(n, -1, np.int64), src=np.arange(n), mode=np.zeros(n, np.int8),
     )
     log, found = sbr._Log(), sbr._Found()
     _cast, children = sbr._bounce(ctx, state, log, found)
@@ -127,7 +127,7 @@ def test_bounce_reception_is_the_ray_tube_width(events):
         o=(tx - scene.center).astype(np.float32)[None, :], d=d.astype(np.float32)[None, :],
         med=np.zeros(1, np.int64), w=np.ones(1, np.float32), rad=np.full(1, rad, np.float32),
         ang=np.full(1, ang, np.float32), length=np.zeros(1, np.float32), nint=np.full(1, events, np.int64),
-        hist=np.full(1, -1, np.int64), src=np.zeros(1, np.int64),
+        hist=np.full(1, -1, np.int64), src=np.zeros(1, np.int64), mode=np.zeros(1, np.int8),
     )
     found = sbr._Found()
     cast, children = sbr._bounce(ctx, state, sbr._Log(), found)
@@ -155,7 +155,7 @@ def test_bounce_casts_a_ray_without_children_only_if_a_receiver_is_on_its_line()
             o=(tx - scene.center).astype(np.float32)[None, :], d=d.astype(np.float32)[None, :],
             med=np.zeros(1, np.int64), w=np.ones(1, np.float32), rad=np.full(1, 1e-3, np.float32),
             ang=np.full(1, 0.01, np.float32), length=np.zeros(1, np.float32), nint=np.full(1, events, np.int64),
-            hist=np.full(1, -1, np.int64), src=np.zeros(1, np.int64),
+            hist=np.full(1, -1, np.int64), src=np.zeros(1, np.int64), mode=np.zeros(1, np.int8),
         )
         found = sbr._Found()
         cast, _children = sbr._bounce(ctx, state, sbr._Log(), found)
