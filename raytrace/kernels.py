@@ -779,3 +779,29 @@ def walk_step(
         a += 1
     return out_ids, out_o, out_d, out_med, out_n, q, dq
 
+
+@_kernel
+def spread_picks(order, starts, dirs, min_cos, per_group):
+    """Greedy thinning of candidate launches: group g is ``order[starts[g]:starts[g + 1]]``,
+    best first; a candidate is kept if the cosine between its launch direction and every
+    direction kept in its group so far is below ``min_cos``, up to ``per_group`` per group.
+    Returns the keep mask over candidates (:func:`raytrace.tracer._select_seeds`)."""
+    keep = np.zeros(len(dirs), np.bool_)
+    kept = np.empty(max(per_group, 1), np.int64)
+    for g in range(len(starts) - 1):
+        nk = 0
+        for j in range(starts[g], starts[g + 1]):
+            if nk == per_group:
+                break
+            idx = order[j]
+            spread = True
+            for q in range(nk):
+                other = kept[q]
+                if dirs[idx, 0] * dirs[other, 0] + dirs[idx, 1] * dirs[other, 1] + dirs[idx, 2] * dirs[other, 2] >= min_cos:
+                    spread = False
+                    break
+            if spread:
+                kept[nk] = idx
+                nk += 1
+                keep[idx] = True
+    return keep

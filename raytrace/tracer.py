@@ -58,12 +58,14 @@ organs are comparable to the wavelength (science.md).
 
 from __future__ import annotations
 
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numpy as np
 
+from raytrace import kernels
 from raytrace.budget import Budget
 from raytrace.direct import Seeds, reverse_seeds, zoom_seeds
 from raytrace.errors import InputError, InvalidGeometryError
@@ -84,6 +86,9 @@ from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, encode, follow,
 from raytrace.sbr import shoot
 from raytrace.scene import TracerScene, scene_for
 
+#: Threads refining the shooting's seeds (Newton is independent per seed; Embree and the
+#: kernels run without the GIL), beside the direct-path search in the request's own thread.
+NEWTON_THREADS = min(2, os.cpu_count() or 1)
 #: Receivers closer than this to the transmitter are rejected [m].
 MIN_SEPARATION_M = 1e-4
 #: Candidate seeds refined per (receiver, signature) group, at most.
@@ -161,14 +166,19 @@ def trace_channel(
     segments = 0
 
     # --- shooting and bouncing rays (every other signature) first, on both cores (its launch
-    # batches run in two threads); then the Newton refinement of its seeds runs in a worker
-    # thread while this one searches the direct paths: both spend most of their time in the
-    # GIL-free kernels and Embree, so they overlap (docs/tracer.md, "Performance"); the result
-    # is the same as a serial run's
+    # batches run in two threads; the refraction-only seed walk rides on its rays); then the
+    # Newton refinement of its seeds runs in NEWTON_THREADS worker threads while this one
+    # searches the direct paths: all spend most of their time in the GIL-free kernels and
+    # Embree, so they overlap (docs/tracer.md, "Performance"); the result is the same as a
+    # serial run's
     cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
                   float(dynamic_range_db), budget, walk=True)
-    with ThreadPoolExecutor(max_workers=1) as worker:
-        shot = worker.submit(_refine_shot_seeds, scene, media, tx, tx_medium, rx, cands, budget)
+    s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
+    with ThreadPoolExecutor(max_workers=NEWTON_THREADS) as workers:
+        # Newton is independent per seed: the shot seeds in interleaved shares, one per thread
+        shares = [np.arange(k, len(s_rx), NEWTON_THREADS) for k in range(NEWTON_THREADS)]
+        shot = [workers.submit(refine, scene, media, tx, tx_medium, rx[s_rx[i]], s_dir[i], s_codes[i], s_n[i],
+                               budget=budget) for i in shares]
         # --- direct paths first: the straight line's signature (homotopy on the indices when its
         # launch is totally reflected on the way), then, for receivers still without one,
         # refraction-only rays walked from the transmitter (their own signatures), zoomed in
@@ -218,7 +228,7 @@ def trace_channel(
                 groups.append((back.receiver, back.codes, back.nint, ref_b))
 
         # --- the shot seeds' refinement (started above, in parallel): every other signature
-        s_rx, s_codes, s_n, ref_s = shot.result()
+        ref_s = _merge_refined(shares, [f.result() for f in shot], len(s_rx))
     segments += cands.segments + ref_s.segments
     groups.append((s_rx, s_codes, s_n, ref_s))
     # --- the echo of a direct path off the receiver's own organ surface (a contact sensor's
@@ -297,12 +307,15 @@ def trace_channel(
 
 
 # ------------------------------------------------------------------ helpers
-def _refine_shot_seeds(scene, media, tx, tx_medium, rx, cands, budget):
-    """Seed selection and Newton refinement of the shooting's candidates (the worker thread's
-    share of a request): ``(seed receivers, codes, nint, Refined)``."""
-    s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
-    ref_s = refine(scene, media, tx, tx_medium, rx[s_rx], s_dir, s_codes, s_n, budget=budget)
-    return s_rx, s_codes, s_n, ref_s
+def _merge_refined(shares: list[np.ndarray], parts: list[Refined], count: int) -> Refined:
+    """One :class:`Refined` of ``count`` seeds from the refinements of its ``shares`` (index arrays)."""
+    out = Refined(dirs=np.zeros((count, 3)), converged=np.zeros(count, bool), tube_m2_per_sr=np.full(count, np.nan),
+                  segments=sum(p.segments for p in parts))
+    for rows, part in zip(shares, parts):
+        out.dirs[rows] = part.dirs
+        out.converged[rows] = part.converged
+        out.tube_m2_per_sr[rows] = part.tube_m2_per_sr
+    return out
 
 
 def _surface_echo_seeds(groups, rx_medium, max_interactions):
@@ -440,32 +453,17 @@ def _select_seeds(c):
     kept only if its launch direction is at least :data:`SEED_SEPARATION` launch spacings
     from the seeds already kept (neighbouring rays converge to the same path; distinct walls
     of one organ sharing the signature are far apart), up to :data:`SEEDS_PER_SIGNATURE`.
-    Vectorised ranking; the greedy pass loops over at most 64 candidates per group."""
+    Vectorised ranking (one stable sort by receiver, signature, closeness); the greedy pass
+    is :func:`raytrace.kernels.spread_picks`."""
     if len(c.receiver) == 0:
         return c.receiver, c.codes, c.nint, c.launch_dir
     key = np.concatenate([c.receiver[:, None], c.codes], axis=1)
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.ravel()
-    order = np.lexsort((c.closeness, group))
-    g = group[order]
-    start = np.ones(len(order), bool)
-    start[1:] = g[1:] != g[:-1]
-    rank = np.arange(len(order)) - np.maximum.accumulate(np.where(start, np.arange(len(order)), 0))
-    order = order[rank < 64]
-    g = group[order]
-    bounds = np.flatnonzero(np.r_[True, g[1:] != g[:-1], True])
+    order = np.lexsort((c.closeness, *key.T[::-1]))
+    k = key[order]
+    starts = np.flatnonzero(np.r_[True, (k[1:] != k[:-1]).any(axis=1), True])
     min_cos = np.cos(SEED_SEPARATION * np.sqrt(4.0 * np.pi / max(c.rays_launched, 1)))
-    chosen = []
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        kept = []
-        for idx in order[a:b]:
-            d = c.launch_dir[idx]
-            if all(float(d @ c.launch_dir[k]) < min_cos for k in kept):
-                kept.append(idx)
-                if len(kept) == SEEDS_PER_SIGNATURE:
-                    break
-        chosen.extend(kept)
-    chosen = np.sort(np.array(chosen, dtype=np.int64))
+    chosen = np.flatnonzero(kernels.spread_picks(order, starts, np.ascontiguousarray(c.launch_dir, float), min_cos,
+                                                 SEEDS_PER_SIGNATURE))
     return c.receiver[chosen], c.codes[chosen], c.nint[chosen], c.launch_dir[chosen]
 
 

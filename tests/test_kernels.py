@@ -311,3 +311,32 @@ def test_line_search_accepts_the_first_fraction_from_its_start_that_reduces_the_
     ok = expected >= 0
     won_launch = refine._normalize(base[ok] + fractions[expected[ok], None] * (step[ok, :1] * u[ok] + step[ok, 1:] * v[ok]))
     np.testing.assert_allclose(res.launch_dir[ok], won_launch, atol=1e-12)
+
+
+def test_spread_picks_is_the_greedy_thinning():
+    """The seed thinning kernel against the greedy loop written out in Python: per group, best
+    first, keep a launch unless it is within the separation of one already kept, up to the cap
+    per group. Random directions clustered so that all three outcomes occur (kept, too close,
+    group full)."""
+    rng = np.random.default_rng(11)
+    n = 400
+    group = np.sort(rng.integers(0, 30, n))
+    centres = rng.normal(size=(30, 3))
+    dirs = centres[group] + rng.normal(scale=0.05, size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    score = rng.random(n)
+    order = np.lexsort((score, group))
+    starts = np.flatnonzero(np.r_[True, group[order][1:] != group[order][:-1], True])
+    min_cos, cap = np.cos(0.05), 3
+    expected = np.zeros(n, bool)
+    for a, b in zip(starts[:-1], starts[1:]):
+        kept = []
+        for idx in order[a:b]:
+            if len(kept) < cap and all(dirs[idx] @ dirs[k] < min_cos for k in kept):
+                kept.append(idx)
+        expected[kept] = True
+    got = kernels.spread_picks(order, starts, dirs, min_cos, cap)
+    np.testing.assert_array_equal(got, expected)
+    kept, size = np.bincount(group[expected], minlength=30), np.bincount(group, minlength=30)
+    assert kept.max() == cap  # a full group
+    assert (kept < np.minimum(size, cap)).any()  # a group thinned by the separation
