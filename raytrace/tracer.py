@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
@@ -267,6 +268,7 @@ def trace_channel(
     keep &= _unique_paths(seed_rx[conv], seed_codes[conv], fields.delay_s, refined.dirs[conv], keep)
 
     # --- assemble profiles
+    records = _Records.stack(rec.steps, fields)
     profiles = []
     n_paths = 0
     floor = 10.0 ** (-float(dynamic_range_db) / 20.0)
@@ -277,7 +279,7 @@ def trace_channel(
             rows = rows[amp >= floor * amp.max()]
             rows = rows[np.argsort(fields.delay_s[rows], kind="stable")]
         paths = tuple(
-            _make_path(phantom, rec.steps, fields, row, tx, rx[r], int(tx_medium), band is not None) for row in rows
+            _make_path(phantom, records, fields, row, tx, rx[r], int(tx_medium), band is not None) for row in rows
         )
         n_paths += len(paths)
         profiles.append(
@@ -493,32 +495,51 @@ def _unique_paths(rx_idx, codes, delay_s, dirs, keep):
     return out
 
 
-def _make_path(phantom, steps, fields, row, tx_m, rx_m, tx_medium, band) -> Path:
+@dataclass
+class _Records:
+    """The final re-trace's step records and field flags stacked into (S, P) arrays once, so
+    each path is built from a few slices (:func:`_make_path`)."""
+
+    valid: np.ndarray  # (S, P)
+    point: np.ndarray  # (S, P, 3)
+    kind: np.ndarray
+    med_from: np.ndarray
+    med_to: np.ndarray
+    tir: np.ndarray
+
+    @classmethod
+    def stack(cls, steps, fields) -> "_Records":
+        if not steps.valid:
+            return cls(*(np.zeros((0, 0)) for _ in range(6)))
+        return cls(valid=np.array(steps.valid), point=np.array(steps.point), kind=np.array(steps.kind),
+                   med_from=np.array(steps.med_from), med_to=np.array(steps.med_to),
+                   tir=np.array(fields.reflect_tir))
+
+
+def _make_path(phantom, records: _Records, fields, row, tx_m, rx_m, tx_medium, band) -> Path:
     """Interactions and segments of one recorded path (per path, after all the vectorised work)."""
+    steps = np.flatnonzero(records.valid[:, row])
+    points = np.concatenate([np.asarray(tx_m, float)[None], records.point[steps, row], np.asarray(rx_m, float)[None]])
+    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1).tolist()
+    kinds = records.kind[steps, row].tolist()
+    med_from = records.med_from[steps, row].tolist()
+    med_to = records.med_to[steps, row].tolist()
+    tir = records.tir[steps, row].tolist()
     interactions = []
-    points = [np.asarray(tx_m, float)]
     media = []
     med = tx_medium
-    for s in range(len(steps.valid)):
-        if not steps.valid[s][row]:
-            continue
-        point = steps.point[s][row].copy()
-        kind = int(steps.kind[s][row])
-        mf, mt = int(steps.med_from[s][row]), int(steps.med_to[s][row])
+    for k, (kind, mf, mt) in enumerate(zip(kinds, med_from, med_to)):
         if kind != KIND_PASS:
             if kind == KIND_REFLECTION:
-                name = "total_internal_reflection" if fields.reflect_tir[s][row] else "reflection"
+                name = "total_internal_reflection" if tir[k] else "reflection"
             else:
                 name = "refraction"
-            interactions.append(Interaction(name, point, phantom.medium_name(mf), phantom.medium_name(mt)))
-        points.append(point)
+            interactions.append(Interaction(name, points[k + 1], phantom.medium_name(mf), phantom.medium_name(mt)))
         media.append(mf)
         med = mf if kind == KIND_REFLECTION else mt
-    points.append(np.asarray(rx_m, float))
     media.append(med)
     segments = tuple(
-        Segment(phantom.medium_name(m), float(np.linalg.norm(points[i + 1] - points[i])),
-                start_m=points[i].copy(), end_m=points[i + 1].copy())
+        Segment(phantom.medium_name(m), lengths[i], start_m=points[i], end_m=points[i + 1])
         for i, m in enumerate(media)
     )
     return Path(
