@@ -204,6 +204,18 @@ def _closed_form_last_leg(tx, d, n_muscle, reflect):
     return point, out
 
 
+def _half_space_tracing():
+    """The half-space's propagation scene, media, transmitter (position, medium) and the
+    muscle's refractive index at the test frequency."""
+    phantom = half_space()
+    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    tx = np.asarray(phantom.sites["tx"].position_m, float)
+    tx_medium = int(phantom.medium_index(tx[None])[0])
+    n_muscle = em.refractive_index(Material(tissue="muscle").complex_relative_permittivity(FREQUENCY_HZ))
+    return scene, media, tx, tx_medium, n_muscle
+
+
 @pytest.mark.parametrize("reflect", [False, True])
 def test_ray_differentials_equal_the_closed_form_derivatives_at_a_plane(reflect):
     """Derivatives of the last point and direction by the two launch angles: the kernel's
@@ -212,12 +224,7 @@ def test_ray_differentials_equal_the_closed_form_derivatives_at_a_plane(reflect)
     Tolerance 1e-7 relative to the derivative's size (the closed form's rounding / h)."""
     from raytrace import refine
 
-    phantom = half_space()
-    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
-    scene = scene_for(phantom, ~media.face_transparent)
-    tx = np.asarray(phantom.sites["tx"].position_m, float)
-    tx_medium = int(phantom.medium_index(tx[None])[0])
-    n_muscle = em.refractive_index(Material(tissue="muscle").complex_relative_permittivity(FREQUENCY_HZ))
+    scene, media, tx, tx_medium, n_muscle = _half_space_tracing()
     d = fibonacci_sphere(40_000)
     limit = 0.99 if reflect else 0.995  # inside the ~7 deg critical cone for refraction
     d = d[-d[:, 1] > limit]
@@ -270,12 +277,7 @@ def test_line_search_accepts_the_first_fraction_from_its_start_that_reduces_the_
     lie on the last legs of nearby launches, so some trials reduce the miss and some overshoot."""
     from raytrace import refine
 
-    phantom = half_space()
-    media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
-    scene = scene_for(phantom, ~media.face_transparent)
-    tx = np.asarray(phantom.sites["tx"].position_m, float)
-    tx_medium = int(phantom.medium_index(tx[None])[0])
-    n_muscle = em.refractive_index(Material(tissue="muscle").complex_relative_permittivity(FREQUENCY_HZ))
+    scene, media, tx, tx_medium, n_muscle = _half_space_tracing()
     rng = np.random.default_rng(3)
     d = fibonacci_sphere(40_000)
     base = d[-d[:, 1] > 0.997][:60]
