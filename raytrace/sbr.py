@@ -56,7 +56,8 @@ from raytrace.scene import TracerScene
 
 #: Launch directions traced together (their whole bounce tree at once).
 LAUNCH_BATCH = 50_000
-#: Safety cap on the live rays of one launch batch (highest priority kept).
+#: Safety cap on the live rays of one launch batch (highest priority kept; the walk's rays,
+#: at most one per launch, always: so it must stay above LAUNCH_BATCH).
 MAX_LIVE_RAYS = 2_000_000
 #: Launch batches shot concurrently (threads; Embree releases the GIL). Peak memory grows
 #: with it: each batch holds its own bounce tree.
@@ -241,6 +242,8 @@ def shoot(
         raise ValueError("the walk needs a scene without transparent surfaces (raytrace.scene.scene_for)")
     n_rx = len(rx_m)
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
+    if ctx.walk:
+        max_steps = max(max_steps, MAX_EVENTS + 1)  # a walked ray's generations: one per event
     spacing = angular_spacing_rad(rays)
     tx_c = (np.asarray(tx_m, float) - scene.center).astype(np.float32)
 
@@ -285,6 +288,7 @@ def shoot(
                 # safety cap: keep the rays most likely to matter, power factor over the squared
                 # reduced length sum L_i / n_i (the paraxial ray-tube spreading of layered media)
                 priority = state.w / np.maximum(state.length, 1e-4) ** 2
+                priority[state.mode > 0] = np.inf  # the walk's rays (no reflection yet): one per launch at most
                 keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
                 state = state.take(keep)
         offers = None

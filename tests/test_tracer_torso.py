@@ -334,3 +334,27 @@ def test_walk_on_the_shooting_rays_gives_the_seed_walks_seeds(phantom):
     np.testing.assert_array_equal(riding.codes, alone.codes)
     np.testing.assert_array_equal(riding.nint, alone.nint)
     np.testing.assert_allclose(riding.miss_m, alone.miss_m, rtol=1e-3)
+
+
+def test_the_live_ray_cap_never_drops_the_walks_rays(phantom, monkeypatch):
+    """Under the shooting's safety cap on live rays (forced low: 22000 for a 20000-ray launch,
+    which cuts the shot segments by more than 20 %), the walk riding on the shooting keeps
+    every one of its rays (one per launch) and gives the same seeds as without the cap
+    (ranking them by power over squared length like the others changes the seeds)."""
+    from raytrace import sbr
+    from raytrace.media import MediaTable
+    from raytrace.scene import scene_for
+
+    media = MediaTable.build(phantom, np.array([402e6]))
+    scene = scene_for(phantom, ~media.face_transparent)
+    rx = np.array([s.position_m for s in phantom.sites.values() if s.kind == "sensor"], float)
+    rx_medium = phantom.medium_index(rx)
+    tx = np.asarray(next(s for s in phantom.sites.values() if s.kind == "capsule").position_m, float)
+    tx_medium = int(phantom.medium_index(tx[None])[0])
+    free = sbr.shoot(scene, media, tx, tx_medium, rx, rx_medium, 20_000, 6, 80.0, walk=True)
+    monkeypatch.setattr(sbr, "MAX_LIVE_RAYS", 22000)
+    capped = sbr.shoot(scene, media, tx, tx_medium, rx, rx_medium, 20_000, 6, 80.0, walk=True)
+    assert capped.segments < 0.8 * free.segments  # the cap did cut
+    a, b = free.direct_seeds(np.arange(len(rx))), capped.direct_seeds(np.arange(len(rx)))
+    np.testing.assert_array_equal(a.codes, b.codes)
+    np.testing.assert_array_equal(a.launch_dir, b.launch_dir)
