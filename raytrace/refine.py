@@ -25,7 +25,7 @@ medium, d^2 at distance d). Everything is vectorised over all candidate paths.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -73,16 +73,17 @@ def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.nd
 
 @dataclass
 class Steps:
-    """Per-step records of a :func:`follow` in record mode, arrays over paths (P, ...)."""
+    """Per-step records of a :func:`follow` in record mode, arrays over steps and paths
+    (S, P, ...): ``valid[s]`` is step s of every path."""
 
-    valid: list[np.ndarray] = field(default_factory=list)  # (P,) bool
-    point: list[np.ndarray] = field(default_factory=list)  # (P, 3)
-    face: list[np.ndarray] = field(default_factory=list)  # (P,)
-    kind: list[np.ndarray] = field(default_factory=list)  # (P,) KIND_*
-    med_from: list[np.ndarray] = field(default_factory=list)  # (P,)
-    med_to: list[np.ndarray] = field(default_factory=list)  # (P,) far side of the surface
-    normal: list[np.ndarray] = field(default_factory=list)  # (P, 3) smooth outward normal
-    dir_in: list[np.ndarray] = field(default_factory=list)  # (P, 3)
+    valid: np.ndarray  # (S, P) bool
+    point: np.ndarray  # (S, P, 3)
+    face: np.ndarray  # (S, P)
+    kind: np.ndarray  # (S, P) KIND_*
+    med_from: np.ndarray  # (S, P)
+    med_to: np.ndarray  # (S, P) far side of the surface
+    normal: np.ndarray  # (S, P, 3) smooth outward normal
+    dir_in: np.ndarray  # (S, P, 3)
 
 
 @dataclass
@@ -167,7 +168,7 @@ def follow(
     segments += counted
     steps = None
     if record:
-        steps = Steps(*([rows[r] for r in range(used)] for rows in out))
+        steps = Steps(*(rows[:used] for rows in out))
     ok &= done
     if record:
         d_last = np.where(ok[:, None], d, np.nan)

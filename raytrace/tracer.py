@@ -60,7 +60,6 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
 from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
@@ -83,7 +82,7 @@ from raytrace.paths import (
     TraceStats,
 )
 from raytrace.phantom import Material, Phantom
-from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, encode, follow, refine, refine_by_continuation
+from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, Steps, encode, follow, refine, refine_by_continuation
 from raytrace.sbr import shoot
 from raytrace.scene import TracerScene, scene_for
 
@@ -268,7 +267,7 @@ def trace_channel(
     keep &= _unique_paths(seed_rx[conv], seed_codes[conv], fields.delay_s, refined.dirs[conv], keep)
 
     # --- assemble profiles
-    records = _Records.stack(rec.steps, fields)
+    tir = np.array(fields.reflect_tir, bool).reshape(rec.steps.valid.shape)  # (S, P)
     profiles = []
     n_paths = 0
     floor = 10.0 ** (-float(dynamic_range_db) / 20.0)
@@ -279,7 +278,8 @@ def trace_channel(
             rows = rows[amp >= floor * amp.max()]
             rows = rows[np.argsort(fields.delay_s[rows], kind="stable")]
         paths = tuple(
-            _make_path(phantom, records, fields, row, tx, rx[r], int(tx_medium), band is not None) for row in rows
+            _make_path(phantom, rec.steps, tir, fields, row, tx, rx[r], int(tx_medium), band is not None)
+            for row in rows
         )
         n_paths += len(paths)
         profiles.append(
@@ -495,36 +495,16 @@ def _unique_paths(rx_idx, codes, delay_s, dirs, keep):
     return out
 
 
-@dataclass
-class _Records:
-    """The final re-trace's step records and field flags stacked into (S, P) arrays once, so
-    each path is built from a few slices (:func:`_make_path`)."""
-
-    valid: np.ndarray  # (S, P)
-    point: np.ndarray  # (S, P, 3)
-    kind: np.ndarray
-    med_from: np.ndarray
-    med_to: np.ndarray
-    tir: np.ndarray
-
-    @classmethod
-    def stack(cls, steps, fields) -> "_Records":
-        if not steps.valid:
-            return cls(*(np.zeros((0, 0)) for _ in range(6)))
-        return cls(valid=np.array(steps.valid), point=np.array(steps.point), kind=np.array(steps.kind),
-                   med_from=np.array(steps.med_from), med_to=np.array(steps.med_to),
-                   tir=np.array(fields.reflect_tir))
-
-
-def _make_path(phantom, records: _Records, fields, row, tx_m, rx_m, tx_medium, band) -> Path:
-    """Interactions and segments of one recorded path (per path, after all the vectorised work)."""
+def _make_path(phantom, records: Steps, tir: np.ndarray, fields, row, tx_m, rx_m, tx_medium, band) -> Path:
+    """Interactions and segments of one recorded path (per path, after all the vectorised work):
+    a few slices of the (S, P) step records and total-reflection flags ``tir``."""
     steps = np.flatnonzero(records.valid[:, row])
     points = np.concatenate([np.asarray(tx_m, float)[None], records.point[steps, row], np.asarray(rx_m, float)[None]])
     lengths = np.linalg.norm(np.diff(points, axis=0), axis=1).tolist()
     kinds = records.kind[steps, row].tolist()
     med_from = records.med_from[steps, row].tolist()
     med_to = records.med_to[steps, row].tolist()
-    tir = records.tir[steps, row].tolist()
+    tir = tir[steps, row].tolist()
     interactions = []
     media = []
     med = tx_medium
