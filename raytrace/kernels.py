@@ -185,6 +185,15 @@ def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
 
 
 @_kernel
+def _segment_miss(vx, vy, vz, dx, dy, dz, reach):
+    """Distance from a receiver at offset (vx, vy, vz) from a leg's start to the leg (unit
+    direction d, length ``reach``): the closest point clamped to the leg (the walks' miss)."""
+    tp = min(max(vx * dx + vy * dy + vz * dz, 0.0), reach)
+    ex, ey, ez = vx - tp * dx, vy - tp * dy, vz - tp * dz
+    return math.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@_kernel
 def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
     """Whether :func:`_tube_miss` could receive ray i at some receiver of its material class
     for any segment length (the test with an unbounded segment)."""
@@ -529,10 +538,8 @@ def bounce(
             for r in range(n_rx):
                 if rx_cls[r] != ray_cls:
                     continue
-                vx, vy, vz = rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2]
-                tp = min(max(np.float64(vx * d[i, 0] + vy * d[i, 1] + vz * d[i, 2]), 0.0), reach)
-                ex, ey, ez = vx - tp * d[i, 0], vy - tp * d[i, 1], vz - tp * d[i, 2]
-                dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+                dist = _segment_miss(rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2],
+                                     d[i, 0], d[i, 1], d[i, 2], reach)
                 if dist < walk_miss[row, r]:
                     walk_miss[row, r] = dist
                     walk_n[row, r] = nint[i]
@@ -731,10 +738,7 @@ def walk_step(
             target = ray_rx[i] if own else c
             if rx_cls[target] != ray_cls:
                 continue
-            vx, vy, vz = rx_m[target, 0] - ox, rx_m[target, 1] - oy, rx_m[target, 2] - oz
-            tp = min(max(vx * dx + vy * dy + vz * dz, 0.0), reach)
-            ex, ey, ez = vx - tp * dx, vy - tp * dy, vz - tp * dz
-            dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+            dist = _segment_miss(rx_m[target, 0] - ox, rx_m[target, 1] - oy, rx_m[target, 2] - oz, dx, dy, dz, reach)
             if dist < miss[i, c]:
                 miss[i, c] = dist
                 nmiss[i, c] = nint[r]
