@@ -34,7 +34,7 @@ class Antenna:
     pattern: Literal["isotropic", "dipole"] = "isotropic"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Interaction:
     """One event along a path.
 
@@ -49,7 +49,7 @@ class Interaction:
     to_medium: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Segment:
     """A straight piece of a path inside one medium."""
 
@@ -59,7 +59,7 @@ class Segment:
     end_m: np.ndarray | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Path:
     """One propagation path from the transmitter to a receiver."""
 

@@ -266,22 +266,26 @@ def trace_channel(
     keep = rec.ok & np.isfinite(fields.gains).all(axis=1) & np.isfinite(fields.delay_s)
     keep &= _unique_paths(seed_rx[conv], seed_codes[conv], fields.delay_s, refined.dirs[conv], keep)
 
-    # --- assemble profiles
-    tir = np.array(fields.reflect_tir, bool).reshape(rec.steps.valid.shape)  # (S, P)
-    profiles = []
-    n_paths = 0
+    # --- assemble profiles: per receiver, its rows above the dynamic-range floor in delay
+    # order; then every path's objects in one pass (_make_paths)
     floor = 10.0 ** (-float(dynamic_range_db) / 20.0)
-    for r, antenna in enumerate(receivers):
+    per_rx = []
+    for r in range(len(receivers)):
         rows = np.flatnonzero(keep & (seed_rx[conv] == r))
         if len(rows):
             amp = np.abs(fields.gains[rows, 0])
             rows = rows[amp >= floor * amp.max()]
             rows = rows[np.argsort(fields.delay_s[rows], kind="stable")]
-        paths = tuple(
-            _make_path(phantom, rec.steps, tir, fields, row, tx, rx[r], int(tx_medium), band is not None)
-            for row in rows
-        )
-        n_paths += len(paths)
+        per_rx.append(rows)
+    all_rows = np.concatenate(per_rx) if per_rx else np.zeros(0, np.int64)
+    tir = np.array(fields.reflect_tir, bool).reshape(rec.steps.valid.shape)  # (S, P)
+    made = _make_paths(phantom, rec.steps, tir, fields, all_rows, tx, rx[seed_rx[conv][all_rows]], int(tx_medium),
+                       band is not None)
+    profiles = []
+    start = 0
+    for r, antenna in enumerate(receivers):
+        paths = tuple(made[start:start + len(per_rx[r])])
+        start += len(per_rx[r])
         profiles.append(
             ReceiverProfile(
                 receiver=antenna.name or f"rx{r}",
@@ -291,6 +295,7 @@ def trace_channel(
                 paths=paths,
             )
         )
+    n_paths = len(made)
     stats = TraceStats(
         rays_launched=int(cands.rays_launched),
         ray_segments_traced=int(segments),
@@ -495,41 +500,52 @@ def _unique_paths(rx_idx, codes, delay_s, dirs, keep):
     return out
 
 
-def _make_path(phantom, records: Steps, tir: np.ndarray, fields, row, tx_m, rx_m, tx_medium, band) -> Path:
-    """Interactions and segments of one recorded path (per path, after all the vectorised work):
-    a few slices of the (S, P) step records and total-reflection flags ``tir``."""
-    steps = np.flatnonzero(records.valid[:, row])
-    points = np.concatenate([np.asarray(tx_m, float)[None], records.point[steps, row], np.asarray(rx_m, float)[None]])
-    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1).tolist()
-    kinds = records.kind[steps, row].tolist()
-    med_from = records.med_from[steps, row].tolist()
-    med_to = records.med_to[steps, row].tolist()
-    tir = tir[steps, row].tolist()
-    interactions = []
-    media = []
-    med = tx_medium
-    for k, (kind, mf, mt) in enumerate(zip(kinds, med_from, med_to)):
-        if kind != KIND_PASS:
-            if kind == KIND_REFLECTION:
-                name = "total_internal_reflection" if tir[k] else "reflection"
-            else:
-                name = "refraction"
-            interactions.append(Interaction(name, points[k + 1], phantom.medium_name(mf), phantom.medium_name(mt)))
-        media.append(mf)
-        med = mf if kind == KIND_REFLECTION else mt
-    media.append(med)
-    segments = tuple(
-        Segment(phantom.medium_name(m), lengths[i], start_m=points[i], end_m=points[i + 1])
-        for i, m in enumerate(media)
-    )
-    return Path(
-        delay_s=float(fields.delay_s[row]),
-        gain=complex(fields.gains[row, 0]),
-        length_m=float(fields.length_m[row]),
-        interactions=tuple(interactions),
-        segments=segments,
-        band_gains=fields.gains[row, 1:].copy() if band else None,
-    )
+def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarray, tx_m: np.ndarray,
+                rx_m: np.ndarray, tx_medium: int, band: bool) -> list[Path]:
+    """The :class:`Path` of each recorded path ``rows`` (receiver ``rx_m[j]`` for ``rows[j]``),
+    from the (S, P) step records and total-reflection flags ``tir``. The geometry is
+    gathered for all paths at once (a path's valid steps are a prefix of its column:
+    :func:`raytrace.refine.follow` records them in order); the loop only builds the objects."""
+    n = len(rows)
+    if n == 0:
+        return []
+    valid = records.valid[:, rows]  # (S, n)
+    cnt = valid.sum(axis=0)
+    pts = np.zeros((n, valid.shape[0] + 2, 3))  # transmitter, events, receiver (then unused zeros)
+    pts[:, 0] = tx_m
+    pts[:, 1:-1] = np.where(valid[:, :, None], records.point[:, rows], 0.0).transpose(1, 0, 2)
+    pts[np.arange(n), cnt + 1] = rx_m
+    lengths = np.linalg.norm(np.diff(pts, axis=1), axis=2).tolist()
+    names = [phantom.medium_name(m) for m in range(-1, len(phantom.organs))]  # medium m at m + 1
+    kinds = records.kind[:, rows].T.tolist()
+    froms = records.med_from[:, rows].T.tolist()
+    tos = records.med_to[:, rows].T.tolist()
+    tirs = tir[:, rows].T.tolist()
+    delay_s, length_m = fields.delay_s[rows].tolist(), fields.length_m[rows].tolist()
+    gain = fields.gains[rows, 0].tolist()
+    out = []
+    for j in range(n):
+        points = pts[j]
+        interactions = []
+        media = []
+        med = tx_medium
+        for k in range(int(cnt[j])):
+            kind, mf, mt = kinds[j][k], froms[j][k], tos[j][k]
+            if kind != KIND_PASS:
+                if kind == KIND_REFLECTION:
+                    name = "total_internal_reflection" if tirs[j][k] else "reflection"
+                else:
+                    name = "refraction"
+                interactions.append(Interaction(name, points[k + 1], names[mf + 1], names[mt + 1]))
+            media.append(mf)
+            med = mf if kind == KIND_REFLECTION else mt
+        media.append(med)
+        segments = tuple(
+            Segment(names[m + 1], lengths[j][i], start_m=points[i], end_m=points[i + 1]) for i, m in enumerate(media)
+        )
+        out.append(Path(delay_s=delay_s[j], gain=gain[j], length_m=length_m[j], interactions=tuple(interactions),
+                        segments=segments, band_gains=fields.gains[rows[j], 1:].copy() if band else None))
+    return out
 
 
 def warm_up() -> float:
