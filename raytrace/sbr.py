@@ -42,7 +42,7 @@ default request this adds 14e3 casts to the shooting's 1.63e6 where the stand-al
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -228,6 +228,7 @@ def shoot(
     dynamic_range_db: float,
     budget: Budget | None = None,
     walk: bool = False,
+    pool: Executor | None = None,
 ) -> Candidates:
     """Launch ``rays`` directions, bounce them, return reception candidates (vectorised per bounce).
     ``walk``: also the refraction-only walk of :func:`raytrace.direct.direct_seeds` on the same
@@ -307,7 +308,9 @@ def shoot(
 
     firsts = list(range(0, rays, LAUNCH_BATCH))
     workers = min(SHOOT_THREADS, len(firsts))
-    if workers > 1:
+    if pool is not None:  # the caller's workers (raytrace.tracer queues other work beside)
+        batches = list(pool.map(launch_batch, firsts))
+    elif workers > 1:
         # Embree and the large numpy operations release the GIL: batches run concurrently;
         # the results are merged in batch order, so the candidates are those of a serial run
         with ThreadPoolExecutor(max_workers=workers) as pool:

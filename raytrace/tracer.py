@@ -86,9 +86,9 @@ from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, Steps, encode, 
 from raytrace.sbr import shoot
 from raytrace.scene import TracerScene, scene_for
 
-#: Threads refining the shooting's seeds (Newton is independent per seed; Embree and the
-#: kernels run without the GIL), beside the direct-path search in the request's own thread.
-NEWTON_THREADS = min(2, os.cpu_count() or 1)
+#: Worker threads of one request: the direct-path search and the shooting's launch batches,
+#: then the Newton refinement of the shooting's seeds (Embree and the kernels run without the GIL).
+THREADS = min(2, os.cpu_count() or 1)
 #: Receivers closer than this to the transmitter are rejected [m].
 MIN_SEPARATION_M = 1e-4
 #: Candidate seeds refined per (receiver, signature) group, at most.
@@ -165,37 +165,28 @@ def trace_channel(
     scene = scene_for(phantom, ~media.face_transparent)
     segments = 0
 
-    # --- shooting and bouncing rays (every other signature) first, on both cores (its launch
-    # batches run in two threads; the refraction-only seed walk rides on its rays); then the
-    # Newton refinement of its seeds runs in NEWTON_THREADS worker threads while this one
-    # searches the direct paths: all spend most of their time in the GIL-free kernels and
-    # Embree, so they overlap (docs/tracer.md, "Performance"); the result is the same as a
-    # serial run's
-    cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
-                  float(dynamic_range_db), budget, walk=True)
-    s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
-    with ThreadPoolExecutor(max_workers=NEWTON_THREADS) as workers:
+    # --- one pool of THREADS workers for the request. Its queue: first the direct-path search
+    # (it needs nothing from the shooting), then the shooting's launch batches (shooting and
+    # bouncing rays: every other signature; the refraction-only seed walk rides on its rays),
+    # so both cores stay busy until the last batch; then the Newton refinement of the shot
+    # seeds in THREADS interleaved shares, while this thread finishes the direct paths. All
+    # spend most of their time in the GIL-free kernels and Embree (docs/tracer.md,
+    # "Performance"); the result is the same as a serial run's
+    with ThreadPoolExecutor(max_workers=THREADS) as pool:
+        direct = pool.submit(_direct_paths, scene, media, tx, tx_medium, rx, budget)
+        cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
+                      float(dynamic_range_db), budget, walk=True, pool=pool)
+        s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
         # Newton is independent per seed: the shot seeds in interleaved shares, one per thread
-        shares = [np.arange(k, len(s_rx), NEWTON_THREADS) for k in range(NEWTON_THREADS)]
-        shot = [workers.submit(refine, scene, media, tx, tx_medium, rx[s_rx[i]], s_dir[i], s_codes[i], s_n[i],
-                               budget=budget) for i in shares]
-        # --- direct paths first: the straight line's signature (homotopy on the indices when its
-        # launch is totally reflected on the way), then, for receivers still without one,
-        # refraction-only rays walked from the transmitter (their own signatures), zoomed in
-        # when Newton's basin is narrower than the launch spacing (near a critical angle)
-        d_codes, d_n, seg = _straight_signatures(scene, media, tx, rx)
+        shares = [np.arange(k, len(s_rx), THREADS) for k in range(THREADS)]
+        shot = [pool.submit(refine, scene, media, tx, tx_medium, rx[s_rx[i]], s_dir[i], s_codes[i], s_n[i],
+                            budget=budget) for i in shares]
+        # --- direct paths: the straight line's signature, refined (_direct_paths); then, for
+        # receivers still without one, refraction-only rays walked from the transmitter (their
+        # own signatures), zoomed in when Newton's basin is narrower than the launch spacing
+        # (near a critical angle), and last the reverse search
+        found, d_codes, d_n, seg = direct.result()
         segments += seg
-        direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
-        found = refine(scene, media, tx, tx_medium, rx, direct_dir, d_codes, d_n, budget=budget)
-        segments += found.segments
-        retry = np.flatnonzero(~found.converged)
-        if len(retry):
-            again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], d_codes[retry], d_n[retry],
-                                           budget=budget)
-            segments += again.segments
-            found.dirs[retry] = again.dirs
-            found.converged[retry] = again.converged
-            found.tube_m2_per_sr[retry] = again.tube_m2_per_sr
         groups = [(np.arange(len(rx)), d_codes, d_n, found)]
         missing = np.flatnonzero(~found.converged)
         if len(missing):
@@ -407,6 +398,27 @@ def _validate(phantom, transmitter, receivers, frequency_hz, rays, max_interacti
                 field=f"receivers[{i}].position_m",
             )
     return tx, rx, tx_pol, rx_pol, rx_pattern.astype(str)
+
+
+def _direct_paths(scene: TracerScene, media: MediaTable, tx: np.ndarray, tx_medium: int, rx: np.ndarray,
+                  budget: Budget | None):
+    """The direct path of every receiver from its straight line's refraction-only signature,
+    refined from the straight launch; where that fails (the straight launch totally
+    reflected on the way), by homotopy on the indices (:func:`refine_by_continuation`).
+    Returns the refined paths, the signatures, their event counts and the segments cast."""
+    d_codes, d_n, segments = _straight_signatures(scene, media, tx, rx)
+    direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
+    found = refine(scene, media, tx, tx_medium, rx, direct_dir, d_codes, d_n, budget=budget)
+    segments += found.segments
+    retry = np.flatnonzero(~found.converged)
+    if len(retry):
+        again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], d_codes[retry], d_n[retry],
+                                       budget=budget)
+        segments += again.segments
+        found.dirs[retry] = again.dirs
+        found.converged[retry] = again.converged
+        found.tube_m2_per_sr[retry] = again.tube_m2_per_sr
+    return found, d_codes, d_n, segments
 
 
 def _straight_signatures(scene: TracerScene, media: MediaTable, tx: np.ndarray, rx: np.ndarray):
