@@ -8,10 +8,11 @@ threads did not help (docs/tracer.md, "Tried and dropped"). The shooting's
 bounce and the refraction-only walk were large-batch numpy, but made a dozen
 temporaries of every ray per bounce. These kernels do the same arithmetic one
 ray at a time in compiled code. :func:`follow` and :func:`bounce` call Embree
-themselves (:mod:`raytrace.embree`): Newton's re-tracing takes each ray
-through its whole signature in one call, and the shooting casts and splits a
-generation of rays in one call; Python drives only the Newton iterations and
-the generations. :func:`walk_step` still gets Embree's answers from the caller.
+themselves (:mod:`raytrace.embree`): :func:`newton` takes each seed through
+all its Newton iterations (re-tracing, Jacobian, step, line search) in one
+call, :func:`follow` each ray through its whole signature, and the shooting
+casts and splits a generation of rays in one call; Python drives only the
+shooting's generations. :func:`walk_step` still gets Embree's answers from the caller.
 
 The formulas are those of the numpy code they replaced, written per ray:
 the float64 re-intersection of :meth:`raytrace.scene.TracerScene.first_hit`,
@@ -204,6 +205,164 @@ def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
 
 
 @_kernel
+def _trace_ray(
+    i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
+    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
+    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, differentials, dp, dd,
+):
+    """Ray ``i`` of :func:`follow` traced on from its current state to its end (the per-ray
+    arrays updated in place; with ``differentials``, ``dp`` / ``dd`` carried along). Returns
+    the rays cast."""
+    n_codes = codes.shape[1]
+    s = 0
+    while ok[i] and not done[i] and s < max_steps:
+        final = k[i] >= nint[i]
+        if record and final:
+            tx, ty, tz = targets[i, 0] - o[i, 0], targets[i, 1] - o[i, 1], targets[i, 2] - o[i, 2]
+            nrm = math.sqrt(tx * tx + ty * ty + tz * tz)
+            d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+        g, t32, _u, _v = embree.intersect(
+            handle, buf, words, ptr, np.float32(ox - center[0] + push[i, 0]),
+            np.float32(oy - center[1] + push[i, 1]), np.float32(oz - center[2] + push[i, 2]),
+            np.float32(dx), np.float32(dy), np.float32(dz))
+        s += 1
+        if g < 0:
+            if record and final:
+                done[i] = True  # nothing between the last event and the target
+            else:
+                ok[i] = False
+            break
+        f = face_map[g]
+        fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        # float64 re-intersection with the hit triangle's plane from the true origin
+        t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32)
+        if record and final:
+            tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
+            if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
+                done[i] = True  # the target comes before the hit
+                break
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        leaving, organ, m_from, m_to = _sides(face_organ, parent, f, fx * dx + fy * dy + fz * dz)
+        sgn = 1.0 if leaving else -1.0
+        is_transparent = transparent[f]
+        expected = -1
+        if not final and n_codes > 0:
+            expected = codes[i, min(k[i], n_codes - 1)]
+        reflect = (expected & 1) == 1
+        event = not is_transparent and not final
+        bad = cls[m_from + 1] != cls[med[i] + 1]  # the ray is not in the medium it thinks
+        bad = bad or (not is_transparent and final)  # a real surface blocks the last leg
+        code = (organ * 2 + (1 if leaving else 0)) * 2 + (1 if reflect else 0)
+        bad = bad or (event and code != expected)
+        if bad:
+            ok[i] = False
+            break
+        nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
+        ndx, ndy, ndz = dx, dy, dz
+        pfac = sgn
+        if is_transparent or not reflect:
+            new_med = m_to
+        else:
+            new_med = m_from
+        if event and reflect:
+            dn = dx * nx + dy * ny + dz * nz
+            ndx, ndy, ndz = dx - 2.0 * dn * nx, dy - 2.0 * dn * ny, dz - 2.0 * dn * nz
+            pfac = -sgn
+            if (ndx * fx + ndy * fy + ndz * fz) * sgn >= 0.0:
+                ok[i] = False  # the smooth normal sent the reflection through the facet
+                break
+        elif event:
+            tir, ndx, ndy, ndz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
+            if tir or (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
+                ok[i] = False  # total internal reflection, or refracted back through the facet
+                break
+        if differentials:
+            grad = _ZERO_GRADIENT
+            if event:
+                grad = _smooth_normal_gradient(frame, face_normals, f, px, py, pz)
+            _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, ndx, ndy, ndz, event, reflect,
+                                 n_re[m_from + 1] / n_re[m_to + 1], grad)
+        o[i, 0], o[i, 1], o[i, 2] = px, py, pz
+        d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
+        med[i] = new_med
+        push[i, 0], push[i, 1], push[i, 2] = pfac * fx * offset_m, pfac * fy * offset_m, pfac * fz * offset_m
+        if event:
+            k[i] += 1
+        if not record:
+            done[i] = k[i] >= nint[i]
+        elif s <= rec_valid.shape[0]:  # record mode (a counting pass has no rows)
+            r = s - 1
+            rec_valid[r, i] = True
+            rec_point[r, i, 0], rec_point[r, i, 1], rec_point[r, i, 2] = px, py, pz
+            rec_face[r, i] = f
+            rec_kind[r, i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
+            rec_from[r, i] = m_from
+            rec_to[r, i] = m_to
+            rec_normal[r, i, 0], rec_normal[r, i, 1], rec_normal[r, i, 2] = nx, ny, nz
+            rec_dir[r, i, 0], rec_dir[r, i, 1], rec_dir[r, i, 2] = dx, dy, dz
+    return s
+
+
+@_kernel
+def _trial_launch(out, i, lam, bx, by, bz, s0, s1):
+    """A line-search trial launch into ``out[i]``: ``normalize(b + lam (s0 u + s1 v))`` with
+    ``u, v`` the :func:`_tangents` of ``b``."""
+    bux, buy, buz, bvx, bvy, bvz = _tangents(bx, by, bz)
+    a_, b_ = lam * s0, lam * s1
+    lx, ly, lz = bx + a_ * bux + b_ * bvx, by + a_ * buy + b_ * bvy, bz + a_ * buz + b_ * bvz
+    nrm = math.sqrt(lx * lx + ly * ly + lz * lz)
+    out[i, 0], out[i, 1], out[i, 2] = lx / nrm, ly / nrm, lz / nrm
+
+
+@_kernel
+def _restart(i, sx, sy, sz, s_med, o, d, med, push, k, nint, ok, done, dp, dd):
+    """Ray ``i`` back at its start point along ``d[i]``, with the launch differentials along
+    the :func:`_tangents` of ``d[i]`` and none of the point."""
+    o[i, 0], o[i, 1], o[i, 2], med[i] = sx, sy, sz, s_med
+    push[i, 0] = push[i, 1] = push[i, 2] = 0.0
+    k[i] = 0
+    ok[i] = True
+    done[i] = nint[i] == 0
+    ux, uy, uz, vx, vy, vz = _tangents(d[i, 0], d[i, 1], d[i, 2])
+    dd[0, 0], dd[0, 1], dd[0, 2], dd[1, 0], dd[1, 1], dd[1, 2] = ux, uy, uz, vx, vy, vz
+    for c in range(2):
+        for q in range(3):
+            dp[c, q] = 0.0
+
+
+@_kernel
+def _line_search(
+    i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
+    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
+    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, differentials, dp, dd,
+    fractions, first, bx, by, bz, s0, s1, rx, ry, rz, old_miss,
+):
+    """Newton's backtracking for ray ``i`` from its current start point and medium: the trial
+    launches (:func:`_trial_launch`) of ``fractions[first:]`` in turn, each traced with its
+    differentials, until one's last leg passes the receiver closer than ``old_miss``
+    (:func:`_miss`). Returns (that fraction's index or -1, rays cast, most steps of a trial);
+    the ray's state and ``dp`` / ``dd`` are the last trial's trace."""
+    sx, sy, sz, s_med = o[i, 0], o[i, 1], o[i, 2], med[i]
+    cast = 0
+    steps = 0
+    for trial in range(first, len(fractions)):
+        _trial_launch(d, i, fractions[trial], bx, by, bz, s0, s1)
+        _restart(i, sx, sy, sz, s_med, o, d, med, push, k, nint, ok, done, dp, dd)
+        s = _trace_ray(
+            i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes,
+            targets, record, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent,
+            n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,
+            differentials, dp, dd)
+        cast += s
+        steps = max(steps, s)
+        if ok[i] and done[i] and _miss(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], rx, ry, rz) < old_miss:
+            return trial, cast, steps
+    return -1, cast, steps
+
+
+@_kernel
 def follow(
     handle, center, max_steps,  # Embree scene, its centring offset, the step cap per ray
     o, d, med, push, k, nint, ok, done, codes, targets, record,  # per-ray state, updated in place
@@ -231,8 +390,8 @@ def follow(
     d(D.N)) N + (s cos_t - eta D.N) dN`` with ``dcos_t = eta^2 (D.N) d(D.N) / cos_t``; ``dN``
     from :func:`_smooth_normal_gradient`.
 
-    Line-search mode (``fractions`` not empty; Newton's backtracking in
-    :func:`raytrace.refine.refine`): ray i is launched from its start along
+    Line-search mode (``fractions`` not empty; one step of :func:`newton`'s backtracking,
+    the same :func:`_line_search`): ray i is launched from its start along
     ``normalize(base_dir + f (step_0 u + step_1 v))`` (``u, v`` the tangents of ``base_dir``)
     for each fraction f in turn from index ``won[i]`` on (in: where to start), with
     differentials along the trial's own tangents, until its last leg passes the receiver
@@ -244,140 +403,139 @@ def follow(
     dd = np.zeros((2, 3))
     buf = embree.ray_buffer()
     words, ptr = buf.view(np.uint32), buf.ctypes.data
-    n_codes = codes.shape[1]
     segments = 0
     steps = 0
     for i in range(len(ok)):
-        o0x, o0y, o0z, med0 = o[i, 0], o[i, 1], o[i, 2], med[i]
-        first = 0
         if line_search:
             first = won[i]
-            won[i] = -1
-            bx, by, bz = base_dir[i, 0], base_dir[i, 1], base_dir[i, 2]
-            bux, buy, buz, bvx, bvy, bvz = _tangents(bx, by, bz)
-        for trial in range(first, max(len(fractions), 1)):
-            if line_search:  # the trial launch, from the ray's start, and its tangents
-                lam = fractions[trial]
-                a_, b_ = lam * step[i, 0], lam * step[i, 1]
-                lx, ly, lz = bx + a_ * bux + b_ * bvx, by + a_ * buy + b_ * bvy, bz + a_ * buz + b_ * bvz
-                nrm = math.sqrt(lx * lx + ly * ly + lz * lz)
-                d[i, 0], d[i, 1], d[i, 2] = lx / nrm, ly / nrm, lz / nrm
-                trial_dir[i, 0], trial_dir[i, 1], trial_dir[i, 2] = d[i, 0], d[i, 1], d[i, 2]
-                o[i, 0], o[i, 1], o[i, 2], med[i] = o0x, o0y, o0z, med0
-                push[i, 0] = push[i, 1] = push[i, 2] = 0.0
-                k[i] = 0
-                ok[i] = True
-                done[i] = nint[i] == 0
-                ux, uy, uz, vx, vy, vz = _tangents(d[i, 0], d[i, 1], d[i, 2])
-                dd[0, 0], dd[0, 1], dd[0, 2], dd[1, 0], dd[1, 1], dd[1, 2] = ux, uy, uz, vx, vy, vz
-            elif differentials:
+            won[i], cast, s = _line_search(
+                i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes,
+                targets, record, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent,
+                n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,
+                differentials, dp, dd,
+                fractions, first, base_dir[i, 0], base_dir[i, 1], base_dir[i, 2], step[i, 0], step[i, 1],
+                rx[i, 0], rx[i, 1], rx[i, 2], old_miss[i])
+            last = won[i] if won[i] >= 0 else len(fractions) - 1  # the accepted, else the last, trial
+            if first < len(fractions):
+                _trial_launch(trial_dir, i, fractions[last], base_dir[i, 0], base_dir[i, 1], base_dir[i, 2],
+                              step[i, 0], step[i, 1])
+        else:
+            if differentials:
                 for c in range(2):
                     for q in range(3):
                         dd[c, q] = launch_d[i, c, q]
-            for c in range(2):
-                for q in range(3):
-                    dp[c, q] = 0.0
-            s = 0
-            while ok[i] and not done[i] and s < max_steps:
-                final = k[i] >= nint[i]
-                if record and final:
-                    tx, ty, tz = targets[i, 0] - o[i, 0], targets[i, 1] - o[i, 1], targets[i, 2] - o[i, 2]
-                    nrm = math.sqrt(tx * tx + ty * ty + tz * tz)
-                    d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
-                dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-                ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
-                g, t32, _u, _v = embree.intersect(
-                    handle, buf, words, ptr, np.float32(ox - center[0] + push[i, 0]),
-                    np.float32(oy - center[1] + push[i, 1]), np.float32(oz - center[2] + push[i, 2]),
-                    np.float32(dx), np.float32(dy), np.float32(dz))
-                s += 1
-                if g < 0:
-                    if record and final:
-                        done[i] = True  # nothing between the last event and the target
-                    else:
-                        ok[i] = False
-                    break
-                f = face_map[g]
-                fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
-                # float64 re-intersection with the hit triangle's plane from the true origin
-                t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32)
-                if record and final:
-                    tx, ty, tz = targets[i, 0] - ox, targets[i, 1] - oy, targets[i, 2] - oz
-                    if t >= math.sqrt(tx * tx + ty * ty + tz * tz):
-                        done[i] = True  # the target comes before the hit
-                        break
-                px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-                leaving, organ, m_from, m_to = _sides(face_organ, parent, f, fx * dx + fy * dy + fz * dz)
-                sgn = 1.0 if leaving else -1.0
-                is_transparent = transparent[f]
-                expected = -1
-                if not final and n_codes > 0:
-                    expected = codes[i, min(k[i], n_codes - 1)]
-                reflect = (expected & 1) == 1
-                event = not is_transparent and not final
-                bad = cls[m_from + 1] != cls[med[i] + 1]  # the ray is not in the medium it thinks
-                bad = bad or (not is_transparent and final)  # a real surface blocks the last leg
-                code = (organ * 2 + (1 if leaving else 0)) * 2 + (1 if reflect else 0)
-                bad = bad or (event and code != expected)
-                if bad:
-                    ok[i] = False
-                    break
-                nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
-                ndx, ndy, ndz = dx, dy, dz
-                pfac = sgn
-                if is_transparent or not reflect:
-                    new_med = m_to
-                else:
-                    new_med = m_from
-                if event and reflect:
-                    dn = dx * nx + dy * ny + dz * nz
-                    ndx, ndy, ndz = dx - 2.0 * dn * nx, dy - 2.0 * dn * ny, dz - 2.0 * dn * nz
-                    pfac = -sgn
-                    if (ndx * fx + ndy * fy + ndz * fz) * sgn >= 0.0:
-                        ok[i] = False  # the smooth normal sent the reflection through the facet
-                        break
-                elif event:
-                    tir, ndx, ndy, ndz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
-                    if tir or (ndx * fx + ndy * fy + ndz * fz) * sgn <= 0.0:
-                        ok[i] = False  # total internal reflection, or refracted back through the facet
-                        break
-                if differentials:
-                    grad = _ZERO_GRADIENT
-                    if event:
-                        grad = _smooth_normal_gradient(frame, face_normals, f, px, py, pz)
-                    _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, ndx, ndy, ndz, event, reflect,
-                                         n_re[m_from + 1] / n_re[m_to + 1], grad)
-                o[i, 0], o[i, 1], o[i, 2] = px, py, pz
-                d[i, 0], d[i, 1], d[i, 2] = ndx, ndy, ndz
-                med[i] = new_med
-                push[i, 0], push[i, 1], push[i, 2] = pfac * fx * offset_m, pfac * fy * offset_m, pfac * fz * offset_m
-                if event:
-                    k[i] += 1
-                if not record:
-                    done[i] = k[i] >= nint[i]
-                elif s <= rec_valid.shape[0]:  # record mode (a counting pass has no rows)
-                    r = s - 1
-                    rec_valid[r, i] = True
-                    rec_point[r, i, 0], rec_point[r, i, 1], rec_point[r, i, 2] = px, py, pz
-                    rec_face[r, i] = f
-                    rec_kind[r, i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
-                    rec_from[r, i] = m_from
-                    rec_to[r, i] = m_to
-                    rec_normal[r, i, 0], rec_normal[r, i, 1], rec_normal[r, i, 2] = nx, ny, nz
-                    rec_dir[r, i, 0], rec_dir[r, i, 1], rec_dir[r, i, 2] = dx, dy, dz
-            segments += s
-            steps = max(steps, s)
-            if line_search and ok[i] and done[i]:
-                miss = _miss(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], rx[i, 0], rx[i, 1], rx[i, 2])
-                if miss < old_miss[i]:
-                    won[i] = trial
-                    break
+                        dp[c, q] = 0.0
+            cast = s = _trace_ray(
+                i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes,
+                targets, record, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent,
+                n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,
+                differentials, dp, dd)
+        segments += cast
+        steps = max(steps, s)
         if differentials:
             for c in range(2):
                 for q in range(3):
                     d_point[i, c, q] = dp[c, q]
                     d_dir[i, c, q] = dd[c, q]
     return segments, steps
+
+
+@_kernel
+def newton(
+    handle, center, max_steps, tx, tx_med,  # Embree scene, its centring offset, the step cap; the transmitter
+    dirs, codes, nint, rx, converged, tube,  # per seed: launch (in: start, out: last accepted), signature, receiver
+    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
+    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # (0, 0) record arrays
+    fractions, max_iterations, tolerance_m, max_step_rad, stall_window, stall_factor, growth,
+):
+    """:func:`raytrace.refine.refine`'s Newton iteration, one seed at a time to its end: trace
+    the launch with its ray differentials (:func:`follow`); the residual is where the last leg
+    crosses the plane through the receiver normal to it, in that plane's :func:`_tangents`
+    basis, and the Jacobian the same offset's derivatives by the two launch angles
+    (``x = L + tau D - rx``, ``tau = (rx - L).D``: ``dx = dL - (dL.D) D + tau dD``); converged
+    when the miss is below ``tolerance_m`` (``tube`` = ``|det J|``, the ray-tube area per
+    steradian); otherwise the step ``-J^-1 r``, at most ``max_step_rad``, backtracked over
+    ``fractions`` from ``growth`` halvings above the last accepted one (:func:`_line_search`).
+    A seed fails when its trace leaves the signature, its Jacobian is singular, no trial
+    reduces the miss, or the miss is not below ``stall_factor`` times its value
+    ``stall_window`` iterations earlier. Returns the rays cast."""
+    p = len(dirs)
+    o = np.empty((p, 3))
+    d = np.empty((p, 3))
+    med = np.empty(p, np.int64)
+    push = np.empty((p, 3))
+    k = np.empty(p, np.int64)
+    ok = np.empty(p, np.bool_)
+    done = np.empty(p, np.bool_)
+    targets = np.empty((0, 3))
+    dp = np.zeros((2, 3))
+    dd = np.zeros((2, 3))
+    history = np.empty(max_iterations)
+    jac = np.empty((2, 2))
+    buf = embree.ray_buffer()
+    words, ptr = buf.view(np.uint32), buf.ctypes.data
+    segments = 0
+    for i in range(p):
+        converged[i] = False
+        tube[i] = np.nan
+        d[i, 0], d[i, 1], d[i, 2] = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        _restart(i, tx[0], tx[1], tx[2], tx_med, o, d, med, push, k, nint, ok, done, dp, dd)
+        segments += _trace_ray(i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done,
+                               codes, targets, False, face_map, face_normals, plane_d, frame, face_organ, parent,
+                               cls, transparent, n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from,
+                               rec_to, rec_normal, rec_dir, True, dp, dd)
+        accepted = 0
+        for it in range(max_iterations):
+            if not (ok[i] and done[i]):
+                break  # the trace left its signature
+            lx, ly, lz, dx, dy, dz = o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2]
+            wx, wy, wz = rx[i, 0] - lx, rx[i, 1] - ly, rx[i, 2] - lz
+            e1x, e1y, e1z, e2x, e2y, e2z = _tangents(dx, dy, dz)
+            denom = dx * dx + dy * dy + dz * dz
+            tau = (wx * dx + wy * dy + wz * dz) / denom
+            xx, xy, xz = lx + tau * dx - rx[i, 0], ly + tau * dy - rx[i, 1], lz + tau * dz - rx[i, 2]
+            r0 = xx * e1x + xy * e1y + xz * e1z
+            r1 = xx * e2x + xy * e2y + xz * e2z
+            if not (denom > 1e-6 and tau > 0.0 and math.isfinite(r0) and math.isfinite(r1)):
+                break
+            tau_j = wx * dx + wy * dy + wz * dz
+            for c in range(2):
+                dtau = -(dp[c, 0] * dx + dp[c, 1] * dy + dp[c, 2] * dz)
+                qx = dp[c, 0] + dtau * dx + tau_j * dd[c, 0]
+                qy = dp[c, 1] + dtau * dy + tau_j * dd[c, 1]
+                qz = dp[c, 2] + dtau * dz + tau_j * dd[c, 2]
+                jac[0, c] = qx * e1x + qy * e1y + qz * e1z
+                jac[1, c] = qx * e2x + qy * e2y + qz * e2z
+            det = jac[0, 0] * jac[1, 1] - jac[0, 1] * jac[1, 0]
+            if not (math.isfinite(det) and abs(det) > 0.0):
+                break
+            miss = math.sqrt(r0 * r0 + r1 * r1)
+            if miss < tolerance_m:
+                converged[i] = True
+                tube[i] = abs(det)
+                break
+            history[it] = miss
+            if it >= stall_window and not miss < stall_factor * history[it - stall_window]:
+                break
+            i00, i01, i10, i11 = jac[1, 1] / det, -jac[0, 1] / det, -jac[1, 0] / det, jac[0, 0] / det
+            s0 = -(i00 * r0 + i01 * r1)
+            s1 = -(i10 * r0 + i11 * r1)
+            norm = math.sqrt(s0 * s0 + s1 * s1)
+            scale = min(1.0, max_step_rad / max(norm, 1e-300))
+            s0, s1 = s0 * scale, s1 * scale
+            bx, by, bz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+            o[i, 0], o[i, 1], o[i, 2], med[i] = tx[0], tx[1], tx[2], tx_med
+            won, cast, _steps = _line_search(
+                i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets,
+                False, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
+                rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, True, dp, dd,
+                fractions, max(accepted - growth, 0), bx, by, bz, s0, s1, rx[i, 0], rx[i, 1], rx[i, 2], miss)
+            segments += cast
+            if won < 0:
+                break
+            _trial_launch(dirs, i, fractions[won], bx, by, bz, s0, s1)
+            accepted = won
+    return segments
 
 
 @_kernel
@@ -394,7 +552,7 @@ def _tangents(dx, dy, dz):
 @_kernel
 def _miss(px, py, pz, dx, dy, dz, rx, ry, rz):
     """Distance from the receiver to a last leg (point, unit direction) if it lies ahead of it
-    (:func:`raytrace.refine._landing`'s offset, in the plane normal to the leg), else inf."""
+    (the Newton residual's offset, in the plane normal to the leg), else inf."""
     wx, wy, wz = rx - px, ry - py, rz - pz
     tau = wx * dx + wy * dy + wz * dz
     if not tau > 0.0:

@@ -20,7 +20,9 @@ is automatically satisfied since every vertex obeys Snell / reflection. The
 same Jacobian is the ray tube:
 ``|det J|`` is the tube cross-section at the receiver per unit launch solid
 angle [m^2/sr], i.e. the geometric spreading (1 m^2/sr at 1 m in a homogeneous
-medium, d^2 at distance d). Everything is vectorised over all candidate paths.
+medium, d^2 at distance d). Both run in compiled kernels (:mod:`raytrace.kernels`),
+one ray or seed at a time to its end; Newton's iterations run in the kernel too
+(:func:`raytrace.kernels.newton`), so Python only splits the seeds into chunks.
 """
 
 from __future__ import annotations
@@ -60,6 +62,8 @@ LINE_SEARCH_HALVINGS = 10
 #: torso, almost all on seeds that fail. Seeds in their basin accept the full step and are
 #: unaffected.
 LINE_SEARCH_GROWTH = 1
+#: Seeds per call of the Newton kernel: the work budget is charged between calls.
+NEWTON_CHUNK = 128
 #: Step fractions of the backtracking line search, tried in this order per seed (in the compiled
 #: trace, one seed at a time, stopping at the first that reduces the miss: only the rays needed
 #: are cast; batches of fractions traced together cast 0.62e6 segments on 2225 torso seeds where
@@ -125,7 +129,9 @@ def follow(
     ``line_search = (fractions, step, rx_m, old_miss_m, first)``: ``dirs`` are Newton's base
     directions, and each ray tries the steps ``fractions[first:] * step`` in turn until one
     brings its last leg closer to its receiver than ``old_miss_m`` (differentials included;
-    see the kernel's line-search mode).
+    see the kernel's line-search mode). These two modes run the per-ray steps of
+    :func:`refine`'s kernel (:func:`raytrace.kernels.newton`) on their own, so that each can be
+    checked against closed forms (tests/test_kernels.py).
     """
     p = len(dirs)
     record = targets_m is not None
@@ -202,18 +208,6 @@ def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, v
 
 
-def _landing(res: FollowResult, rx: np.ndarray, d_base: np.ndarray, e1: np.ndarray, e2: np.ndarray):
-    """Where each last leg crosses the plane through the receiver normal to ``d_base``."""
-    d = res.last_dir
-    denom = np.einsum("ij,ij->i", d, d_base)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tau = np.einsum("ij,ij->i", rx - res.last_point, d_base) / denom
-    x = res.last_point + tau[:, None] * d - rx
-    r = np.stack([np.einsum("ij,ij->i", x, e1), np.einsum("ij,ij->i", x, e2)], axis=1)
-    ok = res.ok & (denom > 1e-6) & (tau > 0.0) & np.isfinite(r).all(axis=1)
-    return r, ok
-
-
 def _normalize(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
@@ -287,99 +281,35 @@ def refine(
     last leg, of where the last leg crosses that plane. Jacobian: the same
     offset's derivatives with respect to tilting the launch along two
     orthonormal tangents, from the ray differentials the trace carries
-    (:func:`follow` with ``tangents``), so the Jacobian determinant is the
+    (as :func:`follow` with ``tangents``), so the Jacobian determinant is the
     ray-tube area per steradian. Steps are limited to :data:`MAX_STEP_RAD` and
-    backtracked (halved) until the miss decreases.
+    backtracked (halved, :data:`LINE_SEARCH_GROWTH`) until the miss decreases;
+    seeds that stall (:data:`STALL_WINDOW`) are given up. Each seed is iterated
+    to its end in :func:`raytrace.kernels.newton`, :data:`NEWTON_CHUNK` seeds per
+    call (the budget is charged between calls).
     """
     p = len(dirs0)
     dirs = _normalize(np.asarray(dirs0, float).copy())
     converged = np.zeros(p, bool)
-    failed = np.zeros(p, bool)
     tube = np.full(p, np.nan)
     segments = 0
-    # the last trace of dirs[i] with its differentials: the first launch's, then the accepted
-    # line-search trial's (a seed whose line search fails is given up, so every active seed has one)
-    cache_ok = np.zeros(p, bool)
-    cache_point = np.zeros((p, 3))
-    cache_dir = np.zeros((p, 3))
-    cache_dpoint = np.zeros((p, 2, 3))
-    cache_ddir = np.zeros((p, 2, 3))
-
-    def run(sel, dd, line_search=None):
-        nonlocal segments
-        res = follow(scene, media, tx_m, tx_medium, dd, codes[sel], nint[sel],
-                     tangents=None if line_search else tangent_basis(dd), line_search=line_search)
-        segments += res.segments
+    if p == 0:
+        return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=0)
+    codes = np.ascontiguousarray(codes, dtype=np.int64)
+    nint = np.ascontiguousarray(nint, dtype=np.int64)
+    rx_m = np.ascontiguousarray(rx_m, dtype=float)
+    tables = scene.kernel_tables
+    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
+               *media.kernel_tables, scene.offset_m, *_new_step_records(0, 0))
+    max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
+    tx = np.asarray(tx_m, dtype=float)
+    for a in range(0, p, NEWTON_CHUNK):  # the budget is charged (and checked) between chunks
+        part = slice(a, a + NEWTON_CHUNK)
+        cast = kernels.newton(scene.embree.handle, scene.center, max_steps, tx, int(tx_medium), dirs[part],
+                              codes[part], nint[part], rx_m[part], converged[part], tube[part], *statics,
+                              _LINE_SEARCH_FRACTIONS, MAX_ITERATIONS, MISS_TOLERANCE_M, MAX_STEP_RAD, STALL_WINDOW,
+                              STALL_FACTOR, LINE_SEARCH_GROWTH)
+        segments += cast
         if budget is not None:
-            budget.charge(res.segments)
-        return res
-
-    def keep(rows, res, picked):
-        cache_ok[rows] = res.ok[picked]
-        cache_point[rows] = res.last_point[picked]
-        cache_dir[rows] = res.last_dir[picked]
-        cache_dpoint[rows] = res.d_point[picked]
-        cache_ddir[rows] = res.d_dir[picked]
-
-    if p:
-        keep(slice(None), run(np.arange(p), dirs), slice(None))
-    history = np.full((MAX_ITERATIONS, p), np.inf)  # miss per iteration
-    accepted = np.zeros(p, np.int64)  # index of each seed's last accepted step fraction
-    for it in range(MAX_ITERATIONS):
-        act = np.flatnonzero(~converged & ~failed)
-        if len(act) == 0:
-            break
-        d0 = dirs[act]
-        rx = rx_m[act]
-        base = FollowResult(ok=cache_ok[act], last_point=cache_point[act], last_dir=cache_dir[act],
-                            last_med=np.zeros(len(act), np.int64), segments=0)
-        db = np.where(base.ok[:, None], base.last_dir, np.array([0.0, 0.0, 1.0]))
-        e1, e2 = tangent_basis(db)
-        r0, ok0 = _landing(base, rx, db, e1, e2)
-        jac = _landing_jacobian(base, cache_dpoint[act], cache_ddir[act], rx, e1, e2)  # (n, 2, 2)
-        det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-        good = ok0 & np.isfinite(det) & (np.abs(det) > 0.0)
-        miss = np.linalg.norm(r0, axis=1)
-        conv = good & (miss < MISS_TOLERANCE_M)
-        converged[act[conv]] = True
-        tube[act[conv]] = np.abs(det[conv])
-        history[it, act] = miss
-        if it >= STALL_WINDOW:
-            good &= conv | (miss < STALL_FACTOR * history[it - STALL_WINDOW, act])
-        failed[act[~good]] = True
-        todo = good & ~conv
-        if not todo.any():
-            continue
-        jt = jac[todo]
-        dt = det[todo]
-        inv = np.stack([np.stack([jt[:, 1, 1], -jt[:, 0, 1]], 1), np.stack([-jt[:, 1, 0], jt[:, 0, 0]], 1)], 1) / dt[:, None, None]
-        step = -np.einsum("nij,nj->ni", inv, r0[todo])
-        norm = np.linalg.norm(step, axis=1)
-        step *= np.minimum(1.0, MAX_STEP_RAD / np.maximum(norm, 1e-300))[:, None]
-        sel = act[todo]
-        base_dir = d0[todo]
-        old = miss[todo]
-        # backtracking: step fractions tried in turn per seed (in the kernel) until the miss
-        # decreases, from twice the last accepted one (LINE_SEARCH_GROWTH); the accepted trial's
-        # trace, with its differentials, is the next base ray
-        first = np.maximum(accepted[sel] - LINE_SEARCH_GROWTH, 0)
-        res = run(sel, base_dir, line_search=(_LINE_SEARCH_FRACTIONS, step, rx_m[sel], old, first))
-        won = res.won >= 0
-        dirs[sel[won]] = res.launch_dir[won]
-        accepted[sel[won]] = res.won[won]
-        keep(sel[won], res, won)
-        failed[sel[~won]] = True
+            budget.charge(cast)
     return Refined(dirs=dirs, converged=converged, tube_m2_per_sr=tube, segments=segments)
-
-
-def _landing_jacobian(base: FollowResult, d_point: np.ndarray, d_dir: np.ndarray, rx: np.ndarray,
-                      e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
-    """(n, 2, 2) derivatives of :func:`_landing`'s offset (in the fixed plane through the
-    receiver normal to the base ray's last leg ``D``) by the two launch angles: the crossing
-    ``x = L + tau D' - rx`` with ``tau = (rx - L).D / (D'.D)`` gives, at ``D' = D`` (unit, so
-    ``dD.D = 0``), ``dtau = -dL.D`` and ``dx = dL + dtau D + tau dD``."""
-    d = base.last_dir
-    tau = np.einsum("ij,ij->i", rx - base.last_point, d)
-    dtau = -np.einsum("icj,ij->ic", d_point, d)
-    dx = d_point + dtau[:, :, None] * d[:, None, :] + tau[:, None, None] * d_dir  # (n, 2, 3): per angle
-    return np.stack([np.einsum("icj,ij->ic", dx, e1), np.einsum("icj,ij->ic", dx, e2)], axis=1)
