@@ -9,6 +9,7 @@ peak RSS and the RSS before tracing.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import resource
 import sys
@@ -53,6 +54,7 @@ def main() -> None:
     before_mb = peak_rss_mb()
     kwargs = dict(rays=a.rays, max_interactions=a.interactions)
     trace_channel(phantom, tx, rx[:1], a.frequency, rays=1000, max_interactions=1)  # warm the scene
+    gc.freeze()  # as the service does after start-up (bench/__main__.py)
     t0 = time.perf_counter()
     result = trace_channel(phantom, tx, rx, a.frequency, **kwargs)
     trace_s = time.perf_counter() - t0
