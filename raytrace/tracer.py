@@ -499,25 +499,16 @@ def _unique_paths(rx_idx, codes, delay_s, dirs, keep):
     delay (within :data:`DUPLICATE_DELAY_S`) and launch direction (within
     :data:`DUPLICATE_ANGLE_RAD`): seeds from neighbouring rays converge to the same
     exact path, while symmetric walls of one organ give distinct paths with equal delays.
-    (A loop over converged paths, a few hundred at most, never over rays.)"""
-    out = np.zeros(len(rx_idx), bool)
+    Rows in order, each against the rows already kept in its group
+    (:func:`raytrace.kernels.first_of_duplicates`)."""
     rows = np.flatnonzero(keep)
     if len(rows) == 0:
-        return out
+        return np.zeros(len(rx_idx), bool)
     key = np.concatenate([rx_idx[rows, None], codes[rows]], axis=1)
     _, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.ravel()
-    kept: dict[int, list[int]] = {}
-    for row, g in zip(rows, group):
-        same = [
-            k for k in kept.get(int(g), [])
-            if abs(delay_s[k] - delay_s[row]) <= DUPLICATE_DELAY_S
-            and np.linalg.norm(dirs[k] - dirs[row]) <= DUPLICATE_ANGLE_RAD
-        ]
-        if not same:
-            kept.setdefault(int(g), []).append(int(row))
-            out[row] = True
-    return out
+    return kernels.first_of_duplicates(rows, np.ascontiguousarray(group.ravel(), np.int64), len(rx_idx),
+                                       np.ascontiguousarray(delay_s, float), np.ascontiguousarray(dirs, float),
+                                       DUPLICATE_DELAY_S, DUPLICATE_ANGLE_RAD)
 
 
 def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarray, tx_m: np.ndarray,
