@@ -18,7 +18,7 @@ COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
 # The warm-up compiles the tracer's numba kernels into the image, so a container's start does
-# not pay the ~12 s compile. numba only uses a cache directory it can write to: the cache is
+# not pay the ~17 s compile. numba only uses a cache directory it can write to: the cache is
 # handed to the service's user.
 RUN pip install --no-cache-dir . \
     && python -c "from raytrace.tracer import warm_up; warm_up()" \

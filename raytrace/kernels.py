@@ -25,7 +25,7 @@ every oracle of docs/tracer.md.
 
 ``cache=True``: the machine code is cached on disk (beside this file, or in
 ``NUMBA_CACHE_DIR`` / the user's cache directory when this one is read-only),
-so only the first process after an install compiles (~5 s);
+so only the first process after an install compiles (~17 s);
 :func:`raytrace.tracer.warm_up` does it ahead of the first request. Embree is
 called by symbol name, so the cached code stays valid in a new process.
 """

@@ -562,7 +562,7 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
 def warm_up() -> float:
     """Compile the tracer's numba kernels (:mod:`raytrace.kernels`), or load them from numba's
     on-disk cache, before the first request needs them: one small trace of the half-space
-    scenario runs every kernel with the argument types of a real trace (~12 s to compile
+    scenario runs every kernel with the argument types of a real trace (~17 s to compile
     after an install, ~0.2 s from the cache). Returns the seconds it took."""
     from raytrace.scenarios import half_space
 
