@@ -145,10 +145,7 @@ def follow(
     ok = np.ones(p, dtype=bool)
     done = np.zeros(p, dtype=bool) if record else (nint == 0)
     targets = np.ascontiguousarray(targets_m, dtype=float) if record else np.zeros((0, 3))
-    max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
-    tables = scene.kernel_tables
-    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
-               *media.kernel_tables, scene.offset_m)
+    max_steps, statics = _trace_inputs(scene, media, nint)
     out = _new_step_records(0, 0)
     counted = 0
     if record:
@@ -184,6 +181,16 @@ def follow(
     return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps,
                         d_point=d_point if with_differentials else None, d_dir=d_dir if with_differentials else None,
                         won=search[5] if searched else None, launch_dir=search[6] if searched else None)
+
+
+def _trace_inputs(scene: TracerScene, media: MediaTable, nint: np.ndarray) -> tuple[int, tuple]:
+    """The step cap per ray (events, the passes through transparent surfaces, and a margin)
+    and the per-face and per-medium tables that :func:`raytrace.kernels.follow` and
+    :func:`raytrace.kernels.newton` take."""
+    max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
+    tables = scene.kernel_tables
+    return max_steps, (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
+                       *media.kernel_tables, scene.offset_m)
 
 
 _NO_DIFFERENTIALS = (np.zeros((0, 2, 3)), np.zeros((0, 2, 3)), np.zeros((0, 2, 3)))
@@ -298,10 +305,8 @@ def refine(
     codes = np.ascontiguousarray(codes, dtype=np.int64)
     nint = np.ascontiguousarray(nint, dtype=np.int64)
     rx_m = np.ascontiguousarray(rx_m, dtype=float)
-    tables = scene.kernel_tables
-    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
-               *media.kernel_tables, scene.offset_m, *_new_step_records(0, 0))
-    max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
+    max_steps, statics = _trace_inputs(scene, media, nint)
+    statics = (*statics, *_new_step_records(0, 0))
     tx = np.asarray(tx_m, dtype=float)
     for a in range(0, p, NEWTON_CHUNK):  # the budget is charged (and checked) between chunks
         part = slice(a, a + NEWTON_CHUNK)
