@@ -337,14 +337,13 @@ def _line_search(
     i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
     face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
     rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, differentials, dp, dd,
-    fractions, first, bx, by, bz, s0, s1, rx, ry, rz, old_miss,
+    sx, sy, sz, s_med, fractions, first, bx, by, bz, s0, s1, rx, ry, rz, old_miss,
 ):
-    """Newton's backtracking for ray ``i`` from its current start point and medium: the trial
-    launches (:func:`_trial_launch`) of ``fractions[first:]`` in turn, each traced with its
-    differentials, until one's last leg passes the receiver closer than ``old_miss``
-    (:func:`_miss`). Returns (that fraction's index or -1, rays cast, most steps of a trial);
-    the ray's state and ``dp`` / ``dd`` are the last trial's trace."""
-    sx, sy, sz, s_med = o[i, 0], o[i, 1], o[i, 2], med[i]
+    """Newton's backtracking for ray ``i`` from the start point ``(sx, sy, sz)`` in medium
+    ``s_med``: the trial launches (:func:`_trial_launch`) of ``fractions[first:]`` in turn, each
+    traced with its differentials, until one's last leg passes the receiver closer than
+    ``old_miss`` (:func:`_miss`). Returns (that fraction's index or -1, rays cast, most steps
+    of a trial); the ray's state and ``dp`` / ``dd`` are the last trial's trace."""
     cast = 0
     steps = 0
     for trial in range(first, len(fractions)):
@@ -412,7 +411,7 @@ def follow(
                 i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes,
                 targets, record, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent,
                 n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,
-                differentials, dp, dd,
+                differentials, dp, dd, o[i, 0], o[i, 1], o[i, 2], med[i],
                 fractions, first, base_dir[i, 0], base_dir[i, 1], base_dir[i, 2], step[i, 0], step[i, 1],
                 rx[i, 0], rx[i, 1], rx[i, 2], old_miss[i])
             last = won[i] if won[i] >= 0 else len(fractions) - 1  # the accepted, else the last, trial
@@ -524,11 +523,11 @@ def newton(
             scale = min(1.0, max_step_rad / max(norm, 1e-300))
             s0, s1 = s0 * scale, s1 * scale
             bx, by, bz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-            o[i, 0], o[i, 1], o[i, 2], med[i] = tx[0], tx[1], tx[2], tx_med
             won, cast, _steps = _line_search(
                 i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets,
                 False, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
                 rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, True, dp, dd,
+                tx[0], tx[1], tx[2], tx_med,
                 fractions, max(accepted - growth, 0), bx, by, bz, s0, s1, rx[i, 0], rx[i, 1], rx[i, 2], miss)
             segments += cast
             if won < 0:
