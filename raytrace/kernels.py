@@ -42,6 +42,13 @@ from raytrace import embree
 #: Every kernel: compiled once and cached on disk, without the GIL, and with numpy's float
 #: semantics (a division by zero gives inf / nan, as in the numpy reference, never an exception).
 _kernel = njit(cache=True, nogil=True, error_model="numpy")
+#: Every per-ray helper the kernels call: the same, without numba's reference counting
+#: (``_nrt=False``, as numba's own hot helpers in numba/cpython/unicode.py). A helper only
+#: borrows the arrays its caller holds and allocates none; with the runtime on, each call
+#: did an atomic incref and decref of every array argument on entry and exit, which the
+#: optimiser cannot remove across a call that is not inlined: ~40 % of Newton's time
+#: (``_trace_ray`` and ``_line_search`` take ~35 arrays each).
+_helper = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 
 KIND_REFRACTION = 0
 _ZERO_GRADIENT = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -49,7 +56,7 @@ KIND_REFLECTION = 1
 KIND_PASS = 2
 
 
-@_kernel
+@_helper
 def _smooth_normal(frame, face_normals, f, x, y, z):
     """Smooth unit normal at point (x, y, z) of face f: barycentrics from the face's frame row,
     clipped to [0, 1], corner normals interpolated; the facet normal if the result degenerates
@@ -78,7 +85,7 @@ def _smooth_normal(frame, face_normals, f, x, y, z):
     return nx, ny, nz
 
 
-@_kernel
+@_helper
 def _smooth_normal_gradient(frame, face_normals, f, x, y, z):
     """What the differential of :func:`_smooth_normal` at point (x, y, z) of face f needs:
     the barycentrics are affine in the point, ``dv = gv.dP``, ``dw = gw.dP``, so the
@@ -105,7 +112,7 @@ def _smooth_normal_gradient(frame, face_normals, f, x, y, z):
             1.0 / norm)
 
 
-@_kernel
+@_helper
 def _smooth_normal_uv(corner, face_normals, f, bu, bv):
     """Smooth unit normal of face f from Embree's barycentrics ``(u, v)``:
     ``n0 + u (n1 - n0) + v (n2 - n0)`` over the face's corner-table row, normalised; the facet
@@ -122,7 +129,7 @@ def _smooth_normal_uv(corner, face_normals, f, bu, bv):
     return nx, ny, nz
 
 
-@_kernel
+@_helper
 def _sides(face_organ, parent, f, d_dot_n):
     """Which side of face f a ray with ``d . n_facet = d_dot_n`` crosses: ``(leaving, organ,
     m_from, m_to)``; leaving its organ into the parent when the direction is along the outward
@@ -133,7 +140,7 @@ def _sides(face_organ, parent, f, d_dot_n):
     return leaving, organ, (organ if leaving else par), (par if leaving else organ)
 
 
-@_kernel
+@_helper
 def _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32):
     """Float64 distance along the unit direction from the true origin to face f's plane
     (``(n.v0 - n.o) / (n.d)``, clamped at 0), Embree's float32 ``t32`` if the ray is parallel."""
@@ -146,7 +153,7 @@ def _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32):
     return np.float64(t32)
 
 
-@_kernel
+@_helper
 def _refract(dx, dy, dz, nx, ny, nz, eta):
     """Vector Snell law (Born & Wolf 1.5): ``t = eta (d - ci nf) + ct nf`` with ``nf`` the normal
     oriented along ``d``, ``eta = Re n1 / Re n2``. Returns ``(tir, tx, ty, tz, ci, ct)``;
@@ -170,7 +177,7 @@ def _grow(a, size):
     return out
 
 
-@_kernel
+@_helper
 def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
     """Whether ray i's segment (length ``reach``) passes receiver r within the ray tube's
     half-width ``reception_factor * (rad + s * ang)`` at the closest point, ``s`` along the ray;
@@ -185,7 +192,7 @@ def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
     return perp <= radius, perp, radius
 
 
-@_kernel
+@_helper
 def _segment_miss(vx, vy, vz, dx, dy, dz, reach):
     """Distance from a receiver at offset (vx, vy, vz) from a leg's start to the leg (unit
     direction d, length ``reach``): the closest point clamped to the leg (the walks' miss)."""
@@ -194,7 +201,7 @@ def _segment_miss(vx, vy, vz, dx, dy, dz, reach):
     return math.sqrt(ex * ex + ey * ey + ez * ez)
 
 
-@_kernel
+@_helper
 def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
     """Whether :func:`_tube_miss` could receive ray i at some receiver of its material class
     for any segment length (the test with an unbounded segment)."""
@@ -204,7 +211,7 @@ def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
     return False
 
 
-@_kernel
+@_helper
 def _trace_ray(
     i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
     face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
@@ -305,7 +312,7 @@ def _trace_ray(
     return s
 
 
-@_kernel
+@_helper
 def _trial_launch(out, i, lam, bx, by, bz, s0, s1):
     """A line-search trial launch into ``out[i]``: ``normalize(b + lam (s0 u + s1 v))`` with
     ``u, v`` the :func:`_tangents` of ``b``."""
@@ -316,7 +323,7 @@ def _trial_launch(out, i, lam, bx, by, bz, s0, s1):
     out[i, 0], out[i, 1], out[i, 2] = lx / nrm, ly / nrm, lz / nrm
 
 
-@_kernel
+@_helper
 def _restart(i, sx, sy, sz, s_med, o, d, med, push, k, nint, ok, done, dp, dd):
     """Ray ``i`` back at its start point along ``d[i]``, with the launch differentials along
     the :func:`_tangents` of ``d[i]`` and none of the point."""
@@ -332,7 +339,7 @@ def _restart(i, sx, sy, sz, s_med, o, d, med, push, k, nint, ok, done, dp, dd):
             dp[c, q] = 0.0
 
 
-@_kernel
+@_helper
 def _line_search(
     i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
     face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
@@ -537,7 +544,7 @@ def newton(
     return segments
 
 
-@_kernel
+@_helper
 def _tangents(dx, dy, dz):
     """:func:`raytrace.refine.tangent_basis` of one unit direction: ``u = d x r / |d x r|``
     with ``r`` the x axis (the y axis when ``|d_x| >= 0.9``), ``v = d x u``."""
@@ -548,7 +555,7 @@ def _tangents(dx, dy, dz):
     return ux, uy, uz, dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
 
 
-@_kernel
+@_helper
 def _miss(px, py, pz, dx, dy, dz, rx, ry, rz):
     """Distance from the receiver to a last leg (point, unit direction) if it lies ahead of it
     (the Newton residual's offset, in the plane normal to the leg), else inf."""
@@ -560,7 +567,7 @@ def _miss(px, py, pz, dx, dy, dz, rx, ry, rz):
     return math.sqrt(ex * ex + ey * ey + ez * ez)
 
 
-@_kernel
+@_helper
 def _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, tx, ty, tz, event, reflect, eta, grad):
     """Carry both ray differentials (rows of ``dp``, ``dd``) across one step of :func:`follow`:
     transfer to the hit facet's plane, then the event's law about the smooth normal (formulas
