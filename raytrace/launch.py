@@ -13,9 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 
-def fibonacci_sphere(count: int) -> np.ndarray:
-    """(count, 3) unit vectors spread near-uniformly over the sphere."""
-    i = np.arange(count, dtype=float)
+def fibonacci_sphere(count: int, rows: np.ndarray | None = None) -> np.ndarray:
+    """(count, 3) unit vectors spread near-uniformly over the sphere; with ``rows`` (indices),
+    only those rows of them: each depends on its index alone, so a launch batch, or the
+    candidates of a shooting, compute their own rows (the same numbers) instead of all ``count``."""
+    i = np.arange(count, dtype=float) if rows is None else np.asarray(rows, dtype=float)
     z = 1.0 - (2.0 * i + 1.0) / count
     r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
     phi = i * np.pi * (3.0 - np.sqrt(5.0))

@@ -241,7 +241,6 @@ def shoot(
     """
     kmax = int(max_interactions)
     width = max(kmax, 1)
-    launch = fibonacci_sphere(rays)
     ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db, walk)
     if ctx.walk and not ctx.no_passes:
         raise ValueError("the walk needs a scene without transparent surfaces (raytrace.scene.scene_for)")
@@ -256,10 +255,11 @@ def shoot(
         # the whole bounce tree of one batch of launch directions: bounds memory without
         # culling branches; batches are independent (own event log and candidates)
         count = min(LAUNCH_BATCH, rays - first)
+        launch = fibonacci_sphere(rays, np.arange(first, first + count))
         log, found, segments = _Log(), _Found(), 0
         state = _State(
             o=np.broadcast_to(tx_c, (count, 3)).copy(),
-            d=launch[first:first + count].astype(np.float32),
+            d=launch.astype(np.float32),
             med=np.full(count, tx_medium, np.int64),
             w=np.ones(count, np.float32),
             rad=np.zeros(count, np.float32),
@@ -302,7 +302,7 @@ def shoot(
             entries = _log_arrays(log)
             offers = closest_launches(miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c],
                                                                               MAX_EVENTS)[0],
-                                      launch[first:first + count])
+                                      launch)
         _resolve(found, log, width)  # signatures of this batch's candidates; the log is freed
         return found, segments, offers
 
@@ -339,7 +339,7 @@ def shoot(
         codes=np.concatenate(found.codes),
         faces=np.concatenate(found.faces),
         nint=np.concatenate(found.n),
-        launch_dir=launch[np.concatenate(found.src)],
+        launch_dir=fibonacci_sphere(rays, np.concatenate(found.src)),
         closeness=np.concatenate(found.close),
         rays_launched=rays,
         segments=segments,

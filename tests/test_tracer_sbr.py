@@ -95,6 +95,23 @@ def test_concurrent_launch_batches_give_the_serial_candidates(phantom, monkeypat
         np.testing.assert_array_equal(getattr(serial, name), getattr(threaded, name), err_msg=name)
 
 
+def test_launch_rows_are_those_of_the_whole_fibonacci_sphere():
+    """A launch batch computes its own rows of the sphere (raytrace.launch): bit for bit the
+    rows of the whole launch, and the closed form z_i = 1 - (2 i + 1) / N, azimuth i times the
+    golden angle pi (3 - sqrt 5) (Gonzalez 2010), to rounding."""
+    from raytrace.launch import fibonacci_sphere
+
+    n = 20_000
+    whole = fibonacci_sphere(n)
+    rows = np.array([0, 1, 7_000, 7_001, 13_999, n - 1])
+    np.testing.assert_array_equal(fibonacci_sphere(n, rows), whole[rows])
+    np.testing.assert_array_equal(fibonacci_sphere(n, np.arange(7_000, 14_000)), whole[7_000:14_000])
+    z = 1.0 - (2.0 * rows + 1.0) / n
+    phi = rows * np.pi * (3.0 - np.sqrt(5.0))
+    expected = np.stack([np.sqrt(1.0 - z * z) * np.cos(phi), np.sqrt(1.0 - z * z) * np.sin(phi), z], axis=1)
+    np.testing.assert_allclose(whole[rows], expected, rtol=0, atol=1e-12)  # float64 rounding of cos / sin
+
+
 def test_face_curvature_is_one_over_the_radius_on_a_sphere_and_zero_on_flat_faces():
     """The shooting widens its tubes by the facet curvature (raytrace.sbr module doc). Oracle:
     closed forms. On an icosphere of radius R, corner normals are radial, so the angle between
