@@ -976,22 +976,22 @@ def spread_picks(order, starts, dirs, min_cos, per_group):
 
 
 @_kernel
-def first_of_duplicates(rows, group, n, delay_s, dirs, max_delay_s, max_angle):
-    """Mask (length ``n``) of the ``rows`` kept, in order: a row is dropped when a row kept
-    before it in the same ``group`` has a delay within ``max_delay_s`` and a launch
-    direction within ``max_angle`` (Euclidean distance of the unit vectors) of its own.
-    :func:`raytrace.tracer._unique_paths`'s greedy pass; each group's kept rows are a
-    linked list."""
+def first_of_duplicates(group, dirs, max_angle):
+    """Mask of the rows kept, in order: a row is dropped when a row kept before it in the
+    same ``group`` has a launch direction within ``max_angle`` (Euclidean distance of the
+    unit vectors) of its own. :func:`raytrace.tracer._unique_paths`'s greedy pass; each
+    group's kept rows are a linked list."""
+    n = len(group)
     out = np.zeros(n, np.bool_)
-    head = np.full(int(group.max()) + 1 if len(group) else 0, -1, np.int64)
+    head = np.full(int(group.max()) + 1 if n else 0, -1, np.int64)
     nxt = np.full(n, -1, np.int64)
-    for j in range(len(rows)):
-        row, g = rows[j], group[j]
+    for row in range(n):
+        g = group[row]
         k = head[g]
         same = False
         while k >= 0:
             ex, ey, ez = dirs[k, 0] - dirs[row, 0], dirs[k, 1] - dirs[row, 1], dirs[k, 2] - dirs[row, 2]
-            if abs(delay_s[k] - delay_s[row]) <= max_delay_s and math.sqrt(ex * ex + ey * ey + ez * ez) <= max_angle:
+            if math.sqrt(ex * ex + ey * ey + ez * ez) <= max_angle:
                 same = True
                 break
             k = nxt[k]
