@@ -524,25 +524,29 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
     pts[:, 0] = tx_m
     pts[:, 1:-1] = np.where(valid[:, :, None], records.point[:, rows], 0.0).transpose(1, 0, 2)
     pts[np.arange(n), cnt + 1] = rx_m
-    lengths = np.linalg.norm(np.diff(pts, axis=1), axis=2).tolist()
     names = [phantom.medium_name(m) for m in range(-1, len(phantom.organs))]  # medium m at m + 1
-    kinds = records.kind[:, rows].T.tolist()
-    froms = records.med_from[:, rows].T.tolist()
-    tos = records.med_to[:, rows].T.tolist()
-    tirs = tir[:, rows].T.tolist()
+    # flat lists, path after path: its cnt steps, and its cnt + 1 segments
+    mine = valid.T
+    kinds, froms, tos, tirs = (a[:, rows].T[mine].tolist() for a in (records.kind, records.med_from,
+                                                                       records.med_to, tir))
+    ends = np.arange(valid.shape[0] + 1) <= cnt[:, None]
+    lengths = np.linalg.norm(np.diff(pts, axis=1), axis=2)[ends].tolist()
+    first = np.concatenate([[0], np.cumsum(cnt)]).tolist()  # path j's first step; its first segment: + j
     delay_s, length_m = fields.delay_s[rows].tolist(), fields.length_m[rows].tolist()
     gain = fields.gains[rows, 0].tolist()
     out = []
     for j in range(n):
-        points = pts[j]
+        steps = int(cnt[j])
+        points = list(pts[j, :steps + 2])  # one view per point, shared by the objects that end there
         interactions = []
         media = []
         med = tx_medium
-        for k in range(int(cnt[j])):
-            kind, mf, mt = kinds[j][k], froms[j][k], tos[j][k]
+        e = first[j]
+        for k in range(steps):
+            kind, mf, mt = kinds[e + k], froms[e + k], tos[e + k]
             if kind != KIND_PASS:
                 if kind == KIND_REFLECTION:
-                    name = "total_internal_reflection" if tirs[j][k] else "reflection"
+                    name = "total_internal_reflection" if tirs[e + k] else "reflection"
                 else:
                     name = "refraction"
                 interactions.append(Interaction(name, points[k + 1], names[mf + 1], names[mt + 1]))
@@ -550,7 +554,7 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
             med = mf if kind == KIND_REFLECTION else mt
         media.append(med)
         segments = tuple(
-            Segment(names[m + 1], lengths[j][i], start_m=points[i], end_m=points[i + 1]) for i, m in enumerate(media)
+            Segment(names[m + 1], lengths[e + j + i], start_m=points[i], end_m=points[i + 1]) for i, m in enumerate(media)
         )
         out.append(Path(delay_s=delay_s[j], gain=gain[j], length_m=length_m[j], interactions=tuple(interactions),
                         segments=segments, band_gains=fields.gains[rows[j], 1:].copy() if band else None))
