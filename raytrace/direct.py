@@ -190,12 +190,14 @@ def direct_seeds(
 def closest_launches(miss_m: np.ndarray, nint: np.ndarray, codes_of, dirs: np.ndarray) -> list[list[tuple]]:
     """Per receiver column of one batch of walked launches (``miss_m``, ``nint``: (B, R)),
     the ``8 * SEEDS_PER_RECEIVER`` closest as ``(miss, launch direction, signature, events)``,
-    closest first; ``codes_of(rows, column)`` gives the signatures."""
-    out = []
-    for c in range(miss_m.shape[1]):
-        top = _closest(miss_m[:, c], 8 * SEEDS_PER_RECEIVER)
-        out.append(list(zip(miss_m[top, c].tolist(), dirs[top], codes_of(top, c), nint[top, c].tolist())))
-    return out
+    closest first; ``codes_of(rows, columns)`` gives the signatures (one call for all columns)."""
+    tops = [_closest(miss_m[:, c], 8 * SEEDS_PER_RECEIVER) for c in range(miss_m.shape[1])]
+    rows = np.concatenate(tops) if tops else np.zeros(0, np.int64)
+    cols = np.repeat(np.arange(len(tops)), [len(t) for t in tops])
+    codes, launch = codes_of(rows, cols), dirs[rows]
+    miss, events = miss_m[rows, cols].tolist(), nint[rows, cols].tolist()
+    ends = np.cumsum([len(t) for t in tops]).tolist()
+    return [list(zip(miss[a:b], launch[a:b], codes[a:b], events[a:b])) for a, b in zip([0] + ends, ends)]
 
 
 def pick_seeds(pools: list[list[tuple]], receivers: np.ndarray, rays: int, segments: int) -> Seeds:

@@ -297,13 +297,13 @@ def shoot(
                 keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
                 state = state.take(keep)
         offers = None
+        entries = _log_arrays(log)
         if ctx.walk:
             miss, n_ev, last, _first = records
-            entries = _log_arrays(log)
             offers = closest_launches(miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c],
                                                                               MAX_EVENTS)[0],
                                       launch)
-        _resolve(found, log, width)  # signatures of this batch's candidates; the log is freed
+        _resolve(found, log, entries, width)  # signatures of this batch's candidates; the log is freed
         return found, segments, offers
 
     firsts = list(range(0, rays, LAUNCH_BATCH))
@@ -405,13 +405,13 @@ def _signatures(log: tuple, last: np.ndarray, n: np.ndarray, width: int) -> tupl
     return codes, faces
 
 
-def _resolve(found: _Found, log: _Log, width: int) -> None:
+def _resolve(found: _Found, log: _Log, entries: tuple, width: int) -> None:
     """Rebuild the signatures (codes, faces) of the candidates found since the last call
-    (:func:`_signatures`), then empty the log."""
+    (:func:`_signatures`, from the log's :func:`_log_arrays` ``entries``), then empty the log."""
     new = slice(len(found.codes), len(found.hist))
     hist = found.hist[new]
     if hist:
-        codes, faces = _signatures(_log_arrays(log), np.concatenate(hist), np.concatenate(found.n[new]), width)
+        codes, faces = _signatures(entries, np.concatenate(hist), np.concatenate(found.n[new]), width)
         # one resolved block per found block, so later batches index consistently
         sizes = [len(x) for x in hist]
         cuts = np.cumsum(sizes)[:-1]
