@@ -385,3 +385,17 @@ def test_spread_picks_is_the_greedy_thinning():
     kept, size = np.bincount(group[expected], minlength=30), np.bincount(group, minlength=30)
     assert kept.max() == cap  # a full group
     assert (kept < np.minimum(size, cap)).any()  # a group thinned by the separation
+
+
+def test_per_ray_helpers_borrow_their_arrays_without_reference_counting():
+    """Every private helper the kernels call (all but ``_grow``, which allocates) is compiled
+    with numba's reference counting off: with it on, each call of ``_trace_ray`` or
+    ``_line_search`` did an atomic incref and decref of ~35 array arguments, 40 % of Newton's
+    time (raytrace/kernels.py, ``_helper``). Only the compile options are checked here; the
+    helpers' arithmetic is checked against closed forms above."""
+    from numba.core.registry import CPUDispatcher
+
+    helpers = {name: d for name, d in vars(kernels).items() if isinstance(d, CPUDispatcher) and name.startswith("_")}
+    assert {"_trace_ray", "_line_search", "_smooth_normal", "_carry_differentials", "_tube_miss"} <= set(helpers)
+    counting = sorted(name for name, d in helpers.items() if d.targetoptions.get("_nrt") is not False)
+    assert counting == ["_grow"]
