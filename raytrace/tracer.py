@@ -525,10 +525,10 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
     pts[:, 1:-1] = np.where(valid[:, :, None], records.point[:, rows], 0.0).transpose(1, 0, 2)
     pts[np.arange(n), cnt + 1] = rx_m
     names = [phantom.medium_name(m) for m in range(-1, len(phantom.organs))]  # medium m at m + 1
-    # flat lists, path after path: its cnt steps, and its cnt + 1 segments
-    mine = valid.T
-    kinds, froms, tos, tirs = (a[:, rows].T[mine].tolist() for a in (records.kind, records.med_from,
-                                                                       records.med_to, tir))
+    # flat lists, path after path: its cnt valid steps (a prefix of its row), then its cnt + 1 segments
+    has_step = valid.T  # (n, S)
+    kinds, froms, tos, tirs = (a[:, rows].T[has_step].tolist() for a in (records.kind, records.med_from,
+                                                                           records.med_to, tir))
     ends = np.arange(valid.shape[0] + 1) <= cnt[:, None]
     lengths = np.linalg.norm(np.diff(pts, axis=1), axis=2)[ends].tolist()
     first = np.concatenate([[0], np.cumsum(cnt)]).tolist()  # path j's first step; its first segment: + j
