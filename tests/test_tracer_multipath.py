@@ -147,6 +147,25 @@ def test_symmetric_walls_of_one_organ_give_two_distinct_paths():
         assert abs(p.delay_s - n * length / C) < 1e-13
 
 
+def test_duplicate_filter_keeps_distinct_paths_with_nearby_launches():
+    """A narrow box: the reflections off its +y and -y walls share signature and delay, and
+    their launches are only 0.2 rad apart (image method: atan(0.04 / 0.4) either side of
+    the axis). Both must be kept, once each: a duplicate filter merging launches 0.2 rad
+    apart drops them (raytrace.tracer.DUPLICATE_ANGLE_RAD is 1e-6). A filter that merges
+    nothing fails test_reciprocity_lossless_planar_layers (duplicated paths)."""
+    outer = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
+    inner = trimesh.creation.box(extents=[0.6, 0.04, 0.3])
+    ph = Phantom.build("narrow", [Organ("out", lossless(5.0), outer), Organ("in", lossless(40.0), inner)])
+    tx = Antenna(np.array([-0.2, 0.0, 0.01]))
+    rx = Antenna(np.array([0.2, 0.0, 0.01]))
+    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    walls = [p for p in res.profiles[0].paths
+             if len(p.interactions) == 1 and abs(abs(p.interactions[0].point_m[1]) - 0.02) < 1e-9]
+    assert sorted(np.sign(p.interactions[0].point_m[1]) for p in walls) == [-1.0, 1.0]
+    for p in walls:
+        assert abs(p.delay_s - np.sqrt(40.0) * np.hypot(0.4, 0.04) / C) < 1e-13
+
+
 def _reciprocity_pairs(ph, a, b, pol, rays=20000, k=3):
     ab = trace_channel(ph, Antenna(a, polarization=pol), [Antenna(b, polarization=pol)], F0,
                        rays=rays, max_interactions=k).profiles[0].paths
