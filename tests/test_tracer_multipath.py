@@ -129,22 +129,26 @@ def test_total_internal_reflection_is_labelled_and_lossless():
     assert abs(tir[0].delay_s - n1 * length / C) < 1e-13
 
 
+def _wall_reflections(box_x_m: float, box_y_m: float, tx_x_m: float, rx_x_m: float) -> list:
+    """The one-reflection paths off the y = +-box_y_m / 2 walls of a box of eps 40 (0.3 m
+    deep) in eps 5, from a transmitter and a receiver on its x axis."""
+    outer = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
+    inner = trimesh.creation.box(extents=[box_x_m, box_y_m, 0.3])
+    ph = Phantom.build("walls", [Organ("out", lossless(5.0), outer), Organ("in", lossless(40.0), inner)])
+    tx = Antenna(np.array([tx_x_m, 0.0, 0.01]))
+    rx = Antenna(np.array([rx_x_m, 0.0, 0.01]))
+    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    return [p for p in res.profiles[0].paths
+            if len(p.interactions) == 1 and abs(abs(p.interactions[0].point_m[1]) - box_y_m / 2) < 1e-9]
+
+
 def test_symmetric_walls_of_one_organ_give_two_distinct_paths():
     """Reflections off the +y and -y walls of the same box share signature and delay;
     both must be kept (the duplicate filter must not merge distinct geometry)."""
-    outer = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
-    inner = trimesh.creation.box(extents=[0.3, 0.2, 0.3])
-    ph = Phantom.build("walls", [Organ("out", lossless(5.0), outer), Organ("in", lossless(40.0), inner)])
-    tx = Antenna(np.array([-0.04, 0.0, 0.01]))
-    rx = Antenna(np.array([0.05, 0.0, 0.01]))
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
-    n = np.sqrt(40.0)
-    length = np.hypot(0.09, 0.2)  # image in a wall at |y| = 0.1
-    walls = [p for p in res.profiles[0].paths
-             if len(p.interactions) == 1 and abs(abs(p.interactions[0].point_m[1]) - 0.1) < 1e-9]
+    walls = _wall_reflections(0.3, 0.2, -0.04, 0.05)
     assert sorted(np.sign(p.interactions[0].point_m[1]) for p in walls) == [-1.0, 1.0]
     for p in walls:
-        assert abs(p.delay_s - n * length / C) < 1e-13
+        assert abs(p.delay_s - np.sqrt(40.0) * np.hypot(0.09, 0.2) / C) < 1e-13  # image in a wall at |y| = 0.1
 
 
 def test_duplicate_filter_keeps_distinct_paths_with_nearby_launches():
@@ -153,14 +157,7 @@ def test_duplicate_filter_keeps_distinct_paths_with_nearby_launches():
     the axis). Both must be kept, once each: a duplicate filter merging launches 0.2 rad
     apart drops them (raytrace.tracer.DUPLICATE_ANGLE_RAD is 1e-6). A filter that merges
     nothing fails test_reciprocity_lossless_planar_layers (duplicated paths)."""
-    outer = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
-    inner = trimesh.creation.box(extents=[0.6, 0.04, 0.3])
-    ph = Phantom.build("narrow", [Organ("out", lossless(5.0), outer), Organ("in", lossless(40.0), inner)])
-    tx = Antenna(np.array([-0.2, 0.0, 0.01]))
-    rx = Antenna(np.array([0.2, 0.0, 0.01]))
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
-    walls = [p for p in res.profiles[0].paths
-             if len(p.interactions) == 1 and abs(abs(p.interactions[0].point_m[1]) - 0.02) < 1e-9]
+    walls = _wall_reflections(0.6, 0.04, -0.2, 0.2)
     assert sorted(np.sign(p.interactions[0].point_m[1]) for p in walls) == [-1.0, 1.0]
     for p in walls:
         assert abs(p.delay_s - np.sqrt(40.0) * np.hypot(0.4, 0.04) / C) < 1e-13
