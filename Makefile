@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
-	$(BIN)/python -c 'from raytrace.tracer import warm_up; print(f"tracer kernels compiled in {warm_up():.1f} s")'
+	$(BIN)/python -c 'from raytrace.solver.tracer import warm_up; print(f"tracer kernels compiled in {warm_up():.1f} s")'
 	touch $(STAMP)
 
 run: $(STAMP)

@@ -22,7 +22,7 @@ import numpy as np
 
 from bench import ceiling, completeness, estimators_bench, latency, scenes
 from bench.common import ROOT, growth_exponent, run_point
-from raytrace.tracer import trace_channel, warm_up
+from raytrace.solver.tracer import trace_channel, warm_up
 
 
 def tracer_throughput(rays: int, interactions: int, repeat: int) -> dict:

@@ -4,13 +4,13 @@ Rays of the kind the tracer casts: a Fibonacci sphere of primary rays from the
 capsule, then one generation of secondary rays spawned at the primary hits
 (mirror-reflected, pushed off the surface). Only the Embree calls are timed:
 each batch is one compiled loop of ``rtcIntersect1`` through
-:mod:`raytrace.embree` (the tracer's own binding; nothing faster is available
+:mod:`raytrace.engine.embree` (the tracer's own binding; nothing faster is available
 from Python), into a scene built like the tracer's shooting scene (Embree's
 default traversal, the faster one): ``rays_per_s``, the reference of the
 ratio. For context, the same rays through the tracer's robust scene
 (``robust_rays_per_s``) and through embreex's ``EmbreeScene.run``
 (``embreex_rays_per_s``). The rays are cast from as many threads as the tracer
-shoots with (``raytrace.sbr.SHOOT_THREADS``; Embree runs without the GIL), so
+shoots with (``raytrace.solver.sbr.SHOOT_THREADS``; Embree runs without the GIL), so
 the ratio tracer / ceiling compares like with like.
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from raytrace.embree import EmbreeScene
+from raytrace.engine.embree import EmbreeScene
 
 
 def fibonacci_directions(n: int) -> np.ndarray:
@@ -36,7 +36,7 @@ def fibonacci_directions(n: int) -> np.ndarray:
 
 def embree_ceiling(phantom, origin_m: np.ndarray, rays: int, repeat: int = 3, threads: int | None = None) -> dict:
     if threads is None:
-        from raytrace.sbr import SHOOT_THREADS as threads
+        from raytrace.solver.sbr import SHOOT_THREADS as threads
     vertices = np.asarray(phantom.vertices, float)
     center = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     scene = rtcore_scene.EmbreeScene()

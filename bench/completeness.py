@@ -11,7 +11,7 @@ that the default launch finds.
 from __future__ import annotations
 
 from bench import scenes
-from raytrace.tracer import trace_channel
+from raytrace.solver.tracer import trace_channel
 
 SAME_PATH_S = 1e-15
 STRONG_DB = 10.0

@@ -18,7 +18,7 @@ import httpx
 
 from bench import scenes
 from bench.common import ROOT, percentiles, timed
-from raytrace.tracer import trace_channel
+from raytrace.solver.tracer import trace_channel
 
 
 def in_process(repeat: int, rays: int, interactions: int) -> dict:

@@ -16,7 +16,7 @@ import sys
 import time
 
 from bench import scenes
-from raytrace.tracer import trace_channel
+from raytrace.solver.tracer import trace_channel
 
 
 def peak_rss_mb() -> float:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from raytrace.paths import Antenna
-from raytrace.torso import default_torso
+from raytrace.spec import Antenna
+from raytrace.body.torso import default_torso
 
 
 def torso(resolution: int | None = None):

@@ -21,7 +21,7 @@ COPY service ./service
 # not pay the ~17 s compile. numba only uses a cache directory it can write to: the cache is
 # handed to the service's user.
 RUN pip install --no-cache-dir . \
-    && python -c "from raytrace.tracer import warm_up; warm_up()" \
+    && python -c "from raytrace.solver.tracer import warm_up; warm_up()" \
     && groupadd --system --gid 10001 capsule \
     && useradd --system --create-home --uid 10001 --gid 10001 capsule \
     && mkdir -p /data \

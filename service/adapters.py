@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from raytrace.phantom import Phantom
+from raytrace.body.phantom import Phantom
 
 log = logging.getLogger("capsule_rt.adapters")
 
@@ -39,10 +39,11 @@ def builtin_phantoms_and_scenarios(errors: list[str] | None = None) -> tuple[dic
     scenarios: dict[str, ScenarioSpec] = {}
     try:
         from raytrace import scenarios as sc  # type: ignore[attr-defined]
+        from raytrace.body import library
     except ImportError:
         sc = None
-    if sc is not None and hasattr(sc, "builtin_phantoms"):
-        for pid, factory in sc.builtin_phantoms().items():
+    if sc is not None:
+        for pid, factory in library.builtin_phantoms().items():
             try:
                 phantoms[pid] = factory() if callable(factory) else factory
             except Exception as exc:  # a broken built-in must not stop the others
@@ -50,11 +51,11 @@ def builtin_phantoms_and_scenarios(errors: list[str] | None = None) -> tuple[dic
                 errors.append(f"built-in phantom {pid!r} failed to build: {exc}")
     else:
         try:
-            from raytrace.torso import default_torso  # type: ignore[import-not-found]
+            from raytrace.body.torso import default_torso  # type: ignore[import-not-found]
 
             phantoms["torso"] = default_torso()
         except ImportError:
-            log.warning("no built-in phantoms available (raytrace.torso / raytrace.scenarios missing)")
+            log.warning("no built-in phantoms available (raytrace.body.torso / raytrace.scenarios missing)")
     if sc is not None and hasattr(sc, "SCENARIOS"):
         for sid, s in dict(sc.SCENARIOS).items():
             spec = scenario_spec(sid, s)
@@ -134,7 +135,7 @@ def scenario_spec(sid: str, s: Any) -> ScenarioSpec:
 # --------------------------------------------------------------- glTF
 def load_glb(glb: bytes, manifest: dict, *, max_bytes: int | None = None, max_triangles: int | None = None) -> Phantom:
     """Parse and validate an uploaded phantom (raises PhantomValidationError / InputError naming the field)."""
-    from raytrace.gltf import load_phantom
+    from raytrace.body.gltf import load_phantom
 
     kwargs: dict[str, Any] = {}
     if max_bytes is not None:
@@ -145,12 +146,12 @@ def load_glb(glb: bytes, manifest: dict, *, max_bytes: int | None = None, max_tr
 
 
 def export_glb(phantom: Phantom) -> bytes:
-    from raytrace.gltf import export_glb as _export
+    from raytrace.body.gltf import export_glb as _export
 
     return _export(phantom)
 
 
 def export_manifest(phantom: Phantom) -> dict:
-    from raytrace.gltf import export_manifest as _export
+    from raytrace.body.gltf import export_manifest as _export
 
     return _export(phantom)

@@ -13,7 +13,7 @@ from contextlib import asynccontextmanager
 import anyio.to_thread
 from fastapi import FastAPI
 
-from raytrace.tracer import warm_up
+from raytrace.solver.tracer import warm_up
 from service import __version__
 from service.compute import ComputeGate
 from service.deps import AppState

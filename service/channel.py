@@ -11,10 +11,11 @@ from typing import Any
 
 import numpy as np
 
-from raytrace.budget import Budget
+from raytrace.solver.budget import Budget
 from raytrace.errors import InvalidGeometryError
-from raytrace.paths import Antenna, ChannelResult
-from raytrace.phantom import Material, Phantom
+from raytrace.results import ChannelResult
+from raytrace.spec import Antenna
+from raytrace.body.phantom import Material, Phantom
 from service.errors import NotFound, Unprocessable
 from service.registry import Registry
 from service.schemas import GAIN_DB_FLOOR, AntennaIn, ChannelRequest
@@ -156,7 +157,7 @@ def resolve(req: ChannelRequest, registry: Registry, settings: Settings) -> Reso
 
 def run(resolved: ResolvedChannel, budget: Budget | None = None) -> ChannelResult:
     """Trace (blocking; call from a worker thread)."""
-    from raytrace.tracer import trace_channel
+    from raytrace.solver.tracer import trace_channel
 
     return trace_channel(
         resolved.phantom,

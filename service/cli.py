@@ -93,7 +93,7 @@ def _error_json(exc: Exception) -> dict[str, Any]:
 
 def run_channel_request(payload: dict) -> dict[str, Any]:
     """Run one POST /v1/channel body locally (no HTTP); returns the response dict."""
-    from raytrace.budget import Budget
+    from raytrace.solver.budget import Budget
     from service import channel as ops
     from service.schemas import ChannelRequest, ChannelResponse
 

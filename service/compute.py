@@ -4,7 +4,7 @@ At most ``max_concurrency`` computations run at once (worker threads bounded
 by an :class:`anyio.CapacityLimiter`; embreex and numpy release the GIL), at
 most ``max_queue`` more wait for a slot, and anything beyond is refused at
 once with 503 + Retry-After instead of queueing without bound. Each
-computation gets a :class:`raytrace.budget.Budget` (deadline and work cap)
+computation gets a :class:`raytrace.solver.budget.Budget` (deadline and work cap)
 that the tracer checks inside its loops, so a thread that runs too long
 stops itself; the budget is also cancelled when the server shuts down.
 """
@@ -18,7 +18,7 @@ from typing import Awaitable, Callable, TypeVar
 import anyio
 import anyio.to_thread
 
-from raytrace.budget import Budget
+from raytrace.solver.budget import Budget
 from raytrace.errors import BudgetExceededError
 from service.errors import ServerSaturated
 from service.metrics import Metrics

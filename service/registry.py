@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from raytrace.phantom import AIR_NAME, Phantom
+from raytrace.body.phantom import AIR_NAME, Phantom
 from service import adapters
 from service.errors import NotFound
 from service.storage import PhantomStore, is_upload_id

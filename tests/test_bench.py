@@ -11,7 +11,7 @@ import trimesh
 
 from bench.ceiling import embree_ceiling, fibonacci_directions
 from bench.common import ROOT, growth_exponent, run_point
-from raytrace.phantom import Material, Organ, Phantom
+from raytrace.body.phantom import Material, Organ, Phantom
 
 
 def test_growth_exponent_recovers_a_power_law() -> None:

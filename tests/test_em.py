@@ -1,4 +1,4 @@
-"""Tests of raytrace.em against oracles that share no code with it.
+"""Tests of raytrace.physics.em against oracles that share no code with it.
 
 Oracles: closed forms written out here (normal incidence, Brewster, critical
 angle, the real-arithmetic lossy-dielectric propagation constants), energy
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import tmm
 
-from raytrace import em
+from raytrace.physics import em
 from raytrace.errors import FrequencyOutOfRangeError, InputError, InvalidGeometryError
 
 EXACT = 1e-12  # relative/absolute tolerance for exact closed forms in double precision
@@ -119,7 +119,7 @@ def test_sea_water_good_conductor_attenuation():
 def test_small_intestine_phase_velocity_below_lossless_value():
     """tissues.md: small intestine at 402 MHz has v = w / Re k = 0.322e8 m/s while
     c / sqrt(eps') = 0.369e8 m/s (values rounded to 3 digits: tolerance 0.3 %)."""
-    from raytrace import tissues
+    from raytrace.physics import tissues
 
     d = tissues.dielectric("small_intestine", 402e6)
     eps = em.complex_relative_permittivity(d.relative_permittivity, d.conductivity_s_per_m, 402e6)

@@ -1,7 +1,7 @@
 """Phantom upload (.glb + manifest) validation, and the export round trip.
 
 Uploads in these tests are written by trimesh's own glTF exporter (not by
-``raytrace.gltf``), and exports are read back by trimesh's loader, so the
+``raytrace.body.gltf``), and exports are read back by trimesh's loader, so the
 decoder and the encoder are each checked against an independent
 implementation. Every rejection must name the organ / field and the defect.
 """
@@ -18,8 +18,8 @@ import pytest
 import trimesh
 
 from raytrace.errors import InputError, PhantomValidationError, UnknownTissueError
-from raytrace.gltf import export_glb, export_manifest, load_phantom
-from raytrace.scenarios import builtin_phantoms
+from raytrace.body.gltf import export_glb, export_manifest, load_phantom
+from raytrace.body.library import builtin_phantoms
 
 
 def sphere(center, radius, subdivisions=2) -> trimesh.Trimesh:

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from raytrace.paths import Antenna
+from raytrace.spec import Antenna
 from raytrace.scenarios import get_scenario
-from raytrace.torso import BELT_SITES, UPPER_SITES, default_torso
-from raytrace.tracer import trace_channel
+from raytrace.body.torso import BELT_SITES, UPPER_SITES, default_torso
+from raytrace.solver.tracer import trace_channel
 
 GOLDEN = Path(__file__).parent / "data" / "golden_channels.json"
 DELAY_TOL_S = 1e-15

@@ -10,12 +10,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from raytrace import em, kernels, sbr
-from raytrace.launch import fibonacci_sphere
-from raytrace.media import MediaTable
-from raytrace.phantom import Material
-from raytrace.scenarios import half_space, homogeneous_sphere
-from raytrace.scene import scene_for
+from raytrace.physics import em
+
+from raytrace.engine import kernels
+
+from raytrace.solver import sbr
+from raytrace.solver.launch import fibonacci_sphere
+from raytrace.solver.media import MediaTable
+from raytrace.body.phantom import Material
+from raytrace.body.library import half_space, homogeneous_sphere
+from raytrace.engine.scene import scene_for
 
 FREQUENCY_HZ = 402e6
 
@@ -23,7 +27,7 @@ FREQUENCY_HZ = 402e6
 @pytest.fixture(scope="module")
 def one_bounce():
     """One bounce of ~3500 rays from the half-space's transmitter (muscle, 30 mm behind the
-    planar muscle/air face y = 0) towards that face, through :func:`raytrace.sbr._bounce`."""
+    planar muscle/air face y = 0) towards that face, through :func:`raytrace.solver.sbr._bounce`."""
     phantom = half_space()
     media = MediaTable.build(phantom, np.array([FREQUENCY_HZ]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -194,7 +198,7 @@ def test_smooth_normal_is_the_sphere_normal():
 # ------------------------------------------------------------------ ray differentials (follow)
 def _closed_form_last_leg(tx, d, n_muscle, reflect):
     """The half-space's one-event path in closed form: straight to the plane y = 0, then the
-    law of reflection or Snell's law (raytrace.em, checked against tmm in test_em.py)."""
+    law of reflection or Snell's law (raytrace.physics.em, checked against tmm in test_em.py)."""
     t = tx[1] / -d[:, 1]
     point = tx + t[:, None] * d
     normal = np.array([0.0, -1.0, 0.0])
@@ -222,7 +226,7 @@ def test_ray_differentials_equal_the_closed_form_derivatives_at_a_plane(reflect)
     differentials against central differences (h = 1e-6 rad, truncation ~h^2) of the closed
     form, for refraction into air and reflection back into muscle at the half-space's face.
     Tolerance 1e-7 relative to the derivative's size (the closed form's rounding / h)."""
-    from raytrace import refine
+    from raytrace.solver import refine
 
     scene, media, tx, tx_medium, n_muscle = _half_space_tracing()
     d = fibonacci_sphere(40_000)
@@ -275,7 +279,7 @@ def test_line_search_accepts_the_first_fraction_from_its_start_that_reduces_the_
     closer than the old miss wins. Oracle: the half-space's closed-form last leg for every trial
     launch (a trial beyond the critical angle breaks the signature and never wins). Receivers
     lie on the last legs of nearby launches, so some trials reduce the miss and some overshoot."""
-    from raytrace import refine
+    from raytrace.solver import refine
 
     scene, media, tx, tx_medium, n_muscle = _half_space_tracing()
     rng = np.random.default_rng(3)
@@ -323,7 +327,7 @@ def test_newton_converges_to_the_closed_form_launch_and_ray_tube(reflect):
     landing map, by central differences (h = 1e-6 rad; 1e-5 relative: truncation ~h^2 and
     rounding ~1e-16 / h^2 of the offsets). A receiver back in the muscle has no path refracted
     into the air and must not converge."""
-    from raytrace import refine
+    from raytrace.solver import refine
 
     scene, media, tx, tx_medium, n_muscle = _half_space_tracing()
     rng = np.random.default_rng(5)

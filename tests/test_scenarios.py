@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from raytrace.errors import NotFoundError
-from raytrace.paths import Antenna
-from raytrace.phantom import Phantom
-from raytrace.scenarios import SCENARIOS, Scenario, builtin_phantoms, get_phantom, get_scenario
+from raytrace.spec import Antenna
+from raytrace.body.phantom import Phantom
+from raytrace.body.library import builtin_phantoms, get_phantom
+from raytrace.scenarios import SCENARIOS, Scenario, get_scenario
 
 C_M_PER_S = 299_792_458.0
 

@@ -21,12 +21,13 @@ import numpy as np
 import pytest
 
 from estimators import PathProfile, estimate_pdoa, estimate_toa
-from raytrace.paths import Antenna
-from raytrace.phantom import Material
-from raytrace.scenarios import THESIS_DISTANCE_M, THESIS_EPS_R, get_scenario
-from raytrace.tracer import trace_channel
+from raytrace.spec import Antenna
+from raytrace.body.phantom import Material
+from raytrace.body.library import THESIS_DISTANCE_M, THESIS_EPS_R
+from raytrace.scenarios import get_scenario
+from raytrace.solver.tracer import trace_channel
 
-C0_M_PER_S = 299_792_458.0  # exact (SI), written here so the oracle shares nothing with raytrace.em
+C0_M_PER_S = 299_792_458.0  # exact (SI), written here so the oracle shares nothing with raytrace.physics.em
 
 #: The torso-small-intestine scenario's capsule and its seven-sensor belt (every pair has a
 #: refraction-only path: tests/test_tracer_torso.py).
@@ -37,7 +38,7 @@ BELT = ("belt_anterior", "belt_anterior_left", "belt_left", "belt_posterior_left
 
 @pytest.fixture(scope="module")
 def torso():
-    return pytest.importorskip("raytrace.torso").default_torso()
+    return pytest.importorskip("raytrace.body.torso").default_torso()
 
 
 def _is_direct(path) -> bool:
@@ -276,7 +277,7 @@ def test_channel_profile_through_http_ranges_like_the_estimators(api):
     floats is exact; tolerance 1e-12 m) for the same seed. Also checks that the channel
     response carries the tracer's paths unchanged and declares its gain convention
     (``gains_include_delay_phase`` true at the carrier), so a client need not know it."""
-    from raytrace.torso import default_torso
+    from raytrace.body.torso import default_torso
 
     request = {"phantom": "torso", "transmitter": {"site": CAPSULE}, "receivers": [{"site": "belt_anterior"}],
                "frequency_hz": 402e6, "rays": 2000, "max_interactions": 6, "dynamic_range_db": 80.0}

@@ -106,7 +106,7 @@ def test_tissues_at_402_mhz_match_the_plane_wave_closed_forms(api):
     assert len(names) == 27 and "muscle" in names and names[-1] == "air"
     eps0 = 8.8541878128e-12
     for t in body["tissues"]:
-        # Oracle: k = (w/c) sqrt(eps' - j sigma/(w eps0)) with cmath, independent of raytrace.em.
+        # Oracle: k = (w/c) sqrt(eps' - j sigma/(w eps0)) with cmath, independent of raytrace.physics.em.
         w = 2 * math.pi * f
         n = cmath.sqrt(complex(t["relative_permittivity"], -t["conductivity_s_per_m"] / (w * eps0)))
         assert t["phase_velocity_m_per_s"] == pytest.approx(C0 / n.real, rel=1e-9)
@@ -320,7 +320,7 @@ def test_channel_deadline_gives_504(make_settings):
 
 
 def test_zero_gain_is_reported_at_the_documented_floor():
-    from raytrace.paths import ReceiverProfile
+    from raytrace.results import ReceiverProfile
     from service.schemas import GAIN_DB_FLOOR
     from service import channel as ops
 
@@ -494,7 +494,7 @@ def test_an_unexpected_bug_is_a_json_500_with_the_request_id(make_settings):
 def test_a_broken_builtin_is_reported_not_fatal(make_settings, monkeypatch):
     from fastapi.testclient import TestClient
 
-    import raytrace.scenarios as sc
+    import raytrace.body.library as sc
     from service.app import create_app
 
     real = sc.builtin_phantoms

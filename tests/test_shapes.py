@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.special import beta
 
-from raytrace.shapes import box, lathe, rounded_cylinder, superquadric
+from raytrace.body.shapes import box, lathe, rounded_cylinder, superquadric
 
 
 @pytest.mark.parametrize("axis", ["x", "y", "z"])

@@ -1,4 +1,4 @@
-"""Tests of raytrace.tissues against published tabulations of the Gabriel 1996 model.
+"""Tests of raytrace.physics.tissues against published tabulations of the Gabriel 1996 model.
 
 Reference numbers are NOT computed by us; they are copied from three public
 tabulations (each number below says which):
@@ -59,7 +59,7 @@ import math
 import numpy as np
 import pytest
 
-from raytrace import tissues
+from raytrace.physics import tissues
 from raytrace.errors import FrequencyOutOfRangeError, InputError, UnknownTissueError
 
 REL_TOL = 2e-4  # see module docstring

@@ -1,6 +1,6 @@
 """The default torso phantom: validity, anatomy, sites, resolution scaling.
 
-Oracles are independent of ``raytrace.torso``: the expected media, parents
+Oracles are independent of ``raytrace.body.torso``: the expected media, parents
 and layer thicknesses are written out here from tissues.md, and geometric
 checks use trimesh's own proximity / ray queries on the organ meshes rather
 than the phantom's medium lookup where possible.
@@ -13,8 +13,8 @@ import pytest
 import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from raytrace.phantom import Phantom
-from raytrace.torso import (
+from raytrace.body.phantom import Phantom
+from raytrace.body.torso import (
     DEFAULT_RESOLUTION,
     MIN_RESOLUTION,
     build_torso,
@@ -152,7 +152,7 @@ def test_sensor_sites_are_contact_sensors_mid_skin(torso: Phantom) -> None:
     assert len(belt) == 7
     np.testing.assert_allclose(belt[:, 2], 0.05)  # one belt, 50 mm above the small-intestine mid-plane
     # the public placement helper puts a sensor exactly where the sites are
-    from raytrace.torso import contact_point
+    from raytrace.body.torso import contact_point
 
     np.testing.assert_array_equal(contact_point(torso, 0.0, 0.05), torso.sites["belt_anterior"].position_m)
     np.testing.assert_array_equal(contact_point(torso, 285, 0.125), torso.sites["upper_right"].position_m)
@@ -221,7 +221,7 @@ def test_other_resolutions_validate(resolution: int) -> None:
 def test_triangle_count_spans_the_benchmark_range() -> None:
     # Without building the big ones: the count formula checked above at three
     # resolutions covers ~1e4 at the minimum and >= 1e6 at the maximum.
-    from raytrace.torso import MAX_RESOLUTION
+    from raytrace.body.torso import MAX_RESOLUTION
 
     count = lambda r: 15 * 2 * r * (r // 2 - 1)  # noqa: E731
     assert count(MIN_RESOLUTION) <= 1e4

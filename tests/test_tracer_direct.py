@@ -15,7 +15,7 @@ import pytest
 import trimesh
 from scipy.optimize import minimize_scalar
 
-from raytrace.budget import Budget
+from raytrace.solver.budget import Budget
 from raytrace.errors import (
     AmbiguousPositionError,
     BudgetExceededError,
@@ -24,9 +24,9 @@ from raytrace.errors import (
     InvalidGeometryError,
     UnknownTissueError,
 )
-from raytrace.paths import Antenna
-from raytrace.phantom import Material, Organ, Phantom
-from raytrace.tracer import trace_channel
+from raytrace.spec import Antenna
+from raytrace.body.phantom import Material, Organ, Phantom
+from raytrace.solver.tracer import trace_channel
 
 C = 299_792_458.0
 EPS0 = 8.8541878128e-12
@@ -372,7 +372,7 @@ def test_fresnel_forward_branch_for_rays_leaving_lossy_tissue():
     angle is transmitted forward: Re cos_t > 0 and |r| < 1, and the coefficients tend to
     the lossless textbook values (Born & Wolf 1.5.20-21) as the loss goes to zero. The
     tracer uses em.fresnel (one implementation); this pins the branch it relies on."""
-    from raytrace.em import fresnel
+    from raytrace.physics.em import fresnel
 
     ci = np.cos(np.deg2rad(5.0))
     fr = fresnel(np.array([7.9 - 2.3j]), np.array([1.0 + 0j]), np.array([ci]))
@@ -420,7 +420,7 @@ def test_reflection_at_a_tissue_interface_lossy_fresnel(polarization, mode, tx_m
     k0 |Im n_m|. cos_t: the forward (principal) root below the critical angle, the root
     decaying into the fat (Im(n2 cos_t) < 0) beyond it. 1 %: planar, exact spreading;
     image delay 0.1 ps."""
-    from raytrace.tissues import complex_relative_permittivity as eps_of
+    from raytrace.physics.tissues import complex_relative_permittivity as eps_of
 
     a = trimesh.creation.box(extents=[2.0, 2.0, 2.0])
     b = trimesh.creation.box(bounds=[[-0.5, -0.5, -0.5], [0.5, 0.5, 0.0]])

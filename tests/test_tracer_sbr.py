@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from raytrace import sbr
-from raytrace.media import MediaTable
-from raytrace.phantom import Material, Organ, Phantom
-from raytrace.scene import scene_for
+from raytrace.solver import sbr
+from raytrace.solver.media import MediaTable
+from raytrace.body.phantom import Material, Organ, Phantom
+from raytrace.engine.scene import scene_for
 
-torso = pytest.importorskip("raytrace.torso")
+torso = pytest.importorskip("raytrace.body.torso")
 
 
 @pytest.fixture(scope="module")
@@ -96,10 +96,10 @@ def test_concurrent_launch_batches_give_the_serial_candidates(phantom, monkeypat
 
 
 def test_launch_rows_are_those_of_the_whole_fibonacci_sphere():
-    """A launch batch computes its own rows of the sphere (raytrace.launch): bit for bit the
+    """A launch batch computes its own rows of the sphere (raytrace.solver.launch): bit for bit the
     rows of the whole launch, and the closed form z_i = 1 - (2 i + 1) / N, azimuth i times the
     golden angle pi (3 - sqrt 5) (Gonzalez 2010), to rounding."""
-    from raytrace.launch import fibonacci_sphere
+    from raytrace.solver.launch import fibonacci_sphere
 
     n = 20_000
     whole = fibonacci_sphere(n)
@@ -113,7 +113,7 @@ def test_launch_rows_are_those_of_the_whole_fibonacci_sphere():
 
 
 def test_face_curvature_is_one_over_the_radius_on_a_sphere_and_zero_on_flat_faces():
-    """The shooting widens its tubes by the facet curvature (raytrace.sbr module doc). Oracle:
+    """The shooting widens its tubes by the facet curvature (raytrace.solver.sbr module doc). Oracle:
     closed forms. On an icosphere of radius R, corner normals are radial, so the angle between
     two of them over the chord joining them is 2 asin(c / 2R) / c -> 1/R (chord c ~ 0.08 R at
     subdivision 4: 1/R within 0.1 %). On a box, flat faces keep their facet normal at every

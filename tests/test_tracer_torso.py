@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from raytrace.em import C0
-from raytrace.paths import Antenna
-from raytrace.tracer import trace_channel
+from raytrace.physics.em import C0
+from raytrace.spec import Antenna
+from raytrace.solver.tracer import trace_channel
 
-torso = pytest.importorskip("raytrace.torso")
+torso = pytest.importorskip("raytrace.body.torso")
 
 
 @pytest.fixture(scope="module")
@@ -150,8 +150,8 @@ def test_direct_paths_on_the_torso_are_exact(contact_torso, direct_traces):
     Newton stopping miss of 1e-9 m allows on the adjacent legs), the delay equals sum L_i Re n_i / c from its
     segments (1e-15 s), segments' media match the phantom's lookup at their midpoints,
     delays sorted, gains finite and non-zero."""
-    from raytrace.media import MediaTable
-    from raytrace.scene import scene_for
+    from raytrace.solver.media import MediaTable
+    from raytrace.engine.scene import scene_for
 
     ph = contact_torso
     media = MediaTable.build(ph, np.array([402e6]))
@@ -206,10 +206,10 @@ def test_reverse_search_gives_the_forward_direct_path(contact_torso, direct_trac
     (signature reversed, each surface from the other side) and refined forward, is the path
     the forward search found (same launch direction to 1e-6 rad: both are Newton solutions
     to 1e-9 m over ~0.1 m), for a pair whose forward search is well conditioned."""
-    from raytrace.direct import reverse_seeds, reverse_signature
-    from raytrace.media import MediaTable
-    from raytrace.refine import refine
-    from raytrace.scene import scene_for
+    from raytrace.solver.direct import reverse_seeds, reverse_signature
+    from raytrace.solver.media import MediaTable
+    from raytrace.solver.refine import refine
+    from raytrace.engine.scene import scene_for
 
     codes = np.array([[10, 6, 33, -1]])
     assert reverse_signature(reverse_signature(codes, np.array([3])), np.array([3])).tolist() == codes.tolist()
@@ -238,7 +238,7 @@ def test_default_launch_finds_each_receivers_strongest_path(contact_torso, direc
     every sensor's strongest path is found, and >= 90 % of the paths within 10 dB of it.
     Oracle: the denser trace (more rays can only add candidates; every path of both is exact,
     so the same path has the same delay to 1e-15 s). Before the reception tubes were widened
-    at curved surfaces (raytrace.sbr, CURVATURE_MARGIN) four of these 36 pairs lacked their
+    at curved surfaces (raytrace.solver.sbr, CURVATURE_MARGIN) four of these 36 pairs lacked their
     strongest path (one by 17.6 dB) and 82 % of the strong paths were found. With the wider
     tubes ascending_colon -> upper_left still lacked its strongest, the skin/air echo of a
     direct path that only the direct search finds (now seeded from it: the tracer's surface
@@ -281,10 +281,10 @@ def test_seed_walk_in_float32_follows_the_same_surfaces_as_the_exact_walk(phanto
     next ray started on the surface it had just crossed and re-hit it at ~1e-9 m, cutting 1.7-5 %
     of the walks short. Tolerance 0.1 % of launches (a ray grazing an edge may legitimately
     split differently in float32)."""
-    from raytrace import direct
-    from raytrace.launch import fibonacci_sphere
-    from raytrace.media import MediaTable
-    from raytrace.scene import scene_for
+    from raytrace.solver import direct
+    from raytrace.solver.launch import fibonacci_sphere
+    from raytrace.solver.media import MediaTable
+    from raytrace.engine.scene import scene_for
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -308,9 +308,10 @@ def test_walk_on_the_shooting_rays_gives_the_seed_walks_seeds(phantom):
     launch directions, signatures and event counts for every receiver, closest approaches
     within 1e-3 relative (float32 positions over a few events; measured 4e-4). Its rays never
     make reception candidates: the shooting's candidates are identical with and without it."""
-    from raytrace import direct, sbr
-    from raytrace.media import MediaTable
-    from raytrace.scene import scene_for
+    from raytrace.solver import direct
+    from raytrace.solver import sbr
+    from raytrace.solver.media import MediaTable
+    from raytrace.engine.scene import scene_for
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -341,9 +342,9 @@ def test_the_live_ray_cap_never_drops_the_walks_rays(phantom, monkeypatch):
     which cuts the shot segments by more than 20 %), the walk riding on the shooting keeps
     every one of its rays (one per launch) and gives the same seeds as without the cap
     (ranking them by power over squared length like the others changes the seeds)."""
-    from raytrace import sbr
-    from raytrace.media import MediaTable
-    from raytrace.scene import scene_for
+    from raytrace.solver import sbr
+    from raytrace.solver.media import MediaTable
+    from raytrace.engine.scene import scene_for
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)

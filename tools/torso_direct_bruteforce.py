@@ -23,13 +23,13 @@ Takes ~3 minutes for all 72 pairs on 2 cores.
 
 import os, sys, time
 import numpy as np
-import raytrace.torso as T
+import raytrace.body.torso as T
 
 NT = int(sys.argv[1]) if len(sys.argv) > 1 else 1400
 N_FIB = int(float(sys.argv[2])) if len(sys.argv) > 2 else 2_000_000
 NP = 2 * NT
-from raytrace.scene import scene_for
-from raytrace.media import MediaTable
+from raytrace.engine.scene import scene_for
+from raytrace.solver.media import MediaTable
 
 ph = T.build_torso()
 sc = scene_for(ph)
@@ -39,7 +39,7 @@ parent = np.asarray(ph.parent)
 forg = sc.face_organ
 caps = [n for n, s in ph.sites.items() if s.kind == 'capsule']
 only = sys.argv[3].split(',') if len(sys.argv) > 3 else None
-from raytrace.launch import fibonacci_sphere
+from raytrace.solver.launch import fibonacci_sphere
 if os.environ.get("UNIFORM"):
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
     from test_tracer_torso import UNIFORM_BELT

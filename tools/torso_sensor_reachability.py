@@ -3,7 +3,7 @@ from every capsule site? The map the torso's sensor sites were chosen from.
 
 Candidates every 15 deg of polar angle (from anterior towards the subject's left) at heights
 z = -0.050 ... +0.225 m every 25 mm, 1 mm deep in the skin like the torso's own sensors
-(:func:`raytrace.torso.contact_point`); each capsule is traced to all of them. A cell shows
+(:func:`raytrace.body.torso.contact_point`); each capsule is traced to all of them. A cell shows
 how many of the six capsules have a direct path there, ``*`` for all six. A missing pair is a
 GO shadow or a near-critical sliver finer than the launch spacing (docs/tracer.md); a site is
 safe when its cell is ``*`` at several resolutions and ray counts, not only one.
@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-import raytrace.torso as T
-from raytrace.paths import Antenna
-from raytrace.tracer import trace_channel
+import raytrace.body.torso as T
+from raytrace.spec import Antenna
+from raytrace.solver.tracer import trace_channel
 
 resolution = int(sys.argv[1]) if len(sys.argv) > 1 else T.DEFAULT_RESOLUTION
 rays = int(sys.argv[2]) if len(sys.argv) > 2 else 100_000

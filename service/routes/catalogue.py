@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, Query, Request
 
-from raytrace import em
-from raytrace.tissues import TISSUE_NAMES, dielectric
+from raytrace.physics import em
+from raytrace.physics.tissues import TISSUE_NAMES, dielectric
 from service.deps import state
 from service.errors import error_responses
 from service.schemas import (

@@ -6,7 +6,7 @@ import json
 
 from fastapi import APIRouter, Request, Response
 
-from raytrace.budget import Budget
+from raytrace.solver.budget import Budget
 from service import channel as channel_ops
 from service.deps import state
 from service.errors import error_responses

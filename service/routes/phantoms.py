@@ -9,7 +9,7 @@ from fastapi import APIRouter, Path, Request, Response
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
-from raytrace.budget import Budget
+from raytrace.solver.budget import Budget
 from service import adapters
 from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, Unprocessable, error_responses

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from raytrace.budget import Budget
+from raytrace.solver.budget import Budget
 from service import ranging as ops
 from service.deps import state
 from service.errors import error_responses

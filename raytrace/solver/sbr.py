@@ -8,7 +8,7 @@ culling branches. Per bounce, every live ray of the batch is cast together
 reflected ray and, unless Snell has no real solution (total internal
 reflection), a transmitted ray, up to ``max_interactions`` events. The scene
 given holds only the surfaces between different materials (see
-:func:`raytrace.scene.scene_for`), so media are compared by material class.
+:func:`raytrace.engine.scene.scene_for`), so media are compared by material class.
 A ray's power factor (lossless Fresnel power reflectance / transmittance
 from Re n, mean of TE and TM, times the true absorption ``exp(-2 alpha L)``)
 prunes it once below the dynamic range; a safety cap on live rays keeps the
@@ -23,14 +23,14 @@ magnification ``max(n1 cos_i / (n2 cos_t), n1 / n2, 1)``, and widened at every
 curved surface by what a thin mirror / lens of the surface's curvature ``k``
 does to the tube's edge ray at half-width ``h``: ``2 k h`` on reflection,
 ``k h |1 - n1 / n2|`` on refraction (times :data:`CURVATURE_MARGIN`; ``k``
-from :attr:`raytrace.scene.TracerScene.face_curvature32`). Without that term
+from :attr:`raytrace.engine.scene.TracerScene.face_curvature32`). Without that term
 curved organs (colon, kidneys, spine, the skin's own curvature) spread the rays
 of a reflected tube far beyond its modelled width, and receivers between them
 got no candidate: on the default torso at 1e5 rays, 6 of 36 capsule x sensor
 pairs lacked their strongest path. Candidates are only seeds:
-:func:`raytrace.refine.refine` makes every kept path exact.
+:func:`raytrace.solver.refine.refine` makes every kept path exact.
 
-The refraction-only seed walk of :func:`raytrace.direct.direct_seeds` (``walk=True``) rides
+The refraction-only seed walk of :func:`raytrace.solver.direct.direct_seeds` (``walk=True``) rides
 on the same rays: its launch is this launch, and its rays are the branches that have only
 refracted so far, which the shooting casts anyway. Each launch's closest approach to every
 receiver is kept as the walk keeps it; where the shooting drops such a branch (dynamic range,
@@ -47,12 +47,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from raytrace import kernels
-from raytrace.budget import Budget
-from raytrace.direct import MAX_EVENTS, Seeds, closest_launches, pick_seeds
-from raytrace.launch import angular_spacing_rad, fibonacci_sphere
-from raytrace.media import MediaTable
-from raytrace.scene import TracerScene
+from raytrace.engine import kernels
+from raytrace.solver.budget import Budget
+from raytrace.solver.direct import MAX_EVENTS, Seeds, closest_launches, pick_seeds
+from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
+from raytrace.solver.media import MediaTable
+from raytrace.engine.scene import TracerScene
 
 #: Launch directions traced together (their whole bounce tree at once). Batches are handed to
 #: the threads as they free up, so small ones balance the two cores and keep each generation's
@@ -87,11 +87,11 @@ class Candidates:
     rays_launched: int
     segments: int
     #: the refraction-only walk on the shooting's rays: per receiver, the closest launches of
-    #: every batch (:func:`raytrace.direct.closest_launches`), in batch order; None if not walked
+    #: every batch (:func:`raytrace.solver.direct.closest_launches`), in batch order; None if not walked
     walk: list[list[tuple]] | None = None
 
     def direct_seeds(self, receivers: np.ndarray) -> Seeds:
-        """:func:`raytrace.direct.direct_seeds` of ``receivers`` from the shooting's own walk
+        """:func:`raytrace.solver.direct.direct_seeds` of ``receivers`` from the shooting's own walk
         (its rays were cast and counted by the shooting)."""
         receivers = np.asarray(receivers, np.int64)
         return pick_seeds([self.walk[int(r)] for r in receivers], receivers, self.rays_launched, 0)
@@ -131,7 +131,7 @@ class _State:
     nint: np.ndarray
     hist: np.ndarray
     src: np.ndarray
-    mode: np.ndarray  # 0 shot, 1 shot and walked (no reflection so far), 2 walked only (raytrace.kernels.bounce)
+    mode: np.ndarray  # 0 shot, 1 shot and walked (no reflection so far), 2 walked only (raytrace.engine.kernels.bounce)
 
     def take(self, index) -> "_State":
         return _State(*(getattr(self, f)[index] for f in _STATE_FIELDS))
@@ -171,7 +171,7 @@ class _Found:
 
 def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium: np.ndarray, kmax: int,
              dynamic_range_db: float, walk: bool = False) -> _Context:
-    """The shooting's constant inputs, in the dtypes :func:`raytrace.kernels.bounce` is compiled for:
+    """The shooting's constant inputs, in the dtypes :func:`raytrace.engine.kernels.bounce` is compiled for:
     geometry in float32 in the scene's centred frame, the power attenuation constant
     ``alpha = k0 |Im n|`` [Np/m] of every medium at the centre frequency."""
     rx_medium = np.asarray(rx_medium, np.int64)
@@ -195,7 +195,7 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
 
 def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found, walk: tuple = _NO_WALK) -> "tuple[int, _State | None]":
     """Cast one chunk of live rays, record receptions, and spawn the next generation
-    (the per-ray work is :func:`raytrace.kernels.bounce`); returns the rays cast and the
+    (the per-ray work is :func:`raytrace.engine.kernels.bounce`); returns the rays cast and the
     children."""
     scene = ctx.scene
     cast, children, entries, got = kernels.bounce(
@@ -231,7 +231,7 @@ def shoot(
     pool: Executor | None = None,
 ) -> Candidates:
     """Launch ``rays`` directions, bounce them, return reception candidates (vectorised per bounce).
-    ``walk``: also the refraction-only walk of :func:`raytrace.direct.direct_seeds` on the same
+    ``walk``: also the refraction-only walk of :func:`raytrace.solver.direct.direct_seeds` on the same
     rays (:attr:`Candidates.walk`; the walk's own launch is this one, batch for batch).
 
     Per ray the state is position, direction, medium, power factor, tube
@@ -243,7 +243,7 @@ def shoot(
     width = max(kmax, 1)
     ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db, walk)
     if ctx.walk and not ctx.no_passes:
-        raise ValueError("the walk needs a scene without transparent surfaces (raytrace.scene.scene_for)")
+        raise ValueError("the walk needs a scene without transparent surfaces (raytrace.engine.scene.scene_for)")
     n_rx = len(rx_m)
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
     if ctx.walk:
@@ -308,7 +308,7 @@ def shoot(
 
     firsts = list(range(0, rays, LAUNCH_BATCH))
     workers = min(SHOOT_THREADS, len(firsts))
-    if pool is not None:  # the caller's workers (raytrace.tracer queues other work beside)
+    if pool is not None:  # the caller's workers (raytrace.solver.tracer queues other work beside)
         batches = list(pool.map(launch_batch, firsts))
     elif workers > 1:
         # Embree and the large numpy operations release the GIL: batches run concurrently;

@@ -18,9 +18,9 @@ per receiver the closest rays with distinct launch directions;
 :func:`zoom_seeds` then shrinks a grid of launch directions around each seed
 (derivative-free, so it cannot overshoot into total reflection the way a
 Newton step does near a critical angle) until the miss is small enough for
-:func:`raytrace.refine.refine` to converge. Every path is still made exact by
+:func:`raytrace.solver.refine.refine` to converge. Every path is still made exact by
 Newton refinement; these are only seeds. The tracer's forward walk rides on the
-shooting's rays (:mod:`raytrace.sbr`); :func:`direct_seeds` itself serves the search from the
+shooting's rays (:mod:`raytrace.solver.sbr`); :func:`direct_seeds` itself serves the search from the
 receiver's side (:func:`reverse_seeds`).
 """
 
@@ -32,12 +32,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from raytrace import kernels
-from raytrace.budget import Budget
-from raytrace.launch import angular_spacing_rad, fibonacci_sphere
-from raytrace.media import MediaTable
-from raytrace.refine import tangent_basis
-from raytrace.scene import TracerScene
+from raytrace.engine import kernels
+from raytrace.solver.budget import Budget
+from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
+from raytrace.solver.media import MediaTable
+from raytrace.solver.refine import tangent_basis
+from raytrace.engine.scene import TracerScene
 
 #: Refraction events followed at most.
 MAX_EVENTS = 24
@@ -111,7 +111,7 @@ def refraction_walk(
     q = (o - scene.center).astype(np.float32)
     dq = d.astype(np.float32)
     segments = 0
-    # the seed walk casts into the shooting's fast scene (raytrace.scene: seeds only)
+    # the seed walk casts into the shooting's fast scene (raytrace.engine.scene: seeds only)
     embree = scene.embree if exact else scene.embree_shooting
     for _ in range(MAX_EVENTS + 1):
         if len(ids) == 0:
@@ -162,7 +162,7 @@ def direct_seeds(
 ) -> Seeds:
     """Per receiver in ``receivers``, the :data:`SEEDS_PER_RECEIVER` launch directions (of a
     ``rays``-direction Fibonacci launch) whose refraction-only rays pass closest to it.
-    (:func:`raytrace.sbr.shoot` does the same walk on the shooting's own rays.)"""
+    (:func:`raytrace.solver.sbr.shoot` does the same walk on the shooting's own rays.)"""
     receivers = np.asarray(receivers, np.int64)
     launch = fibonacci_sphere(rays)
     segments = 0
@@ -312,7 +312,7 @@ def reverse_seeds(
     its last vertex) and the reversed signature, which the caller refines forward so the
     field is computed along the forward path as usual. A loop over receivers (at most a
     dozen), vectorised inside."""
-    from raytrace.refine import follow, refine
+    from raytrace.solver.refine import follow, refine
 
     out_rx, out_dir, out_codes, out_n = [], [], [], []
     segments = 0

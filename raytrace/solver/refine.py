@@ -20,9 +20,9 @@ is automatically satisfied since every vertex obeys Snell / reflection. The
 same Jacobian is the ray tube:
 ``|det J|`` is the tube cross-section at the receiver per unit launch solid
 angle [m^2/sr], i.e. the geometric spreading (1 m^2/sr at 1 m in a homogeneous
-medium, d^2 at distance d). Both run in compiled kernels (:mod:`raytrace.kernels`),
+medium, d^2 at distance d). Both run in compiled kernels (:mod:`raytrace.engine.kernels`),
 one ray or seed at a time to its end; Newton's iterations run in the kernel too
-(:func:`raytrace.kernels.newton`), so Python only splits the seeds into chunks.
+(:func:`raytrace.engine.kernels.newton`), so Python only splits the seeds into chunks.
 """
 
 from __future__ import annotations
@@ -31,11 +31,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from raytrace import kernels
-from raytrace.kernels import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION  # noqa: F401 (re-exported)
-from raytrace.budget import Budget
-from raytrace.media import MediaTable
-from raytrace.scene import TracerScene
+from raytrace.engine import kernels
+from raytrace.engine.kernels import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION  # noqa: F401 (re-exported)
+from raytrace.solver.budget import Budget
+from raytrace.solver.media import MediaTable
+from raytrace.engine.scene import TracerScene
 
 
 #: Newton stops when the last leg misses the receiver by less than this [m].
@@ -125,12 +125,12 @@ def follow(
     a real surface blocks the last leg; every step is recorded.
     ``tangents`` (two (P, 3) unit vectors normal to each launch direction, without
     ``targets_m``): also the derivatives of the last point and direction with respect to
-    tilting the launch along them (ray differentials, :func:`raytrace.kernels.follow`).
+    tilting the launch along them (ray differentials, :func:`raytrace.engine.kernels.follow`).
     ``line_search = (fractions, step, rx_m, old_miss_m, first)``: ``dirs`` are Newton's base
     directions, and each ray tries the steps ``fractions[first:] * step`` in turn until one
     brings its last leg closer to its receiver than ``old_miss_m`` (differentials included;
     see the kernel's line-search mode). These two modes run the per-ray steps of
-    :func:`refine`'s kernel (:func:`raytrace.kernels.newton`) on their own, so that each can be
+    :func:`refine`'s kernel (:func:`raytrace.engine.kernels.newton`) on their own, so that each can be
     checked against closed forms (tests/test_kernels.py).
     """
     p = len(dirs)
@@ -185,8 +185,8 @@ def follow(
 
 def _trace_inputs(scene: TracerScene, media: MediaTable, nint: np.ndarray) -> tuple[int, tuple]:
     """The step cap per ray (events, the passes through transparent surfaces, and a margin)
-    and the per-face and per-medium tables that :func:`raytrace.kernels.follow` and
-    :func:`raytrace.kernels.newton` take."""
+    and the per-face and per-medium tables that :func:`raytrace.engine.kernels.follow` and
+    :func:`raytrace.engine.kernels.newton` take."""
     max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
     tables = scene.kernel_tables
     return max_steps, (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
@@ -292,7 +292,7 @@ def refine(
     ray-tube area per steradian. Steps are limited to :data:`MAX_STEP_RAD` and
     backtracked (halved, :data:`LINE_SEARCH_GROWTH`) until the miss decreases;
     seeds that stall (:data:`STALL_WINDOW`) are given up. Each seed is iterated
-    to its end in :func:`raytrace.kernels.newton`, :data:`NEWTON_CHUNK` seeds per
+    to its end in :func:`raytrace.engine.kernels.newton`, :data:`NEWTON_CHUNK` seeds per
     call (the budget is charged between calls).
     """
     p = len(dirs0)

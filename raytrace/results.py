@@ -18,22 +18,6 @@ import numpy as np
 InteractionKind = Literal["reflection", "refraction", "total_internal_reflection"]
 
 
-@dataclass(frozen=True)
-class Antenna:
-    """An antenna: position, polarization (unit vector) and pattern.
-
-    An isotropic antenna radiates unit field along the projection of its
-    polarization onto the plane normal to the ray; a ``dipole`` also weights
-    by sin(theta) from its axis (= the polarization). A receiver's response is
-    the projection of the arriving field onto its polarization.
-    """
-
-    position_m: np.ndarray
-    name: str = ""
-    polarization: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    pattern: Literal["isotropic", "dipole"] = "isotropic"
-
-
 @dataclass(frozen=True, slots=True)
 class Interaction:
     """One event along a path.

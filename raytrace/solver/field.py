@@ -9,7 +9,7 @@ in a medium of index n_t has, at 1 m, power density P_t / (4 pi) and field
     R = prod_k c_k sqrt(cos_t,k / cos_i,k) * exp(-j k0 sum_i n_i L_i) / sqrt(|det J|)
 
 where ``c_k`` are the Fresnel field coefficients (TE on the s component, TM
-on the p component, Jones calculus with the basis of :mod:`raytrace.em`),
+on the p component, Jones calculus with the basis of :mod:`raytrace.physics.em`),
 the ``sqrt(cos_t / cos_i)`` factor (refraction only, geometric cosines) is
 the jump of the tube's cross-section at the interface so that the power in
 the tube changes by exactly the power transmittance
@@ -17,7 +17,7 @@ the tube changes by exactly the power transmittance
 phase and absorption of segment i (complex index, ``Im n <= 0``), and
 ``|det J|`` [m^2/sr] is the tube cross-section at the receiver per unit launch
 solid angle (1 m^2/sr at 1 m: the reference), from
-:func:`raytrace.refine.refine`. The receiver (effective aperture
+:func:`raytrace.solver.refine.refine`. The receiver (effective aperture
 ``lambda0^2 / (4 pi Re n_r^2)``) collects
 ``P_r = Re n_r |E_rx|^2 / (2 eta0) * lambda0^2 / (4 pi Re n_r^2)``, hence
 
@@ -35,8 +35,8 @@ the ray the projection is undefined; a fixed perpendicular is used instead.
 
 Lossy media: the Fresnel coefficients are the plane-wave ones with complex
 indices and the complex ``cos_t`` of Snell's law at the real (geometric)
-incidence angle (:func:`raytrace.em.fresnel`; for a ray in lossy tissue the
-root continuous with the lossless limit, see :func:`raytrace.em.cos_transmitted`), while the
+incidence angle (:func:`raytrace.physics.em.fresnel`; for a ray in lossy tissue the
+root continuous with the lossless limit, see :func:`raytrace.physics.em.cos_transmitted`), while the
 ray geometry and tube use ``Re n``. This is exact for lossless media and at
 normal incidence (tested against ``tmm`` through a lossy slab), and exactly
 reciprocal for lossless media; at oblique incidence between media of
@@ -56,9 +56,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from raytrace.em import C0, fresnel, interface_basis
-from raytrace.media import MediaTable
-from raytrace.refine import KIND_PASS, KIND_REFLECTION, Steps
+from raytrace.physics.em import C0, fresnel, interface_basis
+from raytrace.solver.media import MediaTable
+from raytrace.solver.refine import KIND_PASS, KIND_REFLECTION, Steps
 
 #: Smallest tube cross-section as a fraction of the unfolded length (caps caustic gain at +20 dB).
 TUBE_FLOOR = 0.1

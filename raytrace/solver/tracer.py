@@ -8,15 +8,15 @@ Pipeline (``shared/design/tracer.md``):
    always refined, whatever ``max_interactions`` is. Receivers where it
    fails get refraction-only seeds from the rays themselves, zoomed when
    Newton's basin is narrower than the launch spacing, and finally a search
-   from the receiver's side (reciprocity) (:mod:`raytrace.direct`).
-3. Shooting and bouncing rays (:mod:`raytrace.sbr`): one Fibonacci launch for
+   from the receiver's side (reciprocity) (:mod:`raytrace.solver.direct`).
+3. Shooting and bouncing rays (:mod:`raytrace.solver.sbr`): one Fibonacci launch for
    all receivers, reflected + transmitted splitting up to
    ``max_interactions``, candidates grouped by interaction signature.
-4. Refinement (:mod:`raytrace.refine`): Newton on the launch angles until
+4. Refinement (:mod:`raytrace.solver.refine`): Newton on the launch angles until
    each signature's last leg passes through its receiver; the Jacobian gives
    the ray tube. Paths that fail, or whose exact geometry is blocked, are
    dropped; duplicates (same signature, same delay) are merged.
-5. Field (:mod:`raytrace.field`): Jones/Fresnel/absorption/spreading per path,
+5. Field (:mod:`raytrace.solver.field`): Jones/Fresnel/absorption/spreading per path,
    at the centre frequency and every band frequency (geometry traced once at
    the centre frequency, tissue properties re-evaluated per frequency).
 
@@ -43,7 +43,7 @@ Design choices (where this departs from or sharpens ``shared/design/tracer.md``)
   converged duplicates are merged only when delay *and* launch direction
   agree: the walls of one organ share a signature but are distinct paths.
 * Fresnel coefficients for rays leaving a lossy tissue use the forward
-  branch of the complex ``cos_t`` (:func:`raytrace.em.cos_transmitted`).
+  branch of the complex ``cos_t`` (:func:`raytrace.physics.em.cos_transmitted`).
 * Shooting runs in launch batches (bounded memory, no culling of branches).
 * Limits of geometric optics: the caustic field is capped (tube floor) and the
   caustic phase shift is not applied; diffraction and surface (lateral)
@@ -65,15 +65,15 @@ from typing import Sequence
 
 import numpy as np
 
-from raytrace import kernels
-from raytrace.budget import Budget
-from raytrace.direct import Seeds, reverse_seeds, zoom_seeds
+from raytrace.engine import kernels
+from raytrace.solver.budget import Budget
+from raytrace.solver.direct import Seeds, reverse_seeds, zoom_seeds
 from raytrace.errors import InputError, InvalidGeometryError
-from raytrace.field import path_gains
-from raytrace.launch import angular_spacing_rad
-from raytrace.media import MediaTable
-from raytrace.paths import (
-    Antenna,
+from raytrace.solver.field import path_gains
+from raytrace.solver.launch import angular_spacing_rad
+from raytrace.solver.media import MediaTable
+from raytrace.spec import Antenna
+from raytrace.results import (
     ChannelResult,
     Interaction,
     Path,
@@ -81,10 +81,10 @@ from raytrace.paths import (
     Segment,
     TraceStats,
 )
-from raytrace.phantom import Material, Phantom
-from raytrace.refine import KIND_PASS, KIND_REFLECTION, Refined, Steps, encode, follow, refine, refine_by_continuation
-from raytrace.sbr import shoot
-from raytrace.scene import TracerScene, scene_for
+from raytrace.body.phantom import Material, Phantom
+from raytrace.solver.refine import KIND_PASS, KIND_REFLECTION, Refined, Steps, encode, follow, refine, refine_by_continuation
+from raytrace.solver.sbr import shoot
+from raytrace.engine.scene import TracerScene, scene_for
 
 #: Worker threads of one request: the direct-path search and the shooting's launch batches,
 #: then the Newton refinement of the shooting's seeds (Embree and the kernels run without the GIL).
@@ -121,7 +121,7 @@ def trace_channel(
 
     ``a`` of each path is normalised so that ``|a|^2`` is the power transfer
     between the antennas (free space line of sight: ``lambda0 / (4 pi d)``;
-    see :mod:`raytrace.field` for the derivation). Paths weaker than the
+    see :mod:`raytrace.solver.field` for the derivation). Paths weaker than the
     strongest one of a receiver by more than ``dynamic_range_db`` are dropped;
     rays whose Fresnel/absorption power factor falls below it are pruned.
 
@@ -129,7 +129,7 @@ def trace_channel(
     the direct (refraction-only) path is always searched whatever its number
     of refractions. A receiver can get no path at all when geometric optics
     has none (e.g. a sensor in air outside the escape cone of the skin).
-    Every :class:`~raytrace.paths.Segment` carries its end points.
+    Every :class:`~raytrace.results.Segment` carries its end points.
     Raises :class:`~raytrace.errors.InputError` subclasses naming the field
     (``transmitter.position_m``, ``receivers[i].position_m``,
     ``frequency_hz``, ``band_frequencies_hz``, ``rays``, ``max_interactions``,
@@ -482,7 +482,7 @@ def _select_seeds(c):
     from the seeds already kept (neighbouring rays converge to the same path; distinct walls
     of one organ sharing the signature are far apart), up to :data:`SEEDS_PER_SIGNATURE`.
     Vectorised ranking (one stable sort by receiver, signature, closeness); the greedy pass
-    is :func:`raytrace.kernels.spread_picks`."""
+    is :func:`raytrace.engine.kernels.spread_picks`."""
     if len(c.receiver) == 0:
         return c.receiver, c.codes, c.nint, c.launch_dir
     key = np.concatenate([c.receiver[:, None], c.codes], axis=1)
@@ -500,7 +500,7 @@ def _unique_paths(rx_idx, codes, dirs):
     launch direction (within :data:`DUPLICATE_ANGLE_RAD`): seeds from neighbouring rays
     converge to the same exact path, while symmetric walls of one organ give distinct paths
     (with equal delays) from distinct launches. Rows in order, each against the rows
-    already kept in its group (:func:`raytrace.kernels.first_of_duplicates`)."""
+    already kept in its group (:func:`raytrace.engine.kernels.first_of_duplicates`)."""
     if len(rx_idx) == 0:
         return np.zeros(0, bool)
     key = np.concatenate([rx_idx[:, None], codes], axis=1)
@@ -514,7 +514,7 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
     """The :class:`Path` of each recorded path ``rows`` (receiver ``rx_m[j]`` for ``rows[j]``),
     from the (S, P) step records and total-reflection flags ``tir``. The geometry is
     gathered for all paths at once (a path's valid steps are a prefix of its column:
-    :func:`raytrace.refine.follow` records them in order); the loop only builds the objects."""
+    :func:`raytrace.solver.refine.follow` records them in order); the loop only builds the objects."""
     n = len(rows)
     if n == 0:
         return []
@@ -562,11 +562,11 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
 
 
 def warm_up() -> float:
-    """Compile the tracer's numba kernels (:mod:`raytrace.kernels`), or load them from numba's
+    """Compile the tracer's numba kernels (:mod:`raytrace.engine.kernels`), or load them from numba's
     on-disk cache, before the first request needs them: one small trace of the half-space
     scenario runs every kernel with the argument types of a real trace (~17 s to compile
     after an install, ~0.2 s from the cache). Returns the seconds it took."""
-    from raytrace.scenarios import half_space
+    from raytrace.body.library import half_space
 
     t0 = time.perf_counter()
     phantom = half_space()

@@ -15,10 +15,10 @@ from functools import cached_property
 
 import numpy as np
 
-from raytrace.em import refractive_index
+from raytrace.physics.em import refractive_index
 from raytrace.errors import FrequencyOutOfRangeError
-from raytrace.phantom import AIR, Material, Phantom
-from raytrace.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
+from raytrace.body.phantom import AIR, Material, Phantom
+from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class MediaTable:
     @cached_property
     def kernel_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(parent, material_class, face_transparent, n_real)`` in the dtypes and layout
-        :mod:`raytrace.kernels` is compiled for."""
+        :mod:`raytrace.engine.kernels` is compiled for."""
         return (np.ascontiguousarray(self.parent, np.int64), np.ascontiguousarray(self.material_class, np.int64),
                 np.ascontiguousarray(self.face_transparent, np.bool_), np.ascontiguousarray(self.n_real, np.float64))
 

@@ -27,6 +27,7 @@ import numpy as np
 import trimesh
 
 from raytrace.errors import AmbiguousPositionError, InvalidGeometryError, PhantomValidationError
+from raytrace.physics.materials import AIR, Material  # noqa: F401 (AIR re-exported for phantom users)
 
 AIR_INDEX = -1
 AIR_NAME = "air"
@@ -47,71 +48,6 @@ _PROBE_DIRECTIONS = _PROBE_DIRECTIONS + np.array([1e-3, -2e-3, 3e-3])
 _PROBE_DIRECTIONS /= np.linalg.norm(_PROBE_DIRECTIONS, axis=1, keepdims=True)
 
 
-@dataclass(frozen=True)
-class Material:
-    """The dielectric filling of an organ: a Gabriel 1996 tissue by name, or
-    an explicit frequency-independent relative permittivity and conductivity.
-    """
-
-    tissue: str | None = None
-    relative_permittivity: float | None = None
-    conductivity_s_per_m: float | None = None
-
-    def __post_init__(self) -> None:
-        explicit = self.relative_permittivity is not None
-        if (self.tissue is None) == (not explicit):
-            raise PhantomValidationError(
-                "give either a tissue name or relative_permittivity (+ conductivity_s_per_m)",
-                field="material",
-            )
-        if explicit:
-            eps = float(self.relative_permittivity)
-            sigma = float(self.conductivity_s_per_m or 0.0)
-            if not (np.isfinite(eps) and eps >= 1.0):
-                raise PhantomValidationError(
-                    f"relative_permittivity must be finite and >= 1, got {eps}",
-                    field="relative_permittivity",
-                )
-            if not (np.isfinite(sigma) and sigma >= 0.0):
-                raise PhantomValidationError(
-                    f"conductivity_s_per_m must be finite and >= 0, got {sigma}",
-                    field="conductivity_s_per_m",
-                )
-            object.__setattr__(self, "conductivity_s_per_m", sigma)
-        else:
-            from raytrace.tissues import TISSUE_NAMES
-            from raytrace.errors import UnknownTissueError
-
-            if self.tissue not in TISSUE_NAMES:
-                raise UnknownTissueError(
-                    f"unknown tissue {self.tissue!r}; known: {', '.join(TISSUE_NAMES)}",
-                    field="tissue",
-                )
-
-    @property
-    def label(self) -> str:
-        """The tissue name, or ``eps_r=..,sigma=..`` for an explicit medium."""
-        if self.tissue is not None:
-            return self.tissue
-        return f"eps_r={self.relative_permittivity:g},sigma={self.conductivity_s_per_m:g}S/m"
-
-    def complex_relative_permittivity(self, frequency_hz: float | np.ndarray) -> np.ndarray:
-        """eps' - j sigma / (w eps0) (time convention exp(+j w t); Gabriel 1996 Eq. 3
-        for tissues, the definition for an explicit medium)."""
-        if self.tissue is not None:
-            from raytrace.tissues import complex_relative_permittivity
-
-            return np.asarray(complex_relative_permittivity(self.tissue, frequency_hz))
-        from raytrace.em import complex_relative_permittivity
-
-        return np.asarray(
-            complex_relative_permittivity(
-                self.relative_permittivity, self.conductivity_s_per_m, frequency_hz
-            )
-        )
-
-
-AIR = Material(relative_permittivity=1.0, conductivity_s_per_m=0.0)
 
 
 @dataclass(frozen=True)

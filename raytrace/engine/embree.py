@@ -3,7 +3,7 @@
 Why not only embreex: embreex's ``EmbreeScene.run`` is the right call for a
 batch of rays from Python, but the tracer's inner loops (Newton's re-tracing,
 the shooting's bounce, the refraction-only walk) are compiled kernels
-(:mod:`raytrace.kernels`) that would otherwise return to the interpreter once
+(:mod:`raytrace.engine.kernels`) that would otherwise return to the interpreter once
 per step only to hand Embree the next batch. This module declares Embree's
 ``rtcIntersect1`` to numba by its symbol name (from the ``libembree4`` that the
 embreex wheel ships, loaded once into the process), so a kernel traces a ray to

@@ -58,7 +58,7 @@ __all__ = [
     "dielectric",
 ]
 
-#: Vacuum permittivity (CODATA 2018), F/m. Duplicated from :mod:`raytrace.em`
+#: Vacuum permittivity (CODATA 2018), F/m. Duplicated from :mod:`raytrace.physics.em`
 #: on purpose so that this module stays importable on its own.
 _EPS0: Final[float] = 8.8541878128e-12
 

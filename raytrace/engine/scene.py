@@ -1,6 +1,6 @@
 """Raw Embree scene of a phantom for the tracer: batched first-hit queries.
 
-Embree (through :mod:`raytrace.embree`) intersects in float32; this module uses it only to find
+Embree (through :mod:`raytrace.engine.embree`) intersects in float32; this module uses it only to find
 *which* triangle a ray hits first, then re-intersects the ray with that
 triangle's plane in float64 from the true (un-offset) origin, so hit points
 and path lengths carry float64 accuracy whatever the float32 rounding.
@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from raytrace.embree import EmbreeScene
-from raytrace.phantom import Phantom
+from raytrace.engine.embree import EmbreeScene
+from raytrace.body.phantom import Phantom
 
 #: Corners whose vertex normal deviates more than this from the facet normal are creases.
 CREASE_ANGLE_RAD = np.deg2rad(35.0)
@@ -138,7 +138,7 @@ class TracerScene:
 
     @cached_property
     def kernel_tables(self) -> "KernelTables":
-        """Per-face tables in the dtypes and layout :mod:`raytrace.kernels` is compiled for."""
+        """Per-face tables in the dtypes and layout :mod:`raytrace.engine.kernels` is compiled for."""
         face_map = np.arange(len(self.faces)) if self.face_map is None else self.face_map
         return KernelTables(face_map=np.ascontiguousarray(face_map, np.int64),
                             frame=np.ascontiguousarray(self._barycentric_frame))

@@ -56,7 +56,7 @@ import numpy as np
 import trimesh
 
 from raytrace.errors import InvalidGeometryError, PhantomValidationError, UnknownTissueError
-from raytrace.phantom import AIR_INDEX, Material, Organ, Phantom, Site
+from raytrace.body.phantom import AIR_INDEX, Material, Organ, Phantom, Site
 
 __all__ = [
     "DEFAULT_MAX_BYTES",
@@ -613,7 +613,7 @@ def export_glb(phantom: Phantom) -> bytes:
                       "extras": {"medium": organ.material.label}})
     binary = b"".join(chunks)
     document = {
-        "asset": {"version": "2.0", "generator": "CapsuleRT raytrace.gltf"},
+        "asset": {"version": "2.0", "generator": "CapsuleRT raytrace.body.gltf"},
         "scene": 0,
         "scenes": [{"name": phantom.name, "nodes": list(range(len(nodes))),
                     "extras": {"capsule_rt_manifest": export_manifest(phantom)}}],

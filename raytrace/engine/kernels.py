@@ -1,6 +1,6 @@
 """Compiled per-ray kernels (numba, without the GIL) for the tracer's inner loops.
 
-Why compiled code and not numpy here: Newton refinement (:mod:`raytrace.refine`)
+Why compiled code and not numpy here: Newton refinement (:mod:`raytrace.solver.refine`)
 re-traces a few thousand rays per iteration, a few dozen times, with a dozen
 numpy operations per ray step. At that batch size each numpy call costs more
 in interpreter overhead than in arithmetic, and the work holds the GIL, so two
@@ -8,25 +8,25 @@ threads did not help (docs/tracer.md, "Tried and dropped"). The shooting's
 bounce and the refraction-only walk were large-batch numpy, but made a dozen
 temporaries of every ray per bounce. These kernels do the same arithmetic one
 ray at a time in compiled code. :func:`follow` and :func:`bounce` call Embree
-themselves (:mod:`raytrace.embree`): :func:`newton` takes each seed through
+themselves (:mod:`raytrace.engine.embree`): :func:`newton` takes each seed through
 all its Newton iterations (re-tracing, Jacobian, step, line search) in one
 call, :func:`follow` each ray through its whole signature, and the shooting
 casts and splits a generation of rays in one call; Python drives only the
 shooting's generations. :func:`walk_step` still gets Embree's answers from the caller.
 
 The formulas are those of the numpy code they replaced, written per ray:
-the float64 re-intersection of :meth:`raytrace.scene.TracerScene.first_hit`,
-the smooth normal of :meth:`raytrace.scene.TracerScene.smooth_normals`, the
-law of reflection and the vector Snell law of :func:`raytrace.em.refract_direction`
+the float64 re-intersection of :meth:`raytrace.engine.scene.TracerScene.first_hit`,
+the smooth normal of :meth:`raytrace.engine.scene.TracerScene.smooth_normals`, the
+law of reflection and the vector Snell law of :func:`raytrace.physics.em.refract_direction`
 (``t = eta (d - cos_i n) + cos_t n``, Born & Wolf 1.5) without its input
 checks. They are tested against the independent closed forms of
-:mod:`raytrace.em` in tests/test_kernels.py and, through the tracer, against
+:mod:`raytrace.physics.em` in tests/test_kernels.py and, through the tracer, against
 every oracle of docs/tracer.md.
 
 ``cache=True``: the machine code is cached on disk (beside this file, or in
 ``NUMBA_CACHE_DIR`` / the user's cache directory when this one is read-only),
 so only the first process after an install compiles (~17 s);
-:func:`raytrace.tracer.warm_up` does it ahead of the first request. Embree is
+:func:`raytrace.solver.tracer.warm_up` does it ahead of the first request. Embree is
 called by symbol name, so the cached code stays valid in a new process.
 """
 
@@ -37,7 +37,7 @@ import math
 import numpy as np
 from numba import njit
 
-from raytrace import embree
+from raytrace.engine import embree
 
 #: Every kernel: compiled once and cached on disk, without the GIL, and with numpy's float
 #: semantics (a division by zero gives inf / nan, as in the numpy reference, never an exception).
@@ -60,7 +60,7 @@ KIND_PASS = 2
 def _smooth_normal(frame, face_normals, f, x, y, z):
     """Smooth unit normal at point (x, y, z) of face f: barycentrics from the face's frame row,
     clipped to [0, 1], corner normals interpolated; the facet normal if the result degenerates
-    or flips (:meth:`raytrace.scene.TracerScene.smooth_normals`)."""
+    or flips (:meth:`raytrace.engine.scene.TracerScene.smooth_normals`)."""
     fr = frame[f]
     v2x, v2y, v2z = x - fr[0], y - fr[1], z - fr[2]
     d20 = v2x * fr[3] + v2y * fr[4] + v2z * fr[5]
@@ -377,7 +377,7 @@ def follow(
     launch_d, d_point, d_dir,  # ray differentials: (P, 2, 3) launch tangents in; (P, 2, 3) out, or (0, 2, 3)
     fractions, base_dir, step, rx, old_miss, won, trial_dir,  # line-search mode, or empty arrays
 ):
-    """:func:`raytrace.refine.follow`, every ray traced to its end: per step, Embree's float32
+    """:func:`raytrace.solver.refine.follow`, every ray traced to its end: per step, Embree's float32
     first hit from the centred origin plus the spawn push (in record mode a ray past its last
     event is first aimed at its target), then the float64 hit point on the hit triangle's plane,
     side and media from the facet normal, the signature's expected event checked, then
@@ -454,7 +454,7 @@ def newton(
     rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # (0, 0) record arrays
     fractions, max_iterations, tolerance_m, max_step_rad, stall_window, stall_factor, growth,
 ):
-    """:func:`raytrace.refine.refine`'s Newton iteration, one seed at a time to its end: trace
+    """:func:`raytrace.solver.refine.refine`'s Newton iteration, one seed at a time to its end: trace
     the launch with its ray differentials (:func:`follow`); the residual is where the last leg
     crosses the plane through the receiver normal to it, in that plane's :func:`_tangents`
     basis, and the Jacobian the same offset's derivatives by the two launch angles
@@ -546,7 +546,7 @@ def newton(
 
 @_helper
 def _tangents(dx, dy, dz):
-    """:func:`raytrace.refine.tangent_basis` of one unit direction: ``u = d x r / |d x r|``
+    """:func:`raytrace.solver.refine.tangent_basis` of one unit direction: ``u = d x r / |d x r|``
     with ``r`` the x axis (the y axis when ``|d_x| >= 0.9``), ``v = d x u``."""
     rx, ry = (1.0, 0.0) if abs(dx) < 0.9 else (0.0, 1.0)
     ux, uy, uz = dy * 0.0 - dz * ry, dz * rx - dx * 0.0, dx * ry - dy * rx
@@ -615,7 +615,7 @@ def bounce(
     need, rx_m, rx_cls, threshold, kmax, offset_m, reception_factor, curvature_margin, log_base, no_passes,
     walk_miss, walk_n, walk_hist, src_base, walk_events,  # the refraction-only walk's records, or (0, R) arrays
 ):
-    """One bounce of :func:`raytrace.sbr.shoot` for a chunk of live rays.
+    """One bounce of :func:`raytrace.solver.sbr.shoot` for a chunk of live rays.
 
     Reception: a ray of the receiver's material class whose segment passes the receiver
     within ``reception_factor * (rad + t_along * ang)`` (the ray tube's half-width) makes a
@@ -625,7 +625,7 @@ def bounce(
     Born & Wolf 1.5.3) and a transmitted one (vector Snell law) with the rest, unless Snell has
     no real solution (total internal reflection); a transparent surface passes the ray
     unchanged. Children below ``threshold`` or unable to reach a receiver's class within
-    ``kmax`` events (``need``) are dropped. Tube angles grow as in :mod:`raytrace.sbr`.
+    ``kmax`` events (``need``) are dropped. Tube angles grow as in :mod:`raytrace.solver.sbr`.
 
     A ray that already has ``kmax`` events can have no children (``no_passes``: the scene
     has no transparent surface to pass on through), so it is cast only if the receiver test
@@ -633,7 +633,7 @@ def bounce(
     half-width of its unbounded line; otherwise it is not cast at all (exact: the
     receptions are unchanged).
 
-    The refraction-only walk (:func:`raytrace.direct.refraction_walk`'s seed search) rides on
+    The refraction-only walk (:func:`raytrace.solver.direct.refraction_walk`'s seed search) rides on
     the same rays when ``walk_miss`` has a row per launch direction of the batch (row
     ``src - src_base``): ``mode`` 1 marks a ray with no reflection so far, 2 a ray that only
     the walk still follows. Every leg of a mode 1 or 2 ray in a receiver's material class
@@ -754,7 +754,7 @@ def bounce(
         m_from_k[i] = m_from
         m_to_k[i] = m_to
         face_k[i] = f
-        if transparent[f]:  # never with the walk (raytrace.sbr: its scene has no transparent surface)
+        if transparent[f]:  # never with the walk (raytrace.solver.sbr: its scene has no transparent surface)
             if shot and nk + need[m_to + 1] <= kmax:
                 kind[i] = 4
                 w_t[i] = wk
@@ -860,7 +860,7 @@ def walk_step(
     face_map, face_normals, plane_d, frame, corner64, face_organ, parent, cls, n_re, offset_m, center,
     max_events,
 ):
-    """One event of :func:`raytrace.direct.refraction_walk` for every live ray.
+    """One event of :func:`raytrace.solver.direct.refraction_walk` for every live ray.
 
     Each leg in a receiver's material class updates the ray's closest approach to that
     receiver (``ray_rx[i] >= 0``: only to its own receiver, column 0; else to every receiver,
@@ -953,7 +953,7 @@ def spread_picks(order, starts, dirs, min_cos, per_group):
     """Greedy thinning of candidate launches: group g is ``order[starts[g]:starts[g + 1]]``,
     best first; a candidate is kept if the cosine between its launch direction and every
     direction kept in its group so far is below ``min_cos``, up to ``per_group`` per group.
-    Returns the keep mask over candidates (:func:`raytrace.tracer._select_seeds`)."""
+    Returns the keep mask over candidates (:func:`raytrace.solver.tracer._select_seeds`)."""
     keep = np.zeros(len(dirs), np.bool_)
     kept = np.empty(max(per_group, 1), np.int64)
     for g in range(len(starts) - 1):
@@ -979,7 +979,7 @@ def spread_picks(order, starts, dirs, min_cos, per_group):
 def first_of_duplicates(group, dirs, max_angle):
     """Mask of the rows kept, in order: a row is dropped when a row kept before it in the
     same ``group`` has a launch direction within ``max_angle`` (Euclidean distance of the
-    unit vectors) of its own. :func:`raytrace.tracer._unique_paths`'s greedy pass; each
+    unit vectors) of its own. :func:`raytrace.solver.tracer._unique_paths`'s greedy pass; each
     group's kept rows are a linked list."""
     n = len(group)
     out = np.zeros(n, np.bool_)

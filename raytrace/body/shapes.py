@@ -24,7 +24,7 @@ exponent, same centre) gives a solid strictly inside the original one,
 analytically. The faceted meshes are inscribed in the analytic surfaces, so
 two nested surfaces stay nested when their gap exceeds the chord sagitta
 (about ``r pi^2 / (2 n^2)`` for ``n`` segments around a radius ``r``);
-:class:`~raytrace.phantom.Phantom` validation checks it for every build.
+:class:`~raytrace.body.phantom.Phantom` validation checks it for every build.
 """
 
 from __future__ import annotations

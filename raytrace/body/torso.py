@@ -119,9 +119,9 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from raytrace.phantom import Material, Organ, Phantom
-from raytrace.shapes import rounded_cylinder, superquadric
-from raytrace.tissues import DEFAULT_FAT
+from raytrace.body.phantom import Material, Organ, Phantom
+from raytrace.body.shapes import rounded_cylinder, superquadric
+from raytrace.physics.tissues import DEFAULT_FAT
 
 __all__ = [
     "BELT_SITES",
