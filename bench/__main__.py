@@ -22,7 +22,7 @@ import numpy as np
 
 from bench import ceiling, completeness, estimators_bench, latency, scenes
 from bench.common import ROOT, growth_exponent, run_point
-from raytrace.solver.tracer import trace_channel, warm_up
+from raytrace.solver.tracer import warm_up
 
 
 def tracer_throughput(rays: int, interactions: int, repeat: int) -> dict:
@@ -31,11 +31,11 @@ def tracer_throughput(rays: int, interactions: int, repeat: int) -> dict:
     phantom = scenes.torso()
     tx = scenes.transmitter(phantom)
     rx = scenes.receivers(phantom)
-    trace_channel(phantom, tx, rx[:1], 402e6, rays=1000, max_interactions=1)  # build the scene
+    scenes.trace(phantom, tx, rx[:1], 402e6, rays=1000, max_interactions=1)  # build the scene
     times, result = [], None
     for _ in range(repeat):
         t0 = time.perf_counter()
-        result = trace_channel(phantom, tx, rx, 402e6, rays=rays, max_interactions=interactions)
+        result = scenes.trace(phantom, tx, rx, 402e6, rays=rays, max_interactions=interactions)
         times.append(time.perf_counter() - t0)
     elapsed, median = min(times), float(np.median(times))
     seg = result.stats.ray_segments_traced  # the same every run (deterministic)

@@ -11,7 +11,6 @@ that the default launch finds.
 from __future__ import annotations
 
 from bench import scenes
-from raytrace.solver.tracer import trace_channel
 
 SAME_PATH_S = 1e-15
 STRONG_DB = 10.0
@@ -21,8 +20,8 @@ def completeness(rays: int, interactions: int = 6, dense_factor: int = 4) -> dic
     phantom = scenes.torso()
     tx = scenes.transmitter(phantom)
     rx = scenes.receivers(phantom)
-    base = trace_channel(phantom, tx, rx, 402e6, rays=rays, max_interactions=interactions)
-    dense = trace_channel(phantom, tx, rx, 402e6, rays=dense_factor * rays, max_interactions=interactions)
+    base = scenes.trace(phantom, tx, rx, 402e6, rays=rays, max_interactions=interactions)
+    dense = scenes.trace(phantom, tx, rx, 402e6, rays=dense_factor * rays, max_interactions=interactions)
     strongest_missed, strong, found = 0, 0, 0
     for lo, hi in zip(base.profiles, dense.profiles):
         if not hi.paths:

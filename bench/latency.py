@@ -18,7 +18,6 @@ import httpx
 
 from bench import scenes
 from bench.common import ROOT, percentiles, timed
-from raytrace.solver.tracer import trace_channel
 
 
 def in_process(repeat: int, rays: int, interactions: int) -> dict:
@@ -26,11 +25,11 @@ def in_process(repeat: int, rays: int, interactions: int) -> dict:
     tx = scenes.transmitter(phantom)
     rx_all = scenes.receivers(phantom)
     t0 = time.perf_counter()
-    trace_channel(phantom, tx, rx_all, 402e6, rays=rays, max_interactions=interactions)
+    scenes.trace(phantom, tx, rx_all, 402e6, rays=rays, max_interactions=interactions)
     cold = time.perf_counter() - t0
-    one = timed(lambda: trace_channel(phantom, tx, rx_all[:1], 402e6, rays=rays,
+    one = timed(lambda: scenes.trace(phantom, tx, rx_all[:1], 402e6, rays=rays,
                                       max_interactions=interactions), repeat)
-    every = timed(lambda: trace_channel(phantom, tx, rx_all, 402e6, rays=rays,
+    every = timed(lambda: scenes.trace(phantom, tx, rx_all, 402e6, rays=rays,
                                         max_interactions=interactions), repeat)
     return {"cold_first_trace_s": cold, "one_receiver": percentiles(one),
             "all_sensor_sites": percentiles(every), "receivers": len(rx_all)}

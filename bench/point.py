@@ -16,7 +16,6 @@ import sys
 import time
 
 from bench import scenes
-from raytrace.solver.tracer import trace_channel
 
 
 def peak_rss_mb() -> float:
@@ -53,10 +52,10 @@ def main() -> None:
     rx = scenes.receivers(phantom, a.receivers)
     before_mb = peak_rss_mb()
     kwargs = dict(rays=a.rays, max_interactions=a.interactions)
-    trace_channel(phantom, tx, rx[:1], a.frequency, rays=1000, max_interactions=1)  # warm the scene
+    scenes.trace(phantom, tx, rx[:1], a.frequency, rays=1000, max_interactions=1)  # warm the scene
     gc.freeze()  # as the service does after start-up (bench/__main__.py)
     t0 = time.perf_counter()
-    result = trace_channel(phantom, tx, rx, a.frequency, **kwargs)
+    result = scenes.trace(phantom, tx, rx, a.frequency, **kwargs)
     trace_s = time.perf_counter() - t0
     print(json.dumps({
         "rays": a.rays, "resolution": a.resolution, "receivers": len(rx), "interactions": a.interactions,

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from raytrace.spec import Antenna
+import raytrace as rt
 from raytrace.body.torso import default_torso
+from raytrace.spec import Antenna
 
 
 def torso(resolution: int | None = None):
@@ -42,3 +43,9 @@ def receivers(phantom, count: int | None = None) -> list[Antenna]:
 def transmitter(phantom) -> Antenna:
     site = phantom.sites[capsule_site(phantom)]
     return Antenna(position_m=site.position_m.copy(), name=site.name)
+
+
+def trace(phantom, tx: Antenna, rx: list[Antenna], frequency_hz: float = 402e6, **knobs) -> rt.ChannelResult:
+    """One channel on ``phantom`` (a spec naming it, the object passed along)."""
+    spec = rt.ChannelSpec(tx, tuple(rx), phantom=phantom.name, frequency_hz=frequency_hz, **knobs)
+    return rt.trace_channel(spec, phantom)

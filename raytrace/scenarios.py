@@ -17,58 +17,32 @@ from raytrace.body.library import (
     THESIS_DISTANCE_M,
     THESIS_EPS_R,
     THESIS_FRONT_DEPTH_M,
-    get_phantom,
 )
-from raytrace.body.phantom import Phantom
 from raytrace.body.torso import BELT_SITES, TORSO_NAME, UPPER_SITES
 from raytrace.errors import NotFoundError
-from raytrace.spec import Antenna
+from raytrace.spec import Antenna, ChannelSpec
 
 __all__ = ["SCENARIOS", "Scenario", "get_scenario"]
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A ready-made tracing case.
-
-    ``transmitter`` / ``receivers`` are :class:`Antenna` objects or names of
-    the phantom's sites (resolved by :meth:`resolve`). ``max_interactions``,
-    ``rays`` and ``dynamic_range_db`` are suggestions that make the case show
-    what it is meant to show; requests may override them.
-    """
+    """A ready-made tracing case: a :class:`ChannelSpec` on a built-in phantom, with what it
+    is meant to show. Its ``max_interactions``, ``rays`` and ``dynamic_range_db`` are the
+    values that make the case show it; requests may override any field."""
 
     id: str
     description: str
-    phantom_id: str
-    transmitter: Antenna | str
-    receivers: tuple[Antenna | str, ...]
-    frequency_hz: float = 402e6
-    max_interactions: int = 4
-    rays: int = 50_000
-    dynamic_range_db: float | None = None
+    spec: ChannelSpec
     notes: str = ""
     metadata: dict = field(default_factory=dict)
 
-    def phantom(self) -> Phantom:
-        """The scenario's phantom (cached: built once per process)."""
-        return get_phantom(self.phantom_id)
 
-    def resolve(self) -> tuple[Phantom, Antenna, tuple[Antenna, ...]]:
-        """The phantom and the antennas, site names replaced by positioned antennas
-        (named after the site, default polarization and pattern)."""
-        phantom = self.phantom()
-
-        def one(item: Antenna | str, where: str) -> Antenna:
-            if isinstance(item, Antenna):
-                return item
-            site = phantom.sites.get(item)
-            if site is None:
-                raise NotFoundError(f"phantom {phantom.name!r} has no site {item!r}", field=where)
-            return Antenna(position_m=np.array(site.position_m, float), name=item)
-
-        tx = one(self.transmitter, "transmitter")
-        rxs = tuple(one(r, f"receivers[{i}]") for i, r in enumerate(self.receivers))
-        return phantom, tx, rxs
+def _case(phantom: str, transmitter: str, receivers: tuple[str, ...], **knobs) -> ChannelSpec:
+    """A spec with antennas at the phantom's sites (named after them); 4 interactions and
+    50 000 rays unless the case says otherwise."""
+    knobs = {"max_interactions": 4, "rays": 50_000, **knobs}
+    return ChannelSpec(Antenna(site=transmitter), tuple(Antenna(site=r) for r in receivers), phantom=phantom, **knobs)
 
 
 # ------------------------------------------------------------- scenarios
@@ -81,13 +55,8 @@ SCENARIOS: dict[str, Scenario] = {
                 "Thesis Fig 5.5/5.6: homogeneous lossless eps_r 27.9 body, transmitter and "
                 "receiver 0.076 m apart; direct path (TOA 1.338 ns) plus two reflections."
             ),
-            phantom_id="thesis-fig-5-6",
-            transmitter="tx",
-            receivers=("rx",),
-            frequency_hz=402e6,
-            max_interactions=1,
-            rays=100_000,
-            dynamic_range_db=20.0,
+            spec=_case("thesis-fig-5-6", "tx", ("rx",), frequency_hz=402e6, max_interactions=1, rays=100_000,
+                       dynamic_range_db=20.0),
             notes=(
                 "The thesis text gives the permittivity (27.9, taken lossless: sigma = 0), the "
                 "distance (0.076 m), the first TOA (1.338 ns) and 'three paths'; the geometry is "
@@ -113,10 +82,7 @@ SCENARIOS: dict[str, Scenario] = {
                 "Muscle sphere (R = 0.10 m) in air, transmitter at the centre, receivers "
                 "inside (0.05 m) and outside (5 mm off the surface)."
             ),
-            phantom_id="homogeneous-sphere",
-            transmitter="centre",
-            receivers=("inner", "outer"),
-            max_interactions=2,
+            spec=_case("homogeneous-sphere", "centre", ("inner", "outer"), max_interactions=2),
             notes=(
                 "Oracle: direct path in a homogeneous lossy medium (delay, Friis with the "
                 "complex wavenumber); from the centre every wall reflection is at normal "
@@ -131,10 +97,7 @@ SCENARIOS: dict[str, Scenario] = {
                 "Planar muscle/air interface: transmitter 30 mm deep in muscle, receivers in "
                 "air at normal and oblique incidence."
             ),
-            phantom_id="half-space",
-            transmitter="tx",
-            receivers=("rx_normal", "rx_oblique"),
-            max_interactions=2,
+            spec=_case("half-space", "tx", ("rx_normal", "rx_oblique"), max_interactions=2),
             notes=(
                 "Oracle: Snell/Fermat refraction delay and lossy Fresnel transmission at one "
                 "planar interface (y = 0). The box's other faces are >= 0.97 m of muscle away."
@@ -146,10 +109,7 @@ SCENARIOS: dict[str, Scenario] = {
                 "Planar skin 2 mm / fat 17.5 mm / muscle stack (tissues.md 5.2), transmitter "
                 "30 mm deep in muscle, receivers in air 5 mm off the skin and inside the fat."
             ),
-            phantom_id="layered-slab",
-            transmitter="tx",
-            receivers=("rx_normal", "rx_oblique", "rx_fat"),
-            max_interactions=6,
+            spec=_case("layered-slab", "tx", ("rx_normal", "rx_oblique", "rx_fat"), max_interactions=6),
             notes=(
                 "Oracle: multiple reflections in the skin and fat layers with analytic delays; "
                 "at normal incidence the coherent sum tends to the transfer-matrix "
@@ -163,9 +123,7 @@ SCENARIOS: dict[str, Scenario] = {
                 "Default torso: capsule in the small intestine (site small_intestine_1), the "
                 "seven-sensor belt around the abdomen 35 mm above it."
             ),
-            phantom_id=TORSO_NAME,
-            transmitter="small_intestine_1",
-            receivers=BELT_SITES,
+            spec=_case(TORSO_NAME, "small_intestine_1", BELT_SITES),
         ),
         Scenario(
             id="torso-stomach",
@@ -173,16 +131,12 @@ SCENARIOS: dict[str, Scenario] = {
                 "Default torso: capsule in the stomach, five sensors at stomach level and the "
                 "seven-sensor belt."
             ),
-            phantom_id=TORSO_NAME,
-            transmitter="stomach",
-            receivers=UPPER_SITES + BELT_SITES,
+            spec=_case(TORSO_NAME, "stomach", UPPER_SITES + BELT_SITES),
         ),
         Scenario(
             id="torso-descending-colon",
             description="Default torso: capsule in the descending colon, the seven-sensor belt.",
-            phantom_id=TORSO_NAME,
-            transmitter="descending_colon",
-            receivers=BELT_SITES,
+            spec=_case(TORSO_NAME, "descending_colon", BELT_SITES),
         ),
     )
 }

@@ -93,15 +93,15 @@ def _error_json(exc: Exception) -> dict[str, Any]:
 
 def run_channel_request(payload: dict) -> dict[str, Any]:
     """Run one POST /v1/channel body locally (no HTTP); returns the response dict."""
-    from raytrace.solver.budget import Budget
+    from raytrace import Budget, trace_channel
     from service import channel as ops
     from service.schemas import ChannelRequest, ChannelResponse
 
     registry, settings = _local_registry()
     req = ChannelRequest.model_validate(payload)
-    resolved = ops.resolve(req, registry, settings)
-    result = ops.run(resolved, Budget(deadline_s=settings.request_deadline_s, max_ray_segments=settings.max_ray_segments))
-    out = ops.result_to_dict(result, resolved)
+    spec, phantom = ops.to_spec(req, registry, settings)
+    budget = Budget(deadline_s=settings.request_deadline_s, max_ray_segments=settings.max_ray_segments)
+    out = ops.result_to_dict(trace_channel(spec, phantom, budget=budget), req.scenario)
     return json.loads(ChannelResponse.model_validate(out).model_dump_json())
 
 

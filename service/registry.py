@@ -13,12 +13,13 @@ import logging
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
+from raytrace import SCENARIOS, Scenario
+from raytrace.body import gltf, library
 from raytrace.body.phantom import AIR_NAME, Phantom
-from service import adapters
 from service.errors import NotFound
 from service.storage import PhantomStore, is_upload_id
 
@@ -68,11 +69,10 @@ SUMMARY_KEYS = ("id", "name", "description", "builtin", "triangles", "bounds_m")
 @dataclass
 class Registry:
     store: PhantomStore
-    loader: Callable[[bytes, dict], Phantom] | None = None
     cache_size: int = 8
     builtins: dict[str, Phantom] = field(default_factory=dict)
     builtin_info: dict[str, dict] = field(default_factory=dict)
-    scenarios: dict[str, adapters.ScenarioSpec] = field(default_factory=dict)
+    scenarios: dict[str, Scenario] = field(default_factory=dict)
     _cache: "OrderedDict[str, Phantom]" = field(default_factory=OrderedDict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _glb_cache: dict[str, bytes] = field(default_factory=dict)
@@ -81,12 +81,22 @@ class Registry:
 
     # ------------------------------------------------------------ lifecycle
     def load_builtins(self, enabled: bool = True) -> None:
+        """Build every built-in phantom and list the scenarios. A phantom whose factory
+        fails is logged and reported in :attr:`errors` (with the scenarios that need it)
+        instead of taking the whole service down."""
         self.store.init()
         if enabled:
-            phantoms, scenarios = adapters.builtin_phantoms_and_scenarios(self.errors)
-            for pid, phantom in phantoms.items():
-                self.add_builtin(pid, phantom)
-            self.scenarios.update(scenarios)
+            for pid, factory in library.builtin_phantoms().items():
+                try:
+                    self.add_builtin(pid, factory())
+                except Exception as exc:  # a broken built-in must not stop the others
+                    log.exception("built-in phantom failed to build", extra={"phantom": pid})
+                    self.errors.append(f"built-in phantom {pid!r} failed to build: {exc}")
+            for sid, scenario in SCENARIOS.items():
+                if scenario.spec.phantom in self.builtins:
+                    self.scenarios[sid] = scenario
+                else:
+                    self.errors.append(f"scenario {sid!r} unavailable: its phantom {scenario.spec.phantom!r} is missing")
         self.ready = True
 
     def add_builtin(self, phantom_id: str, phantom: Phantom) -> None:
@@ -129,7 +139,7 @@ class Registry:
                 self._cache.move_to_end(phantom_id)
                 return self._cache[phantom_id]
         stored = self.store.load(phantom_id)
-        phantom = adapters.load_glb(stored.mesh, stored.manifest)
+        phantom = gltf.load_phantom(stored.mesh, stored.manifest)
         with self._lock:
             self._cache[phantom_id] = phantom
             while len(self._cache) > self.cache_size:
@@ -139,7 +149,7 @@ class Registry:
     def mesh_glb(self, phantom_id: str) -> bytes:
         if phantom_id in self.builtins:
             if phantom_id not in self._glb_cache:
-                self._glb_cache[phantom_id] = adapters.export_glb(self.builtins[phantom_id])
+                self._glb_cache[phantom_id] = gltf.export_glb(self.builtins[phantom_id])
             return self._glb_cache[phantom_id]
         if is_upload_id(phantom_id) and self.store.exists(phantom_id):
             return self.store.load(phantom_id).mesh
@@ -148,7 +158,7 @@ class Registry:
     def manifest(self, phantom_id: str) -> dict:
         """The manifest that reloads :meth:`mesh_glb` through POST /v1/phantoms."""
         if phantom_id in self.builtins:
-            return adapters.export_manifest(self.builtins[phantom_id])
+            return gltf.export_manifest(self.builtins[phantom_id])
         if is_upload_id(phantom_id) and self.store.exists(phantom_id):
             return self.store.load(phantom_id).manifest
         raise NotFound(self.unknown_message(phantom_id), loc=["path", "phantom_id"])

@@ -19,8 +19,12 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
+from dataclasses import fields as dataclass_fields
+
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
+from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
+from raytrace.spec import MAX_DYNAMIC_RANGE_DB, NAME_PATTERN, ChannelSpec
 from service.settings import (
     MAX_BAND_POINTS,
     MAX_INTERACTIONS,
@@ -33,12 +37,10 @@ from service.settings import (
 #: dB value reported for a zero gain / power (instead of -inf) [dB].
 GAIN_DB_FLOOR = -400.0
 
-#: Tissue-model validity range of the Gabriel 1996 model [Hz].
-FREQUENCY_MIN_HZ = 10.0
-FREQUENCY_MAX_HZ = 20e9
+#: The channel spec's defaults, quoted in the field descriptions (the spec applies them).
+SPEC_DEFAULTS = {f.name: f.default for f in dataclass_fields(ChannelSpec)}
 
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
-NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 
 PhantomId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 ScenarioId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
@@ -94,20 +96,17 @@ class HomogeneousMedium(Strict):
 
 
 class AntennaIn(Strict):
-    """An antenna: either ``position_m`` or a phantom ``site`` (exactly one)."""
+    """An antenna: either ``position_m`` or a phantom ``site`` (exactly one; the channel spec,
+    :class:`raytrace.spec.Antenna`, enforces it and the schema states it)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False,
+                              json_schema_extra={"oneOf": [{"required": ["position_m"]}, {"required": ["site"]}]})
 
     position_m: Vec3 | None = Field(None, description="Position [m] (phantom coordinates).")
     site: Name | None = Field(None, description="Name of one of the phantom's sites (GET /v1/phantoms/{id}).")
-    polarization: Vec3 = Field([0.0, 0.0, 1.0], description="Polarization unit vector [-] (normalised by the server).")
-    pattern: Literal["isotropic", "dipole"] = Field("isotropic", description="Radiation pattern.")
-
-    @model_validator(mode="after")
-    def _one_position(self) -> "AntennaIn":
-        if (self.position_m is None) == (self.site is None):
-            raise ValueError("give exactly one of position_m or site")
-        if sum(c * c for c in self.polarization) <= 1e-24:
-            raise ValueError("polarization must be a non-zero vector")
-        return self
+    polarization: Vec3 | None = Field(
+        None, description="Polarization vector [-], normalised by the server (default [0, 0, 1]: z).")
+    pattern: Literal["isotropic", "dipole"] | None = Field(None, description="Radiation pattern (default isotropic).")
 
 
 class ReceiverIn(AntennaIn):
@@ -122,6 +121,8 @@ class ChannelRequest(Strict):
         extra="forbid",
         allow_inf_nan=False,
         json_schema_extra={
+            # what ChannelSpec requires: a scenario, or a transmitter and receivers of one's own
+            "anyOf": [{"required": ["scenario"]}, {"required": ["transmitter", "receivers"]}],
             "examples": [
                 {
                     "phantom": "torso",
@@ -142,7 +143,7 @@ class ChannelRequest(Strict):
     )
 
     phantom: PhantomId | None = Field(
-        None, description="Phantom id (GET /v1/phantoms); default: the scenario's, else `torso`."
+        None, description=f"Phantom id (GET /v1/phantoms); default: the scenario's, else `{SPEC_DEFAULTS['phantom']}`."
     )
     scenario: ScenarioId | None = Field(
         None, description="Built-in scenario id (GET /v1/scenarios) supplying phantom, antennas and frequency; explicit fields override it."
@@ -151,7 +152,7 @@ class ChannelRequest(Strict):
         None, description="Replace every body tissue by this one medium (same geometry)."
     )
     frequency_hz: FrequencyHz | None = Field(
-        None, description="Carrier frequency [Hz]; default: the scenario's, else 402e6."
+        None, description=f"Carrier frequency [Hz]; default: the scenario's, else {SPEC_DEFAULTS['frequency_hz']:g}."
     )
     band: Band | None = Field(None, description="Also return each path's complex gain over this band.")
     transmitter: AntennaIn | None = Field(None, description="Transmitter (the capsule); required without a scenario.")
@@ -162,13 +163,18 @@ class ChannelRequest(Strict):
         description=f"Receivers (skin sensors), 1..{MAX_RECEIVERS}; required without a scenario.",
     )
     max_interactions: int | None = Field(
-        None, ge=0, le=MAX_INTERACTIONS, description=f"Max reflections + refractions per path [-] (default 6, <= {MAX_INTERACTIONS})."
+        None, ge=1, le=MAX_INTERACTIONS,
+        description=f"Max reflections + refractions per path [-] (default {SPEC_DEFAULTS['max_interactions']}, "
+        f"<= {MAX_INTERACTIONS}).",
     )
     rays: int | None = Field(
-        None, ge=1, le=MAX_RAYS, description=f"Rays launched from the transmitter [-] (default 100000, <= {MAX_RAYS})."
+        None, ge=1, le=MAX_RAYS,
+        description=f"Rays launched from the transmitter [-] (default {SPEC_DEFAULTS['rays']}, <= {MAX_RAYS}).",
     )
     dynamic_range_db: float | None = Field(
-        None, gt=0.0, le=300.0, description="Paths weaker than the strongest by more than this are dropped [dB] (default 80)."
+        None, gt=0.0, le=MAX_DYNAMIC_RANGE_DB,
+        description="Paths weaker than the strongest by more than this are dropped [dB] "
+        f"(default {SPEC_DEFAULTS['dynamic_range_db']:g}).",
     )
 
 

@@ -19,10 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from raytrace.spec import Antenna
-from raytrace.scenarios import get_scenario
-from raytrace.body.torso import BELT_SITES, UPPER_SITES, default_torso
-from raytrace.solver.tracer import trace_channel
+import raytrace as rt
+from raytrace.body.torso import BELT_SITES, UPPER_SITES
 
 GOLDEN = Path(__file__).parent / "data" / "golden_channels.json"
 DELAY_TOL_S = 1e-15
@@ -30,24 +28,19 @@ GAIN_RTOL = 1e-9
 
 
 def _torso_case(capsule, sensors, frequency_hz, band=None):
-    torso = default_torso()
-    tx = Antenna(torso.sites[capsule].position_m, "transmitter")
-    rx = [Antenna(torso.sites[s].position_m, s) for s in sensors]
-    return trace_channel(torso, tx, rx, frequency_hz, band_frequencies_hz=band, max_interactions=6, rays=100_000,
-                         dynamic_range_db=80.0)
+    spec = rt.ChannelSpec(rt.Antenna(site=capsule), [rt.Antenna(site=s) for s in sensors], frequency_hz=frequency_hz,
+                          band=band, max_interactions=6, rays=100_000, dynamic_range_db=80.0)
+    return rt.trace_channel(spec)
 
 
 def _scenario_case(sid):
-    sc = get_scenario(sid)
-    phantom, tx, rxs = sc.resolve()
-    return trace_channel(phantom, tx, list(rxs), sc.frequency_hz, max_interactions=sc.max_interactions, rays=sc.rays,
-                         dynamic_range_db=sc.dynamic_range_db or 80.0)
+    return rt.trace_channel(rt.get_scenario(sid).spec)
 
 
 CASES = {
     # the README's torso band request
     "readme-torso-band": lambda: _torso_case("small_intestine_1", ["belt_anterior", "belt_left"], 402e6,
-                                             np.linspace(400e6, 420e6, 21)),
+                                             rt.Band(400e6, 420e6, 21)),
     "scenario-thesis-fig-5-6": lambda: _scenario_case("thesis-fig-5-6"),
     "scenario-layered-slab": lambda: _scenario_case("layered-slab"),
     # the other WCE band, every sensor

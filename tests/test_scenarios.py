@@ -14,11 +14,11 @@ import re
 import numpy as np
 import pytest
 
-from raytrace.errors import NotFoundError
-from raytrace.spec import Antenna
-from raytrace.body.phantom import Phantom
 from raytrace.body.library import builtin_phantoms, get_phantom
+from raytrace.body.phantom import Phantom
+from raytrace.errors import NotFoundError
 from raytrace.scenarios import SCENARIOS, Scenario, get_scenario
+from raytrace.spec import Antenna, ChannelSpec
 
 C_M_PER_S = 299_792_458.0
 
@@ -34,11 +34,19 @@ def _distance_to_surface(phantom: Phantom, point: np.ndarray, direction) -> floa
     return float(np.linalg.norm(loc[0] - point))
 
 
+def _placed(scenario: Scenario):
+    """The scenario's phantom and its antennas at their resolved positions."""
+    phantom = get_phantom(scenario.spec.phantom)
+    r = scenario.spec.resolve(phantom)
+    tx = Antenna(r.tx_m, scenario.spec.transmitter.site or "")
+    return phantom, tx, tuple(Antenna(p, a.name) for p, a in zip(r.rx_m, scenario.spec.receivers))
+
+
 def test_catalogue_lists_torso_and_every_scenario_phantom() -> None:
     phantoms = builtin_phantoms()
     assert "torso" in phantoms
     for scenario in SCENARIOS.values():
-        assert scenario.phantom_id in phantoms
+        assert scenario.spec.phantom in phantoms
     for phantom_id, factory in phantoms.items():
         phantom = factory()
         assert isinstance(phantom, Phantom)
@@ -63,9 +71,9 @@ def test_ids_are_sane_and_unknown_ids_are_404() -> None:
 def test_every_scenario_resolves_to_antennas_in_the_phantom(scenario_id: str) -> None:
     scenario = SCENARIOS[scenario_id]
     assert scenario.id == scenario_id and scenario.description
-    assert 10.0 <= scenario.frequency_hz <= 20e9
-    assert scenario.max_interactions >= 1 and scenario.rays >= 1000
-    phantom, tx, rxs = scenario.resolve()
+    assert 10.0 <= scenario.spec.frequency_hz <= 20e9
+    assert scenario.spec.max_interactions >= 1 and scenario.spec.rays >= 1000
+    phantom, tx, rxs = _placed(scenario)
     assert isinstance(tx, Antenna) and all(isinstance(r, Antenna) for r in rxs)
     assert len(rxs) >= 1
     points = np.array([tx.position_m, *[r.position_m for r in rxs]])
@@ -74,21 +82,21 @@ def test_every_scenario_resolves_to_antennas_in_the_phantom(scenario_id: str) ->
     # ... and the transmitter is inside the body.
     assert media[0] != "air"
     # Site names resolve to the sites' own positions.
-    if isinstance(scenario.transmitter, str):
-        np.testing.assert_array_equal(tx.position_m, phantom.sites[scenario.transmitter].position_m)
-        assert tx.name == scenario.transmitter
+    if scenario.spec.transmitter.site is not None:
+        np.testing.assert_array_equal(tx.position_m, phantom.sites[scenario.spec.transmitter.site].position_m)
 
 
 def test_resolve_unknown_site_is_not_found() -> None:
-    bad = Scenario(id="x", description="x", phantom_id="half-space", transmitter="nowhere",
-                   receivers=("rx_normal",))
-    with pytest.raises(NotFoundError, match="nowhere"):
-        bad.resolve()
+    bad = Scenario(id="x", description="x", spec=ChannelSpec(Antenna(site="nowhere"), (Antenna(site="rx_normal"),),
+                                                              phantom="half-space"))
+    with pytest.raises(NotFoundError, match="nowhere") as e:
+        _placed(bad)
+    assert e.value.field == "transmitter.site"
 
 
 def test_thesis_fig_5_6_geometry() -> None:
     # Thesis Sec 5.4 / Table 5.1: eps_r 27.9, real distance 0.076 m, first TOA 1.338 ns.
-    phantom, tx, (rx,) = SCENARIOS["thesis-fig-5-6"].resolve()
+    phantom, tx, (rx,) = _placed(SCENARIOS["thesis-fig-5-6"])
     distance = float(np.linalg.norm(rx.position_m - tx.position_m))
     assert distance == pytest.approx(0.076, abs=1e-12)
     media = phantom.medium_names(phantom.medium_index(np.array([tx.position_m, rx.position_m])))
@@ -118,11 +126,11 @@ def test_thesis_fig_5_6_geometry() -> None:
     lateral = min(_distance_to_surface(phantom, tx.position_m, d) for d in
                   ([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1]))
     assert 2 * lateral >= 1.9
-    assert 20 * np.log10(1.9 / 0.076) >= SCENARIOS["thesis-fig-5-6"].dynamic_range_db
+    assert 20 * np.log10(1.9 / 0.076) >= SCENARIOS["thesis-fig-5-6"].spec.dynamic_range_db
 
 
 def test_homogeneous_sphere_geometry() -> None:
-    phantom, tx, (inner, outer) = SCENARIOS["homogeneous-sphere"].resolve()
+    phantom, tx, (inner, outer) = _placed(SCENARIOS["homogeneous-sphere"])
     np.testing.assert_allclose(tx.position_m, 0.0, atol=1e-15)  # centre
     assert np.linalg.norm(inner.position_m) == pytest.approx(0.05)
     assert np.linalg.norm(outer.position_m) == pytest.approx(0.105)
@@ -136,7 +144,7 @@ def test_homogeneous_sphere_geometry() -> None:
 
 
 def test_half_space_geometry() -> None:
-    phantom, tx, rxs = SCENARIOS["half-space"].resolve()
+    phantom, tx, rxs = _placed(SCENARIOS["half-space"])
     media = phantom.medium_names(phantom.medium_index(
         np.array([tx.position_m, *[r.position_m for r in rxs]])))
     assert media == ["muscle", "air", "air"]
@@ -148,7 +156,7 @@ def test_half_space_geometry() -> None:
 
 def test_layered_slab_geometry() -> None:
     # tissues.md 5.2: skin 2 mm (MIRD shell), subcutaneous fat 17.5 mm (CT, male).
-    phantom, tx, rxs = SCENARIOS["layered-slab"].resolve()
+    phantom, tx, rxs = _placed(SCENARIOS["layered-slab"])
     tissues = {o.name: o.material.tissue for o in phantom.organs}
     assert tissues == {"skin": "skin_dry", "fat": "fat_average_infiltrated", "muscle": "muscle"}
     media = phantom.medium_names(phantom.medium_index(
@@ -165,12 +173,12 @@ def test_layered_slab_geometry() -> None:
 
 def test_torso_scenarios_use_capsule_and_sensor_sites() -> None:
     for scenario in SCENARIOS.values():
-        if scenario.phantom_id != "torso":
+        if scenario.spec.phantom != "torso":
             continue
-        phantom = scenario.phantom()
-        assert phantom.sites[scenario.transmitter].kind == "capsule"
-        assert all(phantom.sites[r].kind == "sensor" for r in scenario.receivers)
-        assert all(phantom.sites[r].medium == "skin" for r in scenario.receivers)
-    small = SCENARIOS["torso-small-intestine"]
-    assert small.phantom().sites[small.transmitter].medium == "small_intestine"
+        phantom = get_phantom(scenario.spec.phantom)
+        assert phantom.sites[scenario.spec.transmitter.site].kind == "capsule"
+        assert all(phantom.sites[r.site].kind == "sensor" for r in scenario.spec.receivers)
+        assert all(phantom.sites[r.site].medium == "skin" for r in scenario.spec.receivers)
+    small = SCENARIOS["torso-small-intestine"].spec
+    assert get_phantom("torso").sites[small.transmitter.site].medium == "small_intestine"
     assert len(small.receivers) == 7

@@ -17,15 +17,18 @@ built here passes ``gains_include_delay_phase=True, reference_frequency_hz=f``.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+import raytrace as rt
 from estimators import PathProfile, estimate_pdoa, estimate_toa
 from raytrace.spec import Antenna
 from raytrace.body.phantom import Material
 from raytrace.body.library import THESIS_DISTANCE_M, THESIS_EPS_R
 from raytrace.scenarios import get_scenario
-from raytrace.solver.tracer import trace_channel
+from tests.helpers import trace
 
 C0_M_PER_S = 299_792_458.0  # exact (SI), written here so the oracle shares nothing with raytrace.physics.em
 
@@ -59,7 +62,7 @@ def _direct_toa_errors(torso, homogeneous):
     """Per belt sensor: (geometric distance, direct-path length, GCC mean error, GCC std) [m]."""
     tx = Antenna(torso.sites[CAPSULE].position_m, name=CAPSULE)
     rxs = [Antenna(torso.sites[s].position_m, name=s) for s in BELT]
-    res = trace_channel(torso, tx, rxs, 402e6, rays=20_000, max_interactions=1, homogeneous=homogeneous)
+    res = trace(torso, tx, rxs, 402e6, rays=20_000, max_interactions=1, homogeneous=homogeneous)
     rows = []
     for prof in res.profiles:
         direct = [p for p in prof.paths if _is_direct(p)]
@@ -138,7 +141,7 @@ def test_heterogeneity_bias_survives_the_full_multipath_profile(torso):
     most 15 %: multipath perturbs the bias, it does not create or cancel it)."""
     tx = Antenna(torso.sites[CAPSULE].position_m, name=CAPSULE)
     rxs = [Antenna(torso.sites[s].position_m, name=s) for s in BELT]
-    res = trace_channel(torso, tx, rxs, 402e6, rays=20_000, max_interactions=6)
+    res = trace(torso, tx, rxs, 402e6, rays=20_000, max_interactions=6)
     direct_only = _direct_toa_errors(torso, None)
     for prof, row in zip(res.profiles, direct_only):
         assert len(prof.paths) > 1
@@ -153,9 +156,7 @@ def test_heterogeneity_bias_survives_the_full_multipath_profile(torso):
 # ----------------------------------------------------------------- 2. thesis Tables 5.1 / 5.2
 def _thesis_trace(frequency_hz: float):
     sc = get_scenario("thesis-fig-5-6")
-    phantom, tx, rxs = sc.resolve()
-    res = trace_channel(phantom, tx, rxs, frequency_hz, rays=sc.rays, max_interactions=sc.max_interactions,
-                        dynamic_range_db=sc.dynamic_range_db)
+    res = rt.trace_channel(dataclasses.replace(sc.spec, frequency_hz=frequency_hz))
     return sc, res.profiles[0]
 
 
@@ -247,7 +248,7 @@ def test_band_gains_agree_with_single_frequency_traces(torso):
     band = np.array([400e6, 410e6, 420e6])
 
     def check(homogeneous, rtol_edges):
-        res = trace_channel(torso, tx, rx, 410e6, band_frequencies_hz=band, rays=20_000, max_interactions=6,
+        res = trace(torso, tx, rx, 410e6, band=band, rays=20_000, max_interactions=6,
                             homogeneous=homogeneous)
         paths = res.profiles[0].paths
         assert len(paths) >= 2
@@ -258,7 +259,7 @@ def test_band_gains_agree_with_single_frequency_traces(torso):
         )
         h_band = banded.frequency_response(band)
         for i, f in enumerate(band):
-            single = trace_channel(torso, tx, rx, float(f), rays=20_000, max_interactions=6,
+            single = trace(torso, tx, rx, float(f), rays=20_000, max_interactions=6,
                                    homogeneous=homogeneous).profiles[0].paths
             h_single = _profile(single, float(f)).frequency_response([f])[0]
             # independent sum: tracer gains already carry exp(-j 2 pi f tau) at f
@@ -288,7 +289,7 @@ def test_channel_profile_through_http_ranges_like_the_estimators(api):
     assert prof["paths"]
 
     ph = default_torso()
-    direct = trace_channel(ph, Antenna(ph.sites[CAPSULE].position_m, name=CAPSULE),
+    direct = trace(ph, Antenna(ph.sites[CAPSULE].position_m, name=CAPSULE),
                            [Antenna(ph.sites["belt_anterior"].position_m, name="belt_anterior")], 402e6,
                            rays=2000, max_interactions=6, dynamic_range_db=80.0).profiles[0].paths
     assert [p["delay_s"] for p in prof["paths"]] == [p.delay_s for p in direct]

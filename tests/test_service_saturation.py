@@ -16,7 +16,7 @@ import httpx
 import pytest
 import uvicorn
 
-from service import channel as channel_ops
+from service.routes import channel as channel_route
 from service.app import create_app
 
 from conftest import free_port
@@ -35,14 +35,14 @@ def _wait(predicate, what: str, timeout_s: float = 60.0) -> None:
 def held_server(make_settings, monkeypatch):
     release = threading.Event()
     started = []
-    real_run = channel_ops.run
+    real_trace = channel_route.trace_channel
 
-    def held_run(resolved, budget=None):
-        started.append(resolved.phantom_id)
+    def held_trace(spec, phantom=None, *, budget=None):
+        started.append(spec.phantom)
         assert release.wait(60), "test never released the computation"
-        return real_run(resolved, budget)
+        return real_trace(spec, phantom, budget=budget)
 
-    monkeypatch.setattr(channel_ops, "run", held_run)
+    monkeypatch.setattr(channel_route, "trace_channel", held_trace)
     app = create_app(make_settings(max_concurrency=2, max_queue=1, retry_after_s=7))
     port = free_port()
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", lifespan="on"))
@@ -107,7 +107,7 @@ def test_a_client_that_goes_away_cancels_its_computation(make_settings, monkeypa
     seen = {}
     cancelled = threading.Event()
 
-    def watching_run(resolved, budget=None):
+    def watching_trace(spec, phantom=None, *, budget=None):
         seen["budget"] = budget
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -117,7 +117,7 @@ def test_a_client_that_goes_away_cancels_its_computation(make_settings, monkeypa
             time.sleep(0.01)
         raise AssertionError("never cancelled")
 
-    monkeypatch.setattr(channel_ops, "run", watching_run)
+    monkeypatch.setattr(channel_route, "trace_channel", watching_trace)
     app = create_app(make_settings())
     port = free_port()
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))

@@ -24,9 +24,9 @@ from raytrace.errors import (
     InvalidGeometryError,
     UnknownTissueError,
 )
-from raytrace.spec import Antenna
+from raytrace.spec import Antenna, ChannelSpec
 from raytrace.body.phantom import Material, Organ, Phantom
-from raytrace.solver.tracer import trace_channel
+from tests.helpers import trace
 
 C = 299_792_458.0
 EPS0 = 8.8541878128e-12
@@ -62,7 +62,7 @@ def test_homogeneous_lossless_line_of_sight_delay_and_friis_amplitude():
     n = np.sqrt(27.9)
     tx = Antenna(np.array([0.01, -0.02, 0.03]))
     rxs = [Antenna(np.array([0.085, -0.02, 0.03])), Antenna(np.array([-0.1, 0.12, -0.07]))]
-    res = trace_channel(ph, tx, rxs, F0, rays=2000, max_interactions=1)
+    res = trace(ph, tx, rxs, F0, rays=2000, max_interactions=1)
     for k, rx in enumerate(rxs):
         d = np.linalg.norm(rx.position_m - tx.position_m)
         p = first_path(res, k)
@@ -88,7 +88,7 @@ def test_homogeneous_lossy_absorption():
     root = np.sqrt(1 + loss_tangent**2)
     alpha = w / C * np.sqrt(eps_r / 2 * (root - 1))
     n_re = np.sqrt(eps_r / 2 * (root + 1))
-    res = trace_channel(ph, tx, [rx], F0, rays=2000, max_interactions=1)
+    res = trace(ph, tx, [rx], F0, rays=2000, max_interactions=1)
     p = first_path(res)
     expected = LAMBDA0 / (4 * np.pi * n_re * d) * np.exp(-alpha * d)
     # 1 %: closed form; the only approximations are float rounding.
@@ -97,12 +97,13 @@ def test_homogeneous_lossy_absorption():
 
 
 def test_free_space_friis():
-    # transmitter and receiver in air next to a small body: lambda0 / (4 pi d).
+    # transmitter and receiver in air next to a small body (within the spec's bounds margin,
+    # half the body's diagonal): lambda0 / (4 pi d).
     body = trimesh.creation.box(bounds=[[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]])
     ph = Phantom.build("b", [Organ("body", lossless(40.0), body)])
-    tx = Antenna(np.array([0.3, 0.0, 0.0]))
-    rx = Antenna(np.array([0.3, 0.5, 0.2]))
-    p = first_path(trace_channel(ph, tx, [rx], F0, rays=2000, max_interactions=1))
+    tx = Antenna(np.array([0.15, 0.0, 0.0]))
+    rx = Antenna(np.array([0.15, 0.25, 0.1]))
+    p = first_path(trace(ph, tx, [rx], F0, rays=2000, max_interactions=1))
     d = np.linalg.norm(rx.position_m - tx.position_m)
     assert abs(abs(p.gain) / (LAMBDA0 / (4 * np.pi * d)) - 1) < 5e-3
     assert abs(p.delay_s - d / C) < 1e-13
@@ -123,7 +124,7 @@ def test_refracted_direct_path_snell_fermat_and_spreading():
     ph = planar()
     tx = Antenna(np.array([0.0, 0.0, -h1]), polarization=Y)  # TE: field along y, plane of incidence x-z
     rx = Antenna(np.array([rho, 0.0, h2]), polarization=Y)
-    res = trace_channel(ph, tx, [rx], F0, rays=4000, max_interactions=1)
+    res = trace(ph, tx, [rx], F0, rays=4000, max_interactions=1)
     p = first_path(res)
     assert [i.kind for i in p.interactions] == ["refraction"]
     assert (p.interactions[0].from_medium, p.interactions[0].to_medium) == ("B", "A")
@@ -156,7 +157,7 @@ def test_normal_incidence_transmission_through_interface():
     ph = planar()
     tx = Antenna(np.array([0.0, 0.0, -h1]), polarization=Y)
     rx = Antenna(np.array([0.0, 0.0, h2]), polarization=Y)
-    p = first_path(trace_channel(ph, tx, [rx], F0, rays=2000, max_interactions=1))
+    p = first_path(trace(ph, tx, [rx], F0, rays=2000, max_interactions=1))
     # Paraxial: dA/dOmega = (n1 (h1/n1 + h2/n2))^2; T = 4 n1 n2 / (n1 + n2)^2.
     area = (n1 * (h1 / n1 + h2 / n2)) ** 2
     power_t = 4 * n1 * n2 / (n1 + n2) ** 2
@@ -171,7 +172,7 @@ def test_reflected_path_image_delay_and_fresnel_amplitude(polarization, mode):
     ph = planar()
     tx = Antenna(np.array([-0.03, 0.0, 0.02]), polarization=polarization)
     rx = Antenna(np.array([0.05, 0.0, 0.035]), polarization=polarization)
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    res = trace(ph, tx, [rx], F0, rays=20000, max_interactions=1)
     refl = [p for p in res.profiles[0].paths if [i.kind for i in p.interactions] == ["reflection"]
             and abs(p.interactions[0].point_m[2]) < 1e-9]
     assert len(refl) == 1
@@ -212,7 +213,7 @@ def test_every_segment_medium_matches_lookup_at_midpoint():
         # From some positions geometric optics has no path at all (a sensor in air outside
         # the skin's escape cone, a receiver behind a low-index obstacle met beyond its
         # critical angle); this test checks the media of whatever is found.
-        res = trace_channel(ph, tx, rxs, F0, rays=20000, max_interactions=3)
+        res = trace(ph, tx, rxs, F0, rays=20000, max_interactions=3)
         for prof, rx in zip(res.profiles, rxs):
             for path in prof.paths:
                 pts = [tx.position_m] + [i.point_m for i in path.interactions] + [rx.position_m]
@@ -245,7 +246,7 @@ def test_direct_path_found_through_concentric_organs():
         tx = direction / np.linalg.norm(direction) * rng.uniform(0.12, 0.3)
         offset = rng.normal(size=3)
         rx = offset / np.linalg.norm(offset) * rng.uniform(0.0, 0.005)
-        res = trace_channel(ph, Antenna(tx), [Antenna(rx)], F0, rays=5000, max_interactions=2)
+        res = trace(ph, Antenna(tx), [Antenna(rx)], F0, rays=5000, max_interactions=2)
         direct = [p for p in res.profiles[0].paths
                   if [i.kind for i in p.interactions] == ["refraction", "refraction"]]
         assert len(direct) == 1
@@ -263,8 +264,8 @@ def test_same_request_twice_gives_identical_output():
     tx = Antenna(np.array([0.06, 0.0, 0.01]))
     rxs = [Antenna(np.array([0.19, 0.0, 0.02])), Antenna(np.array([0.0, 0.16, 0.0]))]
     band = np.linspace(400e6, 420e6, 5)
-    a = trace_channel(ph, tx, rxs, F0, rays=3000, max_interactions=3, band_frequencies_hz=band)
-    b = trace_channel(ph, tx, rxs, F0, rays=3000, max_interactions=3, band_frequencies_hz=band)
+    a = trace(ph, tx, rxs, F0, rays=3000, max_interactions=3, band=band)
+    b = trace(ph, tx, rxs, F0, rays=3000, max_interactions=3, band=band)
     for pa, pb in zip(a.profiles, b.profiles):
         assert len(pa.paths) == len(pb.paths)
         for x, y in zip(pa.paths, pb.paths):
@@ -279,7 +280,7 @@ def test_band_gain_at_centre_frequency_equals_gain_and_tracks_absorption():
     tx = Antenna(np.array([0.0, 0.0, 0.0]))
     rx = Antenna(np.array([0.0, 0.08, 0.0]))
     band = np.array([300e6, 402e6, 800e6])
-    p = first_path(trace_channel(ph, tx, [rx], F0, rays=2000, max_interactions=1, band_frequencies_hz=band))
+    p = first_path(trace(ph, tx, [rx], F0, rays=2000, max_interactions=1, band=band))
     assert np.isclose(p.band_gains[1], p.gain, rtol=1e-12)
     d = 0.08
     for f, g in zip(band, p.band_gains):
@@ -294,7 +295,7 @@ def test_homogeneous_override_makes_inner_surfaces_transparent():
     ph = nested()
     tx = Antenna(np.array([0.06, 0.0, 0.01]))
     rx = Antenna(np.array([-0.15, 0.02, 0.03]))
-    res = trace_channel(ph, tx, [rx], F0, rays=2000, max_interactions=2,
+    res = trace(ph, tx, [rx], F0, rays=2000, max_interactions=2,
                         homogeneous=lossless(27.9))
     p = first_path(res)
     d = np.linalg.norm(rx.position_m - tx.position_m)
@@ -311,36 +312,45 @@ def test_bad_inputs_raise_typed_errors_naming_the_field():
     tx = Antenna(np.array([0.0, 0.0, -0.05]))
     rx = Antenna(np.array([0.06, 0.0, 0.04]))
     with pytest.raises(AmbiguousPositionError) as e:
-        trace_channel(ph, Antenna(np.array([0.1, 0.1, 0.0])), [rx], F0)
+        trace(ph, Antenna(np.array([0.1, 0.1, 0.0])), [rx], F0)
     assert e.value.field == "transmitter.position_m"
     with pytest.raises(AmbiguousPositionError) as e:
-        trace_channel(ph, tx, [rx, Antenna(np.array([0.2, 0.0, 0.0]))], F0)
+        trace(ph, tx, [rx, Antenna(np.array([0.2, 0.0, 0.0]))], F0)
     assert e.value.field == "receivers[1].position_m"
+    # an antenna checks itself when built; inside a spec built from JSON the error names its place
     with pytest.raises(InvalidGeometryError) as e:
-        trace_channel(ph, Antenna(np.array([np.nan, 0.0, 0.0])), [rx], F0)
-    assert e.value.field == "transmitter.position_m"
+        Antenna(np.array([np.nan, 0.0, 0.0]))
+    assert e.value.field == "position_m"
     with pytest.raises(InvalidGeometryError) as e:
-        trace_channel(ph, tx, [Antenna(np.array([0.0, np.inf, 0.0]))], F0)
+        ChannelSpec.from_dict({"transmitter": tx.to_dict(), "receivers": [{"position_m": [0.0, float("inf"), 0.0]}]})
     assert e.value.field == "receivers[0].position_m"
     with pytest.raises(InvalidGeometryError) as e:
-        trace_channel(ph, tx, [rx, Antenna(tx.position_m + 1e-7)], F0)
+        trace(ph, tx, [Antenna(np.array([0.0, 0.0, 50.0]))], F0)  # 50 m: centimetres typed as metres
+    assert e.value.field == "receivers[0].position_m"
+    with pytest.raises(InvalidGeometryError) as e:
+        trace(ph, tx, [rx, Antenna(tx.position_m + 1e-7)], F0)
     assert e.value.field == "receivers[1].position_m"
     with pytest.raises(FrequencyOutOfRangeError) as e:
-        trace_channel(ph, tx, [rx], 3e10)
+        trace(ph, tx, [rx], 3e10)
     assert e.value.field == "frequency_hz"
     with pytest.raises(FrequencyOutOfRangeError) as e:
-        trace_channel(ph, tx, [rx], F0, band_frequencies_hz=np.array([400e6, 1.0]))
-    assert e.value.field == "band_frequencies_hz"
+        ChannelSpec.from_dict({"transmitter": tx.to_dict(), "receivers": [rx.to_dict()],
+                               "band": {"frequencies_hz": [400e6, 1.0]}})
+    assert e.value.field == "band.frequencies_hz[1]"
     for kwargs, name in (({"rays": 0}, "rays"), ({"max_interactions": 0}, "max_interactions"),
                          ({"rays": -5}, "rays"), ({"dynamic_range_db": -1.0}, "dynamic_range_db")):
         with pytest.raises(InputError) as e:
-            trace_channel(ph, tx, [rx], F0, **kwargs)
+            trace(ph, tx, [rx], F0, **kwargs)
         assert e.value.field == name
     with pytest.raises(UnknownTissueError):
-        trace_channel(ph, tx, [rx], F0, homogeneous=Material("unobtainium"))
+        trace(ph, tx, [rx], F0, homogeneous=Material("unobtainium"))
     with pytest.raises(InputError) as e:
-        trace_channel(ph, Antenna(tx.position_m, polarization=np.zeros(3)), [rx], F0)
+        ChannelSpec.from_dict({"transmitter": {"position_m": [0, 0, -0.05], "polarization": [0, 0, 0]},
+                               "receivers": [rx.to_dict()]})
     assert e.value.field == "transmitter.polarization"
+    with pytest.raises(InputError) as e:
+        ChannelSpec(tx, (rx, Antenna(np.array([0.0, 0.01, 0.04]), name=rx.name or "r0")))
+    assert e.value.field == "receivers[1].name"
 
 
 def test_budget_stops_the_trace():
@@ -348,7 +358,7 @@ def test_budget_stops_the_trace():
     tx = Antenna(np.array([0.06, 0.0, 0.01]))
     rx = Antenna(np.array([0.19, 0.0, 0.02]))
     with pytest.raises(BudgetExceededError):
-        trace_channel(ph, tx, [rx], F0, rays=5000, max_interactions=4, budget=Budget(max_ray_segments=1000))
+        trace(ph, tx, [rx], F0, rays=5000, max_interactions=4, budget=Budget(max_ray_segments=1000))
 
 
 def test_antenna_patterns_and_polarization():
@@ -360,9 +370,9 @@ def test_antenna_patterns_and_polarization():
     theta = np.deg2rad(35.0)
     d = 0.07
     rx = Antenna(d * np.array([np.sin(theta), 0.0, np.cos(theta)]), polarization=Z)
-    p = first_path(trace_channel(ph, tx, [rx], F0, rays=2000, max_interactions=1))
+    p = first_path(trace(ph, tx, [rx], F0, rays=2000, max_interactions=1))
     assert abs(abs(p.gain) / (np.sin(theta) * LAMBDA0 / (4 * np.pi * n * d)) - 1) < 5e-3
-    crossed = trace_channel(ph, Antenna(np.zeros(3), polarization=Z), [Antenna(np.array([0.05, 0.0, 0.0]), polarization=Y)],
+    crossed = trace(ph, Antenna(np.zeros(3), polarization=Z), [Antenna(np.array([0.05, 0.0, 0.0]), polarization=Y)],
                             F0, rays=2000, max_interactions=1)
     assert abs(first_path(crossed).gain) < 1e-12
 
@@ -397,11 +407,11 @@ def test_band_gains_equal_single_frequency_traces_when_geometry_is_frequency_ind
     tx = Antenna(np.array([0.0, 0.01, -0.05]), polarization=np.array([0.3, 0.5, 0.8]))
     rx = Antenna(np.array([0.06, -0.02, 0.04]), polarization=np.array([0.3, 0.5, 0.8]))
     band = np.array([300e6, 900e6, 2.4e9])
-    res = trace_channel(ph, tx, [rx], F0, rays=5000, max_interactions=2, band_frequencies_hz=band)
+    res = trace(ph, tx, [rx], F0, rays=5000, max_interactions=2, band=band)
     paths = res.profiles[0].paths
     assert len(paths) >= 2
     for k, f in enumerate(band):
-        single = trace_channel(ph, tx, [rx], f, rays=5000, max_interactions=2).profiles[0].paths
+        single = trace(ph, tx, [rx], f, rays=5000, max_interactions=2).profiles[0].paths
         for p in paths:
             q = min(single, key=lambda q: abs(q.delay_s - p.delay_s))
             assert abs(q.delay_s - p.delay_s) < 1e-16
@@ -428,7 +438,7 @@ def test_reflection_at_a_tissue_interface_lossy_fresnel(polarization, mode, tx_m
                                             Organ("fat", Material("fat_average_infiltrated"), b)])
     tx = Antenna(np.array(tx_m), polarization=polarization)
     rx = Antenna(np.array(rx_m), polarization=polarization)
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    res = trace(ph, tx, [rx], F0, rays=20000, max_interactions=1)
     refl = [p for p in res.profiles[0].paths if len(p.interactions) == 1 and abs(p.interactions[0].point_m[2]) < 1e-9]
     assert len(refl) == 1
     n1 = np.sqrt(complex(eps_of("muscle", F0)))
@@ -461,7 +471,7 @@ def test_curved_interface_spreading_source_at_sphere_centre():
     for rx_m in ([0.12, 0.0, 0.0], [0.05, 0.08, 0.03], [-0.02, -0.03, 0.2]):
         rx = np.array(rx_m)
         r = np.linalg.norm(rx)
-        p = first_path(trace_channel(ph, Antenna(np.zeros(3), polarization=Z), [Antenna(rx, polarization=Z)],
+        p = first_path(trace(ph, Antenna(np.zeros(3), polarization=Z), [Antenna(rx, polarization=Z)],
                                      F0, rays=2000, max_interactions=1))
         assert [i.kind for i in p.interactions] == ["refraction"]
         power_t = 4 * n1 / (n1 + 1) ** 2

@@ -13,7 +13,7 @@ import trimesh
 
 from raytrace.spec import Antenna
 from raytrace.body.phantom import Material, Organ, Phantom
-from raytrace.solver.tracer import trace_channel
+from tests.helpers import trace
 
 C = 299_792_458.0
 F0 = 402e6
@@ -44,7 +44,7 @@ def test_layered_slab_multiple_reflections_at_normal_incidence():
     ph = Phantom.build("slab", [Organ("A", lossless(eps_a), outer), Organ("B", lossless(eps_b), slab)])
     tx = Antenna(np.array([0.0, 0.0, h1]), polarization=Y)
     rx = Antenna(np.array([0.0, 0.0, -d_slab - h2]), polarization=Y)
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=6, dynamic_range_db=120)
+    res = trace(ph, tx, [rx], F0, rays=20000, max_interactions=6, dynamic_range_db=120)
     paths = res.profiles[0].paths
     found = {}
     for p in paths:
@@ -86,7 +86,7 @@ def test_thesis_three_path_case():
     ph = three_path_phantom()
     tx = Antenna(np.array([0.0, 0.0, 0.0]))
     rx = Antenna(np.array([0.076, 0.0, 0.0]))
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=2)
+    res = trace(ph, tx, [rx], F0, rays=20000, max_interactions=2)
     paths = res.profiles[0].paths
     assert len(paths) >= 3
     # first path: exactly 0.076 m * sqrt(27.9) / c = 1.33904 ns (0.1 ps: closed form).
@@ -118,7 +118,7 @@ def test_total_internal_reflection_is_labelled_and_lossless():
     ph = Phantom.build("tir", [Organ("light", lossless(5.0), outer), Organ("dense", lossless(50.0), dense)])
     tx = Antenna(np.array([-0.05, 0.0, -0.01]), polarization=Y)
     rx = Antenna(np.array([0.05, 0.0, -0.012]), polarization=Y)
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    res = trace(ph, tx, [rx], F0, rays=20000, max_interactions=1)
     tir = [p for p in res.profiles[0].paths if kinds(p) == ["total_internal_reflection"]]
     assert len(tir) == 1
     image = tx.position_m * np.array([1, 1, -1])
@@ -137,7 +137,7 @@ def _wall_reflections(box_x_m: float, box_y_m: float, tx_x_m: float, rx_x_m: flo
     ph = Phantom.build("walls", [Organ("out", lossless(5.0), outer), Organ("in", lossless(40.0), inner)])
     tx = Antenna(np.array([tx_x_m, 0.0, 0.01]))
     rx = Antenna(np.array([rx_x_m, 0.0, 0.01]))
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=1)
+    res = trace(ph, tx, [rx], F0, rays=20000, max_interactions=1)
     return [p for p in res.profiles[0].paths
             if len(p.interactions) == 1 and abs(abs(p.interactions[0].point_m[1]) - box_y_m / 2) < 1e-9]
 
@@ -164,9 +164,9 @@ def test_duplicate_filter_keeps_distinct_paths_with_nearby_launches():
 
 
 def _reciprocity_pairs(ph, a, b, pol, rays=20000, k=3):
-    ab = trace_channel(ph, Antenna(a, polarization=pol), [Antenna(b, polarization=pol)], F0,
+    ab = trace(ph, Antenna(a, polarization=pol), [Antenna(b, polarization=pol)], F0,
                        rays=rays, max_interactions=k).profiles[0].paths
-    ba = trace_channel(ph, Antenna(b, polarization=pol), [Antenna(a, polarization=pol)], F0,
+    ba = trace(ph, Antenna(b, polarization=pol), [Antenna(a, polarization=pol)], F0,
                        rays=rays, max_interactions=k).profiles[0].paths
     # each direction's shooting samples differently, so a weak path may be seen one way
     # only; every path seen both ways must agree
@@ -229,7 +229,7 @@ def test_coherent_sum_through_lossy_slab_matches_transfer_matrix():
     ])
     tx = Antenna(np.array([0.0, 0.0, h]), polarization=Y)
     rx = Antenna(np.array([0.0, 0.0, -d_slab - h]), polarization=Y)
-    res = trace_channel(ph, tx, [rx], F0, rays=20000, max_interactions=8, dynamic_range_db=120)
+    res = trace(ph, tx, [rx], F0, rays=20000, max_interactions=8, dynamic_range_db=120)
     total, orders = 0j, []
     for p in res.profiles[0].paths:
         k = kinds(p)

@@ -13,7 +13,7 @@ import pytest
 
 from raytrace.physics.em import C0
 from raytrace.spec import Antenna
-from raytrace.solver.tracer import trace_channel
+from tests.helpers import trace
 
 torso = pytest.importorskip("raytrace.body.torso")
 
@@ -30,7 +30,7 @@ def test_torso_paths_are_consistent_with_the_phantom(phantom):
     for cap in capsules:
         # 6 interactions: leaving the torso alone takes 4 refractions (organ, muscle wall,
         # fat, skin), so reflections need at least 5.
-        res = trace_channel(phantom, Antenna(cap.position_m), sensors, 402e6, rays=20000, max_interactions=6)
+        res = trace(phantom, Antenna(cap.position_m), sensors, 402e6, rays=20000, max_interactions=6)
         assert res.transmitter_medium == cap.medium
         for prof in res.profiles:
             delays = [p.delay_s for p in prof.paths]
@@ -64,7 +64,7 @@ def direct_traces(contact_torso):
     ph = contact_torso
     sensors = [Antenna(s.position_m, name=n) for n, s in ph.sites.items() if s.kind == "sensor"]
     return {
-        n: trace_channel(ph, Antenna(s.position_m, name=n), sensors, 402e6, rays=100_000, max_interactions=6)
+        n: trace(ph, Antenna(s.position_m, name=n), sensors, 402e6, rays=100_000, max_interactions=6)
         for n, s in ph.sites.items() if s.kind == "capsule"
     }
 
@@ -137,7 +137,7 @@ def test_uniform_belt_direct_paths_outside_the_go_shadows(contact_torso):
     missing = set()
     for cap, site in ((n, s) for n, s in ph.sites.items() if s.kind == "capsule"):
         # the direct-path search does not depend on max_interactions; 1 keeps the shooting cheap
-        res = trace_channel(ph, Antenna(site.position_m, name=cap), sensors, 402e6, rays=100_000,
+        res = trace(ph, Antenna(site.position_m, name=cap), sensors, 402e6, rays=100_000,
                             max_interactions=1)
         missing |= {(cap, p.receiver) for p in res.profiles if not any(_is_direct(q) for q in p.paths)}
     assert GO_SHADOWS <= missing <= GO_SHADOWS | SLIVER_ONLY, (missing - GO_SHADOWS, GO_SHADOWS - missing)
@@ -194,7 +194,7 @@ def test_torso_trace_is_deterministic(contact_torso, direct_traces):
     ph = contact_torso
     cap = "small_intestine_2"
     sensors = [Antenna(s.position_m, name=n) for n, s in ph.sites.items() if s.kind == "sensor"]
-    again = trace_channel(ph, Antenna(ph.sites[cap].position_m, name=cap), sensors, 402e6, rays=100_000,
+    again = trace(ph, Antenna(ph.sites[cap].position_m, name=cap), sensors, 402e6, rays=100_000,
                           max_interactions=6)
     first = direct_traces[cap]
     for p1, p2 in zip(first.profiles, again.profiles):
@@ -245,7 +245,7 @@ def test_default_launch_finds_each_receivers_strongest_path(contact_torso, direc
     echo seeds). Now 100 % of the strongest and 93 / 93 / 96 % of the strong paths (measured)."""
     ph = contact_torso
     sensors = [Antenna(s.position_m, name=n) for n, s in ph.sites.items() if s.kind == "sensor"]
-    dense = trace_channel(ph, Antenna(ph.sites[cap].position_m, name=cap), sensors, 402e6, rays=400_000,
+    dense = trace(ph, Antenna(ph.sites[cap].position_m, name=cap), sensors, 402e6, rays=400_000,
                           max_interactions=6)
     found = strong = 0
     for lo, hi in zip(direct_traces[cap].profiles, dense.profiles):
@@ -268,7 +268,7 @@ def test_every_pair_has_a_direct_path_in_the_ism_band_too(contact_torso):
     sensors = [Antenna(s.position_m, name=n) for n, s in ph.sites.items() if s.kind == "sensor"]
     missing = []
     for cap, site in ((n, s) for n, s in ph.sites.items() if s.kind == "capsule"):
-        res = trace_channel(ph, Antenna(site.position_m, name=cap), sensors, 2.45e9, rays=100_000,
+        res = trace(ph, Antenna(site.position_m, name=cap), sensors, 2.45e9, rays=100_000,
                             max_interactions=1)
         missing += [(cap, p.receiver) for p in res.profiles if not any(_is_direct(q) for q in p.paths)]
     assert missing == []

@@ -19,7 +19,7 @@ import numpy as np
 
 import raytrace.body.torso as T
 from raytrace.spec import Antenna
-from raytrace.solver.tracer import trace_channel
+import raytrace as rt
 
 resolution = int(sys.argv[1]) if len(sys.argv) > 1 else T.DEFAULT_RESOLUTION
 rays = int(sys.argv[2]) if len(sys.argv) > 2 else 100_000
@@ -33,7 +33,8 @@ receivers = [Antenna(cells[k], f"{k[1]}@{k[0]}") for k in keys]
 reached = dict.fromkeys(keys, 0)
 for name, position in capsules.items():
     t0 = time.time()
-    res = trace_channel(phantom, Antenna(position, name), receivers, 402e6, rays=rays, max_interactions=2)
+    spec = rt.ChannelSpec(Antenna(position, name), tuple(receivers), phantom=phantom.name, rays=rays, max_interactions=2)
+    res = rt.trace_channel(spec, phantom)
     for key, prof in zip(keys, res.profiles):
         reached[key] += any(all(i.kind == "refraction" for i in p.interactions) for p in prof.paths)
     print(f"{name}: {time.time() - t0:.1f} s", file=sys.stderr, flush=True)

@@ -68,11 +68,11 @@ import numpy as np
 from raytrace.engine import kernels
 from raytrace.solver.budget import Budget
 from raytrace.solver.direct import Seeds, reverse_seeds, zoom_seeds
-from raytrace.errors import InputError, InvalidGeometryError
 from raytrace.solver.field import path_gains
 from raytrace.solver.launch import angular_spacing_rad
 from raytrace.solver.media import MediaTable
-from raytrace.spec import Antenna
+from raytrace.body.library import get_phantom
+from raytrace.spec import Antenna, ChannelSpec
 from raytrace.results import (
     ChannelResult,
     Interaction,
@@ -81,7 +81,7 @@ from raytrace.results import (
     Segment,
     TraceStats,
 )
-from raytrace.body.phantom import Material, Phantom
+from raytrace.body.phantom import Phantom
 from raytrace.solver.refine import KIND_PASS, KIND_REFLECTION, Refined, Steps, encode, follow, refine, refine_by_continuation
 from raytrace.solver.sbr import shoot
 from raytrace.engine.scene import TracerScene, scene_for
@@ -89,8 +89,6 @@ from raytrace.engine.scene import TracerScene, scene_for
 #: Worker threads of one request: the direct-path search and the shooting's launch batches,
 #: then the Newton refinement of the shooting's seeds (Embree and the kernels run without the GIL).
 THREADS = min(2, os.cpu_count() or 1)
-#: Receivers closer than this to the transmitter are rejected [m].
-MIN_SEPARATION_M = 1e-4
 #: Candidate seeds refined per (receiver, signature) group, at most.
 SEEDS_PER_SIGNATURE = 6
 #: Seeds of one group must be this many launch spacings apart. With the curvature-widened
@@ -104,57 +102,44 @@ SEED_SEPARATION = 3.0
 DUPLICATE_ANGLE_RAD = 1e-6
 
 
-def trace_channel(
-    phantom: Phantom,
-    transmitter: Antenna,
-    receivers: Sequence[Antenna],
-    frequency_hz: float,
-    *,
-    band_frequencies_hz: np.ndarray | None = None,
-    max_interactions: int = 6,
-    rays: int = 100_000,
-    dynamic_range_db: float = 80.0,
-    homogeneous: Material | None = None,
-    budget: Budget | None = None,
-) -> ChannelResult:
-    """Trace every path from ``transmitter`` to each receiver and return their complex gains.
+def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: Budget | None = None
+                  ) -> ChannelResult:
+    """Trace every path of ``spec`` from its transmitter to each receiver, with complex gains.
+
+    ``phantom`` is the phantom ``spec.phantom`` names (pass it for an uploaded or
+    hand-built one); by default the built-in one of that id
+    (:func:`raytrace.body.library.get_phantom`).
 
     ``a`` of each path is normalised so that ``|a|^2`` is the power transfer
     between the antennas (free space line of sight: ``lambda0 / (4 pi d)``;
     see :mod:`raytrace.solver.field` for the derivation). Paths weaker than the
-    strongest one of a receiver by more than ``dynamic_range_db`` are dropped;
-    rays whose Fresnel/absorption power factor falls below it are pruned.
+    strongest one of a receiver by more than ``spec.dynamic_range_db`` are
+    dropped; rays whose Fresnel/absorption power factor falls below it are pruned.
 
-    ``max_interactions`` bounds the reflections + refractions of the shot rays;
-    the direct (refraction-only) path is always searched whatever its number
-    of refractions. A receiver can get no path at all when geometric optics
-    has none (e.g. a sensor in air outside the escape cone of the skin).
-    Every :class:`~raytrace.results.Segment` carries its end points.
-    Raises :class:`~raytrace.errors.InputError` subclasses naming the field
-    (``transmitter.position_m``, ``receivers[i].position_m``,
-    ``frequency_hz``, ``band_frequencies_hz``, ``rays``, ``max_interactions``,
-    ``dynamic_range_db``, polarizations, patterns) and
+    ``spec.max_interactions`` bounds the reflections + refractions of the shot
+    rays; the direct (refraction-only) path is searched whatever its number of
+    refractions. A receiver can get no path at all when geometric optics has
+    none (e.g. a sensor in air outside the escape cone of the skin). Every
+    :class:`~raytrace.results.Segment` carries its end points. Raises the
+    :class:`~raytrace.errors.InputError` subclasses of :meth:`ChannelSpec.resolve`
+    and the media table (naming the field), and
     :class:`~raytrace.errors.BudgetExceededError` when ``budget`` runs out.
     """
     started = time.monotonic()
-    tx, rx, tx_pol, rx_pol, rx_pattern = _validate(
-        phantom, transmitter, receivers, frequency_hz, rays, max_interactions, dynamic_range_db
-    )
-    # frequency checks first (each names its own field), then one table for all frequencies
-    media = MediaTable.build(phantom, np.array([float(frequency_hz)]), homogeneous)
-    band = None
-    if band_frequencies_hz is not None:
-        try:
-            band = np.asarray(band_frequencies_hz, dtype=float).ravel()
-        except (TypeError, ValueError) as exc:
-            raise InputError("band frequencies must be numbers of hertz", field="band_frequencies_hz") from exc
-        if band.size == 0:
-            raise InputError("band needs at least one frequency", field="band_frequencies_hz")
-        MediaTable.build(phantom, band, homogeneous, field="band_frequencies_hz")
-        media = MediaTable.build(phantom, np.concatenate([[float(frequency_hz)], band]), homogeneous)
+    if phantom is None:
+        phantom = get_phantom(spec.phantom)
+    resolved = spec.resolve(phantom)
+    tx, rx = resolved.tx_m, resolved.rx_m
+    tx_pol, rx_pol, rx_pattern = resolved.tx_polarization, resolved.rx_polarization, resolved.rx_pattern
+    tx_medium, rx_medium = resolved.tx_medium, resolved.rx_medium
+    homogeneous = spec.homogeneous
+    frequency_hz, max_interactions, rays = spec.frequency_hz, spec.max_interactions, spec.rays
+    dynamic_range_db = spec.dynamic_range_db
+    receivers = spec.receivers
+    band = resolved.band_frequencies_hz
+    # one table for all frequencies: the centre (geometry) frequency first, then the band
+    media = MediaTable.build(phantom, np.concatenate([[frequency_hz], [] if band is None else band]), homogeneous)
 
-    tx_medium = int(phantom.medium_index(tx[None, :], field="transmitter.position_m")[0])
-    rx_medium = _receiver_media(phantom, rx)
     full_scene = scene_for(phantom)
     # surfaces between identical materials are invisible to propagation: shoot and refine in
     # a scene without them; the final re-trace uses every surface to split the segments
@@ -250,7 +235,7 @@ def trace_channel(
         budget.charge(rec.segments)
     fields = path_gains(
         rec.steps, media, tx, tx_medium, rx[seed_rx[conv]], rx_medium[seed_rx[conv]], refined.dirs[conv],
-        refined.tube_m2_per_sr[conv], tx_pol, transmitter.pattern, rx_pol[seed_rx[conv]],
+        refined.tube_m2_per_sr[conv], tx_pol, spec.transmitter.pattern, rx_pol[seed_rx[conv]],
         rx_pattern[seed_rx[conv]],
     )
     keep = rec.ok & np.isfinite(fields.gains).all(axis=1) & np.isfinite(fields.delay_s)
@@ -277,7 +262,7 @@ def trace_channel(
         start += len(per_rx[r])
         profiles.append(
             ReceiverProfile(
-                receiver=antenna.name or f"rx{r}",
+                receiver=antenna.name,
                 position_m=rx[r].copy(),
                 medium=phantom.medium_name(int(rx_medium[r])),
                 geometric_distance_m=float(np.linalg.norm(rx[r] - tx)),
@@ -292,7 +277,7 @@ def trace_channel(
         elapsed_s=time.monotonic() - started,
     )
     return ChannelResult(
-        phantom=phantom.name,
+        phantom=spec.phantom,
         frequency_hz=float(frequency_hz),
         transmitter_position_m=tx.copy(),
         transmitter_medium=phantom.medium_name(tx_medium),
@@ -341,72 +326,6 @@ def _surface_echo_seeds(groups, rx_medium, max_interactions):
         codes[k, : len(c)] = c
     return (np.array([r for r, _, _ in out], np.int64), codes, np.array([len(c) for _, c, _ in out], np.int64),
             np.array([d for _, _, d in out]))
-
-
-def _validate(phantom, transmitter, receivers, frequency_hz, rays, max_interactions, dynamic_range_db):
-    def vec(value, name, *, unit=False):
-        try:
-            v = np.asarray(value, dtype=float).reshape(3)
-        except (TypeError, ValueError) as exc:
-            raise InvalidGeometryError("expected three numbers", field=name) from exc
-        if not np.isfinite(v).all():
-            raise InvalidGeometryError(f"coordinates must be finite numbers, got {v.tolist()}", field=name)
-        if unit:
-            norm = np.linalg.norm(v)
-            if norm == 0.0:
-                raise InvalidGeometryError("polarization must be a non-zero vector", field=name)
-            v = v / norm
-        return v
-
-    def pattern(value, name):
-        if value not in ("isotropic", "dipole"):
-            raise InputError(f"pattern must be 'isotropic' or 'dipole', got {value!r}", field=name)
-        return value
-
-    for value, name in ((rays, "rays"), (max_interactions, "max_interactions")):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise InputError(f"must be a positive integer, got {value!r}", field=name)
-    try:
-        dr = float(dynamic_range_db)
-    except (TypeError, ValueError) as exc:
-        raise InputError("must be a number of decibels", field="dynamic_range_db") from exc
-    if not (np.isfinite(dr) and dr > 0.0):
-        raise InputError(f"must be finite and positive, got {dynamic_range_db!r}", field="dynamic_range_db")
-    try:
-        f0 = float(frequency_hz)
-    except (TypeError, ValueError) as exc:
-        raise InputError("must be a number of hertz", field="frequency_hz") from exc
-    if not np.isfinite(f0):
-        raise InputError("must be finite", field="frequency_hz")
-    if len(receivers) == 0:
-        raise InputError("at least one receiver is needed", field="receivers")
-    tx = vec(transmitter.position_m, "transmitter.position_m")
-    tx_pol = vec(transmitter.polarization, "transmitter.polarization", unit=True)
-    pattern(transmitter.pattern, "transmitter.pattern")
-    rx = np.zeros((len(receivers), 3))
-    rx_pol = np.zeros((len(receivers), 3))
-    rx_pattern = np.empty(len(receivers), dtype=object)
-    for i, antenna in enumerate(receivers):
-        rx[i] = vec(antenna.position_m, f"receivers[{i}].position_m")
-        rx_pol[i] = vec(antenna.polarization, f"receivers[{i}].polarization", unit=True)
-        rx_pattern[i] = pattern(antenna.pattern, f"receivers[{i}].pattern")
-        if np.linalg.norm(rx[i] - tx) < MIN_SEPARATION_M:
-            raise InvalidGeometryError(
-                f"receiver is within {MIN_SEPARATION_M} m of the transmitter; the channel is undefined",
-                field=f"receivers[{i}].position_m",
-            )
-    return tx, rx, tx_pol, rx_pol, rx_pattern.astype(str)
-
-
-def _receiver_media(phantom: Phantom, rx: np.ndarray) -> np.ndarray:
-    """Medium index of every receiver: one batched lookup (~0.3 ms for a dozen, ~3 ms one by
-    one); when it raises, the receivers one by one, so the error names the first bad one."""
-    try:
-        return np.asarray(phantom.medium_index(rx), dtype=np.int64)
-    except InputError:
-        for i, r in enumerate(rx):
-            phantom.medium_index(r[None, :], field=f"receivers[{i}].position_m")
-        raise
 
 
 def _direct_paths(scene: TracerScene, media: MediaTable, tx: np.ndarray, tx_medium: int, rx: np.ndarray,
@@ -570,7 +489,7 @@ def warm_up() -> float:
 
     t0 = time.perf_counter()
     phantom = half_space()
-    tx, rx = phantom.sites["tx"], phantom.sites["rx_oblique"]
-    trace_channel(phantom, Antenna(tx.position_m, name="tx"), [Antenna(rx.position_m, name="rx")], 402e6,
-                  rays=2000, max_interactions=2)
+    spec = ChannelSpec(Antenna(site="tx"), (Antenna(site="rx_oblique"),), phantom=phantom.name, rays=2000,
+                       max_interactions=2)
+    trace_channel(spec, phantom)
     return time.perf_counter() - t0

@@ -74,10 +74,10 @@ async def list_scenarios(request: Request) -> ScenariosResponse:
             ScenarioOut(
                 id=s.id,
                 description=s.description,
-                phantom=s.phantom,
-                frequency_hz=s.frequency_hz,
+                phantom=s.spec.phantom,
+                frequency_hz=s.spec.frequency_hz,
                 notes=s.notes,
-                request=s.request,
+                request=s.spec.to_dict(),
             )
             for s in sorted(reg.scenarios.values(), key=lambda s: s.id)
         ]

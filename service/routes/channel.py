@@ -6,7 +6,7 @@ import json
 
 from fastapi import APIRouter, Request, Response
 
-from raytrace.solver.budget import Budget
+from raytrace import Budget, trace_channel
 from service import channel as channel_ops
 from service.deps import state
 from service.errors import error_responses
@@ -36,9 +36,8 @@ async def compute_channel(req: ChannelRequest, request: Request) -> Response:
     st = state(request)
 
     def work(budget: Budget) -> tuple[dict, bytes]:
-        resolved = channel_ops.resolve(req, st.registry, st.settings)
-        result = channel_ops.run(resolved, budget)
-        out = channel_ops.result_to_dict(result, resolved)
+        spec, phantom = channel_ops.to_spec(req, st.registry, st.settings)
+        out = channel_ops.result_to_dict(trace_channel(spec, phantom, budget=budget), req.scenario)
         # serialised here, in the worker: a 12-sensor answer is ~0.75 MB, and building the pydantic
         # model of its ~500 paths took 0.12 s that would block the event loop; result_to_dict
         # writes exactly ChannelResponse's fields (finite numbers only: allow_nan=False raises

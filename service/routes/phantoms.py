@@ -10,7 +10,7 @@ from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
 from raytrace.solver.budget import Budget
-from service import adapters
+from raytrace.body import gltf
 from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, Unprocessable, error_responses
 from service.registry import describe_phantom
@@ -173,7 +173,7 @@ async def upload_phantom(request: Request) -> JSONResponse:
     manifest_dict = raw_manifest  # the loader re-validates it strictly; stored as sent
 
     def build(budget: Budget):
-        phantom = adapters.load_glb(
+        phantom = gltf.load_phantom(
             parts.mesh, manifest_dict, max_bytes=settings.max_upload_bytes, max_triangles=settings.max_triangles
         )
         budget.charge(0)
