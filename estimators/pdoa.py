@@ -168,7 +168,7 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
                   relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                   true_distance_m: float | None = None, duration_s: float | None = None,
                   return_estimates: bool = False) -> PDOAResult:
-    """Monte Carlo PDOA ranging over ``profile`` (api.md POST /v1/ranging/pdoa).
+    """Monte Carlo PDOA ranging over ``profile`` (docs/api.md POST /v1/ranging/pdoa).
 
     Args:
         profile: the channel (its frequency response is evaluated at the tones).

@@ -1,6 +1,6 @@
 """The estimators' input: a multipath channel profile.
 
-A profile is the discrete channel impulse response of api.md,
+A profile is the discrete channel impulse response of docs/api.md,
 
     h(t) = sum_k a_k delta(t - tau_k),        H(f) = sum_k a_k exp(-j 2 pi f tau_k),
 
@@ -12,7 +12,7 @@ case H(f_i) = sum_k b_k(f_i) exp(-j 2 pi f_i tau_k).
 Phase convention (important, and explicit because a silent double count of
 the propagation phase would shift every carrier-phase estimate):
 
-* ``gains_include_delay_phase=False`` (default, the api.md h(t) convention):
+* ``gains_include_delay_phase=False`` (default, the docs/api.md h(t) convention):
   ``gains`` / ``band_gains`` exclude the propagation phase exp(-j 2 pi f tau_k);
   it is carried by the delay. Reflection-coefficient phases and the like stay
   in the gain.

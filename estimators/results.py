@@ -35,7 +35,7 @@ def summarise(estimates_m: np.ndarray, true_distance_m: float | None) -> Ranging
 
 @dataclass(frozen=True)
 class TOAResult:
-    """One TOA method's Monte Carlo outcome (api.md ranging response).
+    """One TOA method's Monte Carlo outcome (docs/api.md ranging response).
 
     delay_s is the mean delay estimate; distance_m = v * delay_s.
     crlb_m is the TOA bound (Eq 4.16-4.17) for the same waveform, SNR and

@@ -66,7 +66,7 @@ def estimate_rss(profile: PathProfile | None = None, *, rss_dbm: float | None = 
                  transmit_power_dbm: float | None = None, model: str = "cm2_deep_tissue",
                  trials: int = 100, seed=0, true_distance_m: float | None = None,
                  shadowing: bool = True, return_estimates: bool = False) -> RSSResult:
-    """Monte Carlo RSS ranging (api.md POST /v1/ranging/rss).
+    """Monte Carlo RSS ranging (docs/api.md POST /v1/ranging/rss).
 
     Give ``profile`` (path loss = -path gain; ``transmit_power_dbm`` is then not
     needed) or ``rss_dbm`` together with ``transmit_power_dbm``. ``model`` is

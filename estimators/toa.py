@@ -79,7 +79,7 @@ _CHUNK_ELEMENTS = 1 << 21  # trials x fft length processed at once (~100 MB peak
 
 
 def make_waveform(spec: Waveform | Mapping | None) -> Waveform:
-    """A waveform from a dataclass, a dict like api.md's ``waveform`` field, or None (default burst)."""
+    """A waveform from a dataclass, a dict like docs/api.md's ``waveform`` field, or None (default burst)."""
     if spec is None:
         return ToneBurst()
     if isinstance(spec, (ToneBurst, GaussianPulse)):
@@ -222,7 +222,7 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
                  snr_db: float | None = 30.0, trials: int = 100, seed=0,
                  relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                  true_distance_m: float | None = None, return_estimates: bool = False) -> list[TOAResult]:
-    """Monte Carlo TOA ranging over ``profile`` (api.md POST /v1/ranging/toa).
+    """Monte Carlo TOA ranging over ``profile`` (docs/api.md POST /v1/ranging/toa).
 
     Args:
         profile: the channel (PathProfile).

@@ -1,7 +1,7 @@
 """Tracer outputs: interactions, segments, paths, per-receiver profiles.
 
 The channel between the transmitter and one receiver is
-``h(t) = sum_k a_k delta(t - tau_k)`` (``shared/design/api.md``): ``a_k`` is the
+``h(t) = sum_k a_k delta(t - tau_k)`` (``docs/api.md``): ``a_k`` is the
 complex path gain, ``|a_k|^2`` the power transfer between the two antennas, so
 that a free-space line of sight at distance d has ``|a| = lambda0 / (4 pi d)``
 (Friis, isotropic antennas) and, inside a homogeneous lossless medium of

@@ -106,7 +106,7 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario(
             id="layered-slab",
             description=(
-                "Planar skin 2 mm / fat 17.5 mm / muscle stack (tissues.md 5.2), transmitter "
+                "Planar skin 2 mm / fat 17.5 mm / muscle stack (docs/tissues.md 5.2), transmitter "
                 "30 mm deep in muscle, receivers in air 5 mm off the skin and inside the fat."
             ),
             spec=_case("layered-slab", "tx", ("rx_normal", "rx_oblique", "rx_fat"), max_interactions=6),

@@ -1,4 +1,4 @@
-"""Request and response models of the HTTP API (``shared/design/api.md``), pydantic v2.
+"""Request and response models of the HTTP API (``docs/api.md``), pydantic v2.
 
 Conventions:
 
@@ -115,7 +115,7 @@ class ReceiverIn(AntennaIn):
 
 # ----------------------------------------------------------------- channel
 class ChannelRequest(Strict):
-    """A channel computation (api.md "Channel")."""
+    """A channel computation (docs/api.md "Channel")."""
 
     model_config = ConfigDict(
         extra="forbid",
@@ -438,7 +438,7 @@ class RangingResult(Out):
 
 
 class RangingResponse(RangingResult):
-    """The requested method's result at the top level (api.md); for TOA ``method: all``
+    """The requested method's result at the top level (docs/api.md); for TOA ``method: all``
     the top level is the ``gcc`` result. ``results`` lists every method computed."""
 
     results: list[RangingResult] = Field(description="One result per method computed (three for TOA `all`).")
@@ -590,7 +590,7 @@ class ManifestSite(Strict):
 
 
 class Manifest(Strict):
-    """The JSON part of an upload (api.md "POST /v1/phantoms"); checked again, strictly, by the loader."""
+    """The JSON part of an upload (docs/api.md "POST /v1/phantoms"); checked again, strictly, by the loader."""
 
     model_config = ConfigDict(
         extra="forbid",

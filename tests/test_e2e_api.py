@@ -68,11 +68,11 @@ def test_tissues(api):
 
 def test_bounds(api):
     toa = api.bound_toa({"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30})
-    assert toa.sigma_m == pytest.approx(3.2e-5, rel=0.02)  # science.md: about 0.032 mm
+    assert toa.sigma_m == pytest.approx(3.2e-5, rel=0.02)  # docs/science.md: about 0.032 mm
     pdoa = api.bound_pdoa({"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30})
-    assert pdoa.sigma_m == pytest.approx(0.49e-3, rel=0.02)  # science.md: about 0.49 mm
+    assert pdoa.sigma_m == pytest.approx(0.49e-3, rel=0.02)  # docs/science.md: about 0.49 mm
     rss = api.bound_rss({"shadowing_db": math.sqrt(5), "path_loss_exponent": 3, "distance_m": 0.1})
-    assert rss.sigma_m == pytest.approx(0.017, rel=0.02)  # science.md: 0.017 m
+    assert rss.sigma_m == pytest.approx(0.017, rel=0.02)  # docs/science.md: 0.017 m
     # The client validates locally; send raw bodies to see the server's answer.
     for path, body, field in [
         ("/v1/bounds/toa", {"carrier_hz": 402e6, "duration_s": -1, "bandwidth_hz": 1e9, "snr_db": 3}, "duration_s"),

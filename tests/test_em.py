@@ -97,7 +97,7 @@ def test_propagation_constants_match_real_closed_form():
 def test_lossless_medium_wavelength_and_velocity():
     f = 402e6
     assert em.wavelength_m(27.9, f) == pytest.approx(299_792_458.0 / f / math.sqrt(27.9), rel=EXACT)
-    # science.md: v = c / sqrt(27.9) = 0.568e8 m/s (3 digits: tolerance 1e-3). Its
+    # docs/science.md: v = c / sqrt(27.9) = 0.568e8 m/s (3 digits: tolerance 1e-3). Its
     # "141.3 mm" wavelength (thesis Sec. 4: 141.28 mm) uses c = 3e8 m/s; with the
     # exact c0 it is 141.19 mm, which is what we check (4 digits).
     assert em.phase_velocity_m_per_s(27.9, f) == pytest.approx(0.568e8, rel=1e-3)
@@ -117,7 +117,7 @@ def test_sea_water_good_conductor_attenuation():
 
 
 def test_small_intestine_phase_velocity_below_lossless_value():
-    """tissues.md: small intestine at 402 MHz has v = w / Re k = 0.322e8 m/s while
+    """docs/tissues.md: small intestine at 402 MHz has v = w / Re k = 0.322e8 m/s while
     c / sqrt(eps') = 0.369e8 m/s (values rounded to 3 digits: tolerance 0.3 %)."""
     from raytrace.physics import tissues
 

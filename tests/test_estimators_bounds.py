@@ -1,5 +1,5 @@
 """Cramér-Rao bounds of estimators.bounds against independent numerical Fisher information
-and the published numbers (science.md, thesis Sec 4.4.1 / Fig 5.3 / Sec 5.3)."""
+and the published numbers (docs/science.md, thesis Sec 4.4.1 / Fig 5.3 / Sec 5.3)."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def test_toa_bound_matches_numerical_integration(tau):
 
 
 def test_toa_bound_published_value_and_listing_erratum():
-    # science.md: the correct bound is about 0.032 mm (within 1 %).
+    # docs/science.md: the correct bound is about 0.032 mm (within 1 %).
     b = toa_crlb(402e6, 25e-9, 10e9, 30.0, 27.9)
     assert b.sigma_m == pytest.approx(0.032e-3, rel=0.01)
     # The thesis listing substitutes f for w: feeding w = 402e6 rad/s (f = 402e6 / 2 pi)
@@ -89,7 +89,7 @@ def test_pdoa_bound_matches_numerical_fisher_information():
 
 
 def test_pdoa_bound_published_value():
-    # science.md / thesis Fig 5.3 (W T0 = 1): about 0.49 mm at f0 410 MHz, W 20 MHz, SNR 30 dB (1 %).
+    # docs/science.md / thesis Fig 5.3 (W T0 = 1): about 0.49 mm at f0 410 MHz, W 20 MHz, SNR 30 dB (1 %).
     b = pdoa_crlb(410e6, 20e6, 30.0, relative_permittivity=27.9)
     assert b.sigma_m == pytest.approx(0.49e-3, rel=0.01)
     # Formula written out: v [8 pi^2 (f0^2 + W^2/4) SNR W T0]^-1/2 and the W^2/4-only term.

@@ -4,7 +4,7 @@ Each scenario's phantom must validate, and its antennas must be where the
 scenario claims: checked with medium lookups and with distances to the
 organ surfaces measured by trimesh ray casts (independent of how the
 scenario module computed the positions). Numbers are the thesis' and
-tissues.md's, written out here.
+docs/tissues.md's, written out here.
 """
 
 from __future__ import annotations
@@ -155,7 +155,7 @@ def test_half_space_geometry() -> None:
 
 
 def test_layered_slab_geometry() -> None:
-    # tissues.md 5.2: skin 2 mm (MIRD shell), subcutaneous fat 17.5 mm (CT, male).
+    # docs/tissues.md 5.2: skin 2 mm (MIRD shell), subcutaneous fat 17.5 mm (CT, male).
     phantom, tx, rxs = _placed(SCENARIOS["layered-slab"])
     tissues = {o.name: o.material.tissue for o in phantom.organs}
     assert tissues == {"skin": "skin_dry", "fat": "fat_average_infiltrated", "muscle": "muscle"}

@@ -1,7 +1,7 @@
 """End-to-end science checks: tracer -> channel profile -> estimators (-> HTTP), against the thesis.
 
 Each test states the claim, its source (thesis chapter / table, or
-shared/design/science.md), the tolerance and why. The numbers quoted in the
+docs/science.md), the tolerance and why. The numbers quoted in the
 docstrings were measured on this tree (20 000 / 100 000 rays, seeded noise).
 
 Oracles that share no code with the implementation: the geometric
@@ -76,7 +76,7 @@ def _direct_toa_errors(torso, homogeneous):
 
 
 def test_heterogeneity_not_noise_dominates_toa_error(torso):
-    """Thesis Ch. 4 conclusion (science.md "Conclusion to reproduce"): heterogeneity, not
+    """Thesis Ch. 4 conclusion (docs/science.md "Conclusion to reproduce"): heterogeneity, not
     noise, dominates TOA error.
 
     Setup: capsule ``small_intestine_1`` to the seven belt sensors (all with a direct path),
@@ -176,7 +176,7 @@ def _phase_slope_distance(profile_paths, frequency_hz: float, freqs_hz: np.ndarr
     (2450e6, 2440e6, 2460e6, 0.0114),  # Table 5.2: mean 0.0646 m, error 0.0114 m
 ])
 def test_thesis_fig_5_6_multitone_pdoa_through_the_tracer(centre_hz, start_hz, stop_hz, thesis_error_m):
-    """Thesis Sec 5.4, Tables 5.1/5.2 (science.md "Key numbers"): three paths, the direct one at
+    """Thesis Sec 5.4, Tables 5.1/5.2 (docs/science.md "Key numbers"): three paths, the direct one at
     0.076 m / v = 1.339 ns (the thesis rounds to 1.338 ns); 21-tone PDOA over 400-420 MHz errs
     by 5 mm, over 2440-2460 MHz by 11.4 mm.
 
@@ -273,7 +273,7 @@ def test_band_gains_agree_with_single_frequency_traces(torso):
 
 # ----------------------------------------------------------------- 4. through the HTTP layer
 def test_channel_profile_through_http_ranges_like_the_estimators(api):
-    """api.md: a ``/v1/channel`` profile passed unchanged to ``/v1/ranging/toa`` is ranged as
+    """docs/api.md: a ``/v1/channel`` profile passed unchanged to ``/v1/ranging/toa`` is ranged as
     the estimators range the tracer's own result: same distance (the JSON round trip of
     floats is exact; tolerance 1e-12 m) for the same seed. Also checks that the channel
     response carries the tracer's paths unchanged and declares its gain convention

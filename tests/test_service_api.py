@@ -177,17 +177,17 @@ def test_builtin_mesh_is_a_glb_with_organ_nodes(api):
 
 # ------------------------------------------------------------------ bounds
 def test_bounds_reproduce_the_science_md_numbers(api):
-    # science.md: 402 MHz, W = 10 GHz, T0 = 25 ns, SNR 30 dB, eps_r 27.9 -> about 0.032 mm.
+    # docs/science.md: 402 MHz, W = 10 GHz, T0 = 25 ns, SNR 30 dB, eps_r 27.9 -> about 0.032 mm.
     r = api.post("/v1/bounds/toa", json={"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30, "relative_permittivity": 27.9})
     assert r.status_code == 200
     assert r.json()["sigma_m"] == pytest.approx(0.032e-3, rel=0.02)
     assert r.json()["sigma_m"] == pytest.approx(r.json()["sigma_s"] * C0 / math.sqrt(27.9), rel=1e-12)
-    # science.md: f0 = 410 MHz, W = 20 MHz, SNR 30 dB, W T0 = 1 -> about 0.49 mm.
+    # docs/science.md: f0 = 410 MHz, W = 20 MHz, SNR 30 dB, W T0 = 1 -> about 0.49 mm.
     r = api.post("/v1/bounds/pdoa", json={"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30})
     assert r.status_code == 200
     assert r.json()["sigma_m"] == pytest.approx(0.49e-3, rel=0.02)
     assert r.json()["sigma_phase_difference_m"] > r.json()["sigma_m"]
-    # science.md: sigma = sqrt 5 dB, n = 3, d = 0.1 m -> 0.017 m.
+    # docs/science.md: sigma = sqrt 5 dB, n = 3, d = 0.1 m -> 0.017 m.
     r = api.post("/v1/bounds/rss", json={"shadowing_db": math.sqrt(5), "path_loss_exponent": 3, "distance_m": 0.1})
     assert r.status_code == 200
     assert r.json()["sigma_m"] == pytest.approx(0.017, rel=0.02)

@@ -149,7 +149,7 @@ API_NAMES = [
     "small_intestine", "colon", "liver", "kidney", "spleen", "heart", "lung_inflated", "lung_deflated",
     "bone_cortical", "bone_cancellous", "bone_marrow_infiltrated", "bone_marrow_not_infiltrated", "blood",
     "gall_bladder_bile", "gall_bladder", "bladder", "cartilage", "aorta", "tendon", "nerve", "air",
-]  # api.md "Tissue names", copied verbatim
+]  # docs/api.md "Tissue names", copied verbatim
 
 
 def test_tissue_names_are_exactly_the_api_list():
@@ -162,7 +162,7 @@ def test_tissue_names_are_exactly_the_api_list():
 
 def test_fat_sets_differ_as_documented():
     """Average-infiltrated fat is about twice the permittivity of non-infiltrated
-    fat at 402 MHz (tissues.md: 11.6 vs 5.6, 3 digits)."""
+    fat at 402 MHz (docs/tissues.md: 11.6 vs 5.6, 3 digits)."""
     avg = tissues.dielectric("fat_average_infiltrated", 402e6).relative_permittivity
     non = tissues.dielectric("fat_not_infiltrated", 402e6).relative_permittivity
     assert avg == pytest.approx(11.6, rel=5e-3)
@@ -226,7 +226,7 @@ def test_dielectric_derived_quantities():
     assert eps.real == pytest.approx(d.relative_permittivity, rel=1e-15)
     assert -eps.imag == pytest.approx(d.conductivity_s_per_m / (w * eps0), rel=1e-12)
     assert d.loss_tangent == pytest.approx(d.conductivity_s_per_m / (w * eps0 * d.relative_permittivity), rel=1e-12)
-    # tissues.md: wet tissues at 402 MHz have loss tangents of 0.6-1.3
+    # docs/tissues.md: wet tissues at 402 MHz have loss tangents of 0.6-1.3
     assert 0.6 < d.loss_tangent < 1.3
     assert tissues.complex_relative_permittivity("small_intestine", 402e6) == pytest.approx(eps, rel=1e-12)
 

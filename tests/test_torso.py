@@ -1,7 +1,7 @@
 """The default torso phantom: validity, anatomy, sites, resolution scaling.
 
 Oracles are independent of ``raytrace.body.torso``: the expected media, parents
-and layer thicknesses are written out here from tissues.md, and geometric
+and layer thicknesses are written out here from docs/tissues.md, and geometric
 checks use trimesh's own proximity / ray queries on the organ meshes rather
 than the phantom's medium lookup where possible.
 """
@@ -163,7 +163,7 @@ def test_sensor_sites_are_contact_sensors_mid_skin(torso: Phantom) -> None:
 def test_anterior_layers_have_the_cited_thicknesses(torso: Phantom) -> None:
     # Cast a ray from the trunk axis (inside the small intestine) towards the
     # anterior (-y) and read where it crosses each organ surface (trimesh
-    # multi-hit on the combined mesh). Expected from tissues.md: outer skin at
+    # multi-hit on the combined mesh). Expected from docs/tissues.md: outer skin at
     # the ANSUR II male waist depth/2 = 119 mm, skin 2 mm, fat 17.5 mm
     # (CT L3-L4), rectus 10 mm. A vertex lies exactly on this ray (theta =
     # 270 deg, z = 0 ring), so the tolerance is float rounding only.
@@ -185,7 +185,7 @@ def test_anterior_layers_have_the_cited_thicknesses(torso: Phantom) -> None:
 
 
 def test_api_example_positions_are_meaningful(torso: Phantom) -> None:
-    # api.md's /v1/channel example: transmitter (0.02, -0.03, 0) in the small
+    # positions the API's earliest examples used: transmitter (0.02, -0.03, 0) in the small
     # intestine, receiver (0, -0.125, 0) in air in front of the abdomen.
     media = torso.medium_names(torso.medium_index(np.array([[0.02, -0.03, 0.0], [0.0, -0.125, 0.0]])))
     assert media == ["small_intestine", "air"]

@@ -69,7 +69,7 @@ def test_homogeneous_lossless_line_of_sight_delay_and_friis_amplitude():
         assert p.interactions == ()
         # 0.1 ps: the delay is a closed-form length, only float64 rounding can differ.
         assert abs(p.delay_s - d * n / C) < 1e-13
-        # 0.5 %: Friis in the medium, lambda0 / (4 pi n d) (api.md normalisation).
+        # 0.5 %: Friis in the medium, lambda0 / (4 pi n d) (docs/api.md normalisation).
         assert abs(abs(p.gain) / (LAMBDA0 / (4 * np.pi * n * d)) - 1) < 5e-3
         # phase of exp(-j k d)
         assert np.isclose(np.angle(p.gain * np.exp(1j * 2 * np.pi * F0 / C * n * d)), 0.0, atol=1e-6)
@@ -363,7 +363,7 @@ def test_budget_stops_the_trace():
 
 def test_antenna_patterns_and_polarization():
     """Dipole along z seen at angle theta from its axis: |a| = sin(theta) * lambda0 / (4 pi n d)
-    (api.md: dipole weights by sin theta); crossed polarizations on a line of sight couple nothing."""
+    (docs/api.md: dipole weights by sin theta); crossed polarizations on a line of sight couple nothing."""
     ph = homogeneous_sphere(27.9)
     n = np.sqrt(27.9)
     tx = Antenna(np.zeros(3), polarization=Z, pattern="dipole")

@@ -1,6 +1,6 @@
 """Phantoms to and from binary glTF 2.0 (.glb) plus a JSON manifest.
 
-Upload contract (``shared/design/api.md``, "POST /v1/phantoms"): a .glb whose
+Upload contract (``docs/api.md``, "POST /v1/phantoms"): a .glb whose
 mesh nodes are named after organs, and a manifest::
 
     {"name": "my phantom",                     # 1-128 printable characters

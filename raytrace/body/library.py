@@ -51,7 +51,7 @@ _HALF_M = 1.0
 #: Inset of a nested box's lateral and back faces from its parent's [m].
 _INSET_M = 0.010
 
-#: Layer thicknesses of the layered slab (tissues.md 5.2) [m]: skin (MIRD shell)
+#: Layer thicknesses of the layered slab (docs/tissues.md 5.2) [m]: skin (MIRD shell)
 #: and subcutaneous fat (CT L3-L4 male mean); muscle fills the rest.
 LAYER_SKIN_M = 0.002
 LAYER_FAT_M = 0.0175
@@ -145,7 +145,7 @@ def half_space() -> Phantom:
 
 @functools.cache
 def layered_slab() -> Phantom:
-    """Planar skin (2 mm) / fat (17.5 mm) / muscle stack, air in front (tissues.md 5.2)."""
+    """Planar skin (2 mm) / fat (17.5 mm) / muscle stack, air in front (docs/tissues.md 5.2)."""
     fat_front = LAYER_SKIN_M
     muscle_front = LAYER_SKIN_M + LAYER_FAT_M
     organs = _nested_slab(

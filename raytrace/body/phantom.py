@@ -5,7 +5,7 @@ oriented triangle mesh with a :class:`Material`. Organs nest (skin contains
 fat contains the muscle wall contains the abdominal cavity, which contains the
 organs) but their surfaces never intersect. The medium at a point is the
 innermost organ containing it; outside every organ is air
-(``shared/design/tracer.md``, "Scene model").
+(``docs/tracer.md``, "Scene model").
 
 The containment tree is built once, at construction: organ *i*'s parent is
 the smallest organ containing a vertex of *i*. A ray crossing a triangle of

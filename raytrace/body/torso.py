@@ -1,11 +1,11 @@
 """The default torso phantom: a procedural abdomen section, embedded (no downloads).
 
-Anatomy (``shared/design/tissues.md`` section 5; numbers below cite it)
+Anatomy (``docs/tissues.md`` section 5; numbers below cite it)
 ------------------------------------------------------------------------
 A stylised MIRD-type trunk (Cristy-Eckerman organ set as coded in Geant4
 ``G4MIRD*.cc`` and the DoseCalcs ``MIRDTEXTPhantom.geom``) with the two
 layers MIRD phantoms lack and RF work needs: subcutaneous fat and the
-abdominal muscle wall (tissues.md 5.2). Organs, outside in:
+abdominal muscle wall (docs/tissues.md 5.2). Organs, outside in:
 
 ===================  =========================  ==========================================
 organ (medium name)  tissue                     shape
@@ -39,14 +39,14 @@ kidneys and spine is the same muscle background.
 Frame (right-handed, metres)
 ----------------------------
 x = subject's left, y = posterior (so **-y is anterior**, the MIRD trunk
-convention of tissues.md 5.3), z = up. The origin is on the trunk axis at the
+convention of docs/tissues.md 5.3), z = up. The origin is on the trunk axis at the
 level of the small-intestine mid-plane (about the umbilicus, L3-L4; the
 sensor belt is 50 mm above it): MIRD trunk z = -140 mm maps to z = 0. The modelled
 section spans z = -134.5 mm (below the descending colon) to +394.5 mm (above
 the lung bases); its rounded top and bottom are cuts through the body, each
 with all four layers so that every surface is closed.
 
-Dimensions (mm, tissues.md)
+Dimensions (mm, docs/tissues.md)
 ---------------------------
 * Outer skin ellipse 163 x 119: ANSUR II male mean waist breadth/depth
   326.4 / 237.8 mm halved (5.1). Skin 2 mm (MIRD skin shell 174.5 vs 172.5,
@@ -146,7 +146,7 @@ _MM = 1e-3
 #: MIRD trunk z of this model's origin (small-intestine mid-plane) [mm].
 _Z0_MIRD_MM = -140.0
 
-# --- body layers (tissues.md 5.1 / 5.2), mm --------------------------------
+# --- body layers (docs/tissues.md 5.1 / 5.2), mm --------------------------------
 _SKIN_A, _SKIN_B = 163.0, 119.0  # ANSUR II male mean waist breadth/2, depth/2
 _SKIN_T = 2.0  # MIRD skin shell
 _FAT_T = 17.5  # CT L3-L4 male mean subcutaneous fat

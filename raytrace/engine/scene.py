@@ -9,7 +9,7 @@ Spawned rays: the float32 query origin is pushed off the surface just left by
 :attr:`TracerScene.offset_m` (a few float32 ulps of the scene's coordinate
 magnitude) along the facet normal, on the side the ray travels into, so the
 query never re-hits the surface it starts on; the float64 geometry still
-starts exactly on the surface (``shared/design/tracer.md``, "Numerical care").
+starts exactly on the surface (``docs/tracer.md``, "Numerical care").
 
 Two Embree scenes of the same triangles: the robust (watertight) one answers
 every query whose answer is final (Newton's re-tracing, the zoomed

@@ -13,7 +13,7 @@ Conventions (stated once, used everywhere in CapsuleRT)
 * Wavenumber ``k = (w / c0) n = beta - j alpha``: ``beta`` (rad/m) sets the
   phase, ``alpha >= 0`` (Np/m) the amplitude decay ``exp(-alpha L)``.
   Phase velocity ``w / beta``, wavelength ``2 pi / beta``.
-  (science.md "Physics of the ray model"; thesis Ch. 5.)
+  (docs/science.md "Physics of the ray model"; thesis Ch. 5.)
 * Loss is a NEGATIVE imaginary part of ``eps`` and ``n``. Optics packages
   with ``exp(-j w t)`` (e.g. ``tmm``) use ``n + j kappa``: pass ``conj(n)``.
 
@@ -172,7 +172,7 @@ def complex_relative_permittivity(
     conductivity_s_per_m: float | np.ndarray,
     frequency_hz: float | np.ndarray,
 ) -> np.ndarray:
-    """``eps = eps' - j sigma / (w eps0)`` (science.md "Physics of the ray model")."""
+    """``eps = eps' - j sigma / (w eps0)`` (docs/science.md "Physics of the ray model")."""
     f = _frequency(frequency_hz)
     eps_r = np.asarray(relative_permittivity, dtype=float)
     sigma = np.asarray(conductivity_s_per_m, dtype=float)
@@ -225,7 +225,7 @@ def propagation_factor(
     """Plane-wave field factor ``exp(-j k L) = exp(-alpha L) exp(-j beta L)`` over a path length ``L``.
 
     Amplitude decays as ``exp(-Im(-k) L)`` and the phase lags by ``Re(k) L``
-    (science.md "Physics of the ray model"). ``length_m`` must be finite and >= 0.
+    (docs/science.md "Physics of the ray model"). ``length_m`` must be finite and >= 0.
     """
     length = np.asarray(length_m, dtype=float)
     if not np.all(np.isfinite(length)) or np.any(length < 0.0):

@@ -1,6 +1,6 @@
 """Complex gain of refined paths: Jones field tracking, Fresnel, absorption, ray tube.
 
-Normalisation (``shared/design/api.md``: ``|a|^2`` is the power transfer
+Normalisation (``docs/api.md``: ``|a|^2`` is the power transfer
 between the two isotropic antennas). An isotropic transmitter of power P_t
 in a medium of index n_t has, at 1 m, power density P_t / (4 pi) and field
 ``|E_1|^2 = 2 eta0 P_t / (4 pi Re n_t)``. Along the ray the field is

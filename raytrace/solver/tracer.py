@@ -1,6 +1,6 @@
 """Channel between a transmitter and receivers inside a phantom: exact ray paths.
 
-Pipeline (``shared/design/tracer.md``):
+Pipeline (``docs/tracer.md``):
 
 1. Validate the request (typed errors naming the field).
 2. Direct paths: the straight transmitter->receiver segment's crossings
@@ -20,7 +20,7 @@ Pipeline (``shared/design/tracer.md``):
    at the centre frequency and every band frequency (geometry traced once at
    the centre frequency, tissue properties re-evaluated per frequency).
 
-Design choices (where this departs from or sharpens ``shared/design/tracer.md``):
+Design choices (where this departs from or sharpens ``docs/tracer.md``):
 
 * Refinement is Newton on the two launch angles with the signature traced
   physically (first hit in the full scene must be the named surface), not a
@@ -53,7 +53,7 @@ Ray geometry (Snell directions, total internal reflection, delays) uses
 ``Re n`` of the complex refractive index at the centre frequency; Fresnel
 coefficients use the complex indices and the complex ``cos_t``; delays are
 ``sum L_i Re n_i / c``, absolute. Geometric optics is an approximation where
-organs are comparable to the wavelength (science.md).
+organs are comparable to the wavelength (docs/science.md).
 """
 
 from __future__ import annotations

@@ -1,1 +1,1 @@
-"""HTTP routes, one module per area of api.md."""
+"""HTTP routes, one module per area of docs/api.md."""

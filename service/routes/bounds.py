@@ -1,4 +1,4 @@
-"""Closed-form Cramér-Rao bounds (science.md "Bounds"): thin wrappers over estimators.bounds."""
+"""Closed-form Cramér-Rao bounds (docs/science.md "Bounds"): thin wrappers over estimators.bounds."""
 
 from __future__ import annotations
 
