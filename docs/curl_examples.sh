@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# CapsuleRT API by curl: the README's examples (tests/test_e2e_curl.py runs this file).
+# CapsuleRT API by curl: the README's examples (tests/e2e/test_curl.py runs this file).
 # Start a server first (`make run` or `capsule-rt serve`); BASE_URL defaults to it.
 set -euo pipefail
 BASE_URL="${BASE_URL:-http://127.0.0.1:8000}"

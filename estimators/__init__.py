@@ -43,8 +43,7 @@ Errors: every invalid input raises EstimatorInputError (a ValueError) with
 ``.field`` (dotted request path) and ``.reason``; map it to HTTP 422.
 """
 
-from .bounds import (PDOABound, RSSBound, TOABound, multitone_crlb, pdoa_crlb, rss_crlb, toa_crlb,
-                     waveform_toa_crlb)
+from .bounds import PDOABound, RSSBound, TOABound, multitone_crlb, pdoa_crlb, rss_crlb, toa_crlb, waveform_toa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY, SPEED_OF_LIGHT_M_PER_S, velocity_m_per_s
 from .errors import EstimatorInputError
 from .pdoa import estimate_pdoa

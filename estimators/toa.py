@@ -66,8 +66,16 @@ from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
 from .profile import PathProfile
 from .results import TOAResult, summarise
-from .waveforms import (GaussianPulse, ToneBurst, Waveform, add_awgn, observation_samples, received,
-                        signal_power, transmitted)
+from .waveforms import (
+    GaussianPulse,
+    ToneBurst,
+    Waveform,
+    add_awgn,
+    observation_samples,
+    received,
+    signal_power,
+    transmitted,
+)
 
 METHODS = ("first_peak", "all_peaks", "gcc", "envelope")
 THESIS_METHODS = ("first_peak", "all_peaks", "gcc")

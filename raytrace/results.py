@@ -10,7 +10,7 @@ refractive index n, ``|a| = lambda0 / (4 pi n d)``. Delays are absolute.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np

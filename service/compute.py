@@ -18,8 +18,8 @@ from typing import Awaitable, Callable, TypeVar
 import anyio
 import anyio.to_thread
 
-from raytrace.solver.budget import Budget
 from raytrace.errors import BudgetExceededError
+from raytrace.solver.budget import Budget
 from service.errors import ServerSaturated
 from service.metrics import Metrics
 

@@ -43,14 +43,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from estimators.errors import EstimatorInputError
 from raytrace.errors import BudgetExceededError, CapsuleRTError, InputError, NotFoundError
-
-try:  # the estimators package may not define it (yet)
-    from estimators.errors import EstimatorInputError
-except ImportError:  # pragma: no cover
-    class EstimatorInputError(ValueError):  # type: ignore[no-redef]
-        field: str | None = None
-        reason: str = ""
 
 log = logging.getLogger("capsule_rt.service")
 

@@ -17,9 +17,8 @@ Conventions:
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
-
 from dataclasses import fields as dataclass_fields
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 

@@ -15,14 +15,18 @@ own search); uses only the phantom's surface model (Embree first hits + smooth n
    narrower than a lattice cell.
 A pair reported NONE by both at 4e6 rays is a GO shadow unless a sliver hides below that
 resolution (see docs/tracer.md). Sensors: the torso's sensor sites, or with UNIFORM=1 in the
-environment the uniform-belt positions of tests/test_tracer_torso.py (UNIFORM_BELT), where
+environment the uniform-belt positions of tests/raytrace/test_tracer_torso.py (UNIFORM_BELT), where
 its GO_SHADOWS were established. Usage:
     [UNIFORM=1] .venv/bin/python tools/torso_direct_bruteforce.py [NT=1400] [N_FIB=2e6] [capsule,...]
 Takes ~3 minutes for all 72 pairs on 2 cores.
 """
 
-import os, sys, time
+import os
+import sys
+import time
+
 import numpy as np
+
 import raytrace.body.torso as T
 
 NT = int(sys.argv[1]) if len(sys.argv) > 1 else 1400
@@ -40,6 +44,7 @@ forg = sc.face_organ
 caps = [n for n, s in ph.sites.items() if s.kind == 'capsule']
 only = sys.argv[3].split(',') if len(sys.argv) > 3 else None
 from raytrace.solver.launch import fibonacci_sphere
+
 if os.environ.get("UNIFORM"):
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
     from test_tracer_torso import UNIFORM_BELT

@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
+import raytrace as rt
 import raytrace.body.torso as T
 from raytrace.spec import Antenna
-import raytrace as rt
 
 resolution = int(sys.argv[1]) if len(sys.argv) > 1 else T.DEFAULT_RESOLUTION
 rays = int(sys.argv[2]) if len(sys.argv) > 2 else 100_000

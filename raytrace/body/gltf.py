@@ -55,8 +55,8 @@ from typing import Any, Mapping
 import numpy as np
 import trimesh
 
-from raytrace.errors import InvalidGeometryError, PhantomValidationError, UnknownTissueError
 from raytrace.body.phantom import AIR_INDEX, Material, Organ, Phantom, Site
+from raytrace.errors import InvalidGeometryError, PhantomValidationError, UnknownTissueError
 
 __all__ = [
     "DEFAULT_MAX_BYTES",

@@ -14,7 +14,7 @@ The scene is built with the C API too: one triangle geometry in float32
 (Embree's own padded buffers, data copied in), by default with
 ``RTC_SCENE_FLAG_ROBUST`` (watertight traversal: a ray through a shared edge or
 vertex hits one of the triangles, never slips between them), as embreex builds
-its scenes: the hits are bit-identical to embreex's (tests/test_embree.py).
+its scenes: the hits are bit-identical to embreex's (tests/raytrace/test_embree.py).
 ``robust=False`` gives Embree's faster default traversal.
 
 Layout of ``RTCRayHit`` (Embree 4 ``rtcore_ray.h``, 16-byte aligned): the ray

@@ -20,7 +20,7 @@ the smooth normal of :meth:`raytrace.engine.scene.TracerScene.smooth_normals`, t
 law of reflection and the vector Snell law of :func:`raytrace.physics.em.refract_direction`
 (``t = eta (d - cos_i n) + cos_t n``, Born & Wolf 1.5) without its input
 checks. They are tested against the independent closed forms of
-:mod:`raytrace.physics.em` in tests/test_kernels.py and, through the tracer, against
+:mod:`raytrace.physics.em` in tests/raytrace/test_kernels.py and, through the tracer, against
 every oracle of docs/tracer.md.
 
 ``cache=True``: the machine code is cached on disk (beside this file, or in

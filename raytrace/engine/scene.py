@@ -37,8 +37,9 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from raytrace.engine.embree import EmbreeScene
+
 from raytrace.body.phantom import Phantom
+from raytrace.engine.embree import EmbreeScene
 
 #: Corners whose vertex normal deviates more than this from the facet normal are creases.
 CREASE_ANGLE_RAD = np.deg2rad(35.0)

@@ -33,11 +33,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from raytrace.engine import kernels
+from raytrace.engine.scene import TracerScene
 from raytrace.solver.budget import Budget
 from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.solver.media import MediaTable
 from raytrace.solver.refine import tangent_basis
-from raytrace.engine.scene import TracerScene
 
 #: Refraction events followed at most.
 MAX_EVENTS = 24

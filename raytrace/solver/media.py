@@ -15,8 +15,8 @@ from functools import cached_property
 
 import numpy as np
 
-from raytrace.physics.em import refractive_index
 from raytrace.body.phantom import AIR, Material, Phantom
+from raytrace.physics.em import refractive_index
 
 
 @dataclass(frozen=True)

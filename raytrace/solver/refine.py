@@ -33,10 +33,9 @@ import numpy as np
 
 from raytrace.engine import kernels
 from raytrace.engine.kernels import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION  # noqa: F401 (re-exported)
+from raytrace.engine.scene import TracerScene
 from raytrace.solver.budget import Budget
 from raytrace.solver.media import MediaTable
-from raytrace.engine.scene import TracerScene
-
 
 #: Newton stops when the last leg misses the receiver by less than this [m].
 MISS_TOLERANCE_M = 1e-9
@@ -49,7 +48,7 @@ MAX_ITERATIONS = 40
 #: handful of seeds up to MAX_ITERATIONS. Slow but steady seeds do converge late (one at
 #: iteration 35 after 24 iterations of ~1 % progress), so the rule only drops flat ones.
 #: Measured on the default torso, 6 capsules x (the 12 sensor sites + the 12 uniform-belt
-#: positions of tests/test_tracer_torso.py), 2200 paths: none lost; window 10 with factor 0.9
+#: positions of tests/raytrace/test_tracer_torso.py), 2200 paths: none lost; window 10 with factor 0.9
 #: lost one (-37.5 dB under its receiver's strongest), window 6 / 0.9 two, a cap of 12
 #: iterations eleven (one 0.7 dB under the strongest).
 STALL_WINDOW = 10
@@ -131,7 +130,7 @@ def follow(
     brings its last leg closer to its receiver than ``old_miss_m`` (differentials included;
     see the kernel's line-search mode). These two modes run the per-ray steps of
     :func:`refine`'s kernel (:func:`raytrace.engine.kernels.newton`) on their own, so that each can be
-    checked against closed forms (tests/test_kernels.py).
+    checked against closed forms (tests/raytrace/test_kernels.py).
     """
     p = len(dirs)
     record = targets_m is not None

@@ -48,11 +48,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from raytrace.engine import kernels
+from raytrace.engine.scene import TracerScene
 from raytrace.solver.budget import Budget
 from raytrace.solver.direct import MAX_EVENTS, Seeds, closest_launches, pick_seeds
 from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.solver.media import MediaTable
-from raytrace.engine.scene import TracerScene
 
 #: Launch directions traced together (their whole bounce tree at once). Batches are handed to
 #: the threads as they free up, so small ones balance the two cores and keep each generation's

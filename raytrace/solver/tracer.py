@@ -61,18 +61,13 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from typing import Sequence
 
 import numpy as np
 
-from raytrace.engine import kernels
-from raytrace.solver.budget import Budget
-from raytrace.solver.direct import Seeds, reverse_seeds, zoom_seeds
-from raytrace.solver.field import path_gains
-from raytrace.solver.launch import angular_spacing_rad
-from raytrace.solver.media import MediaTable
 from raytrace.body.library import get_phantom
-from raytrace.spec import Antenna, ChannelSpec
+from raytrace.body.phantom import Phantom
+from raytrace.engine import kernels
+from raytrace.engine.scene import TracerScene, scene_for
 from raytrace.results import (
     ChannelResult,
     Interaction,
@@ -81,10 +76,23 @@ from raytrace.results import (
     Segment,
     TraceStats,
 )
-from raytrace.body.phantom import Phantom
-from raytrace.solver.refine import KIND_PASS, KIND_REFLECTION, Refined, Steps, encode, follow, refine, refine_by_continuation
+from raytrace.solver.budget import Budget
+from raytrace.solver.direct import Seeds, reverse_seeds, zoom_seeds
+from raytrace.solver.field import path_gains
+from raytrace.solver.launch import angular_spacing_rad
+from raytrace.solver.media import MediaTable
+from raytrace.solver.refine import (
+    KIND_PASS,
+    KIND_REFLECTION,
+    Refined,
+    Steps,
+    encode,
+    follow,
+    refine,
+    refine_by_continuation,
+)
 from raytrace.solver.sbr import shoot
-from raytrace.engine.scene import TracerScene, scene_for
+from raytrace.spec import Antenna, ChannelSpec
 
 #: Worker threads of one request: the direct-path search and the shooting's launch batches,
 #: then the Newton refinement of the shooting's seeds (Embree and the kernels run without the GIL).

@@ -41,7 +41,7 @@ async def compute_channel(req: ChannelRequest, request: Request) -> Response:
         # serialised here, in the worker: a 12-sensor answer is ~0.75 MB, and building the pydantic
         # model of its ~500 paths took 0.12 s that would block the event loop; result_to_dict
         # writes exactly ChannelResponse's fields (finite numbers only: allow_nan=False raises
-        # rather than send NaN), checked against the model in tests/test_service_api.py
+        # rather than send NaN), checked against the model in tests/service/test_api.py
         return out["stats"], json.dumps(out, allow_nan=False, separators=(",", ":")).encode()
 
     budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments)

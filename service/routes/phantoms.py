@@ -9,8 +9,8 @@ from fastapi import APIRouter, Path, Request, Response
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
-from raytrace.solver.budget import Budget
 from raytrace.body import gltf
+from raytrace.solver.budget import Budget
 from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, Unprocessable, error_responses
 from service.registry import describe_phantom

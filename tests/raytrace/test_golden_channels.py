@@ -7,7 +7,7 @@ The tolerances are far below any physical meaning (1e-15 s is 0.3 um of path in
 air) and above the last-bit noise of a different summation order.
 
 Re-record only when a change is meant to alter answers, and say which in the
-commit: ``python -m tests.test_golden_channels --record``.
+commit: ``python -m tests.raytrace.test_golden_channels --record``.
 """
 
 from __future__ import annotations

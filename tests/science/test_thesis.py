@@ -24,16 +24,17 @@ import pytest
 
 import raytrace as rt
 from estimators import PathProfile, estimate_pdoa, estimate_toa
-from raytrace.spec import Antenna
-from raytrace.body.phantom import Material
 from raytrace.body.library import THESIS_DISTANCE_M, THESIS_EPS_R
+from raytrace.body.phantom import Material
+from raytrace.body.torso import default_torso
 from raytrace.scenarios import get_scenario
+from raytrace.spec import Antenna
 from tests.helpers import trace
 
 C0_M_PER_S = 299_792_458.0  # exact (SI), written here so the oracle shares nothing with raytrace.physics.em
 
 #: The torso-small-intestine scenario's capsule and its seven-sensor belt (every pair has a
-#: refraction-only path: tests/test_tracer_torso.py).
+#: refraction-only path: tests/raytrace/test_tracer_torso.py).
 CAPSULE = "small_intestine_1"
 BELT = ("belt_anterior", "belt_anterior_left", "belt_left", "belt_posterior_left", "belt_posterior",
         "belt_posterior_right", "belt_anterior_right")
@@ -41,7 +42,7 @@ BELT = ("belt_anterior", "belt_anterior_left", "belt_left", "belt_posterior_left
 
 @pytest.fixture(scope="module")
 def torso():
-    return pytest.importorskip("raytrace.body.torso").default_torso()
+    return default_torso()
 
 
 def _is_direct(path) -> bool:

@@ -14,8 +14,7 @@ from fastapi.testclient import TestClient
 
 from service.app import create_app
 from service.storage import PhantomStore
-
-from test_service_api import assert_field
+from tests.service.test_api import assert_field
 
 
 def upload(api, glb: bytes, manifest, filename: str = "p.glb"):

@@ -10,16 +10,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from raytrace.physics import em
-
+from raytrace.body.library import half_space, homogeneous_sphere
+from raytrace.body.phantom import Material
 from raytrace.engine import kernels
-
+from raytrace.engine.scene import scene_for
+from raytrace.physics import em
 from raytrace.solver import sbr
 from raytrace.solver.launch import fibonacci_sphere
 from raytrace.solver.media import MediaTable
-from raytrace.body.phantom import Material
-from raytrace.body.library import half_space, homogeneous_sphere
-from raytrace.engine.scene import scene_for
 
 FREQUENCY_HZ = 402e6
 

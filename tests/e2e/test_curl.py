@@ -12,7 +12,7 @@ import pytest
 
 pytestmark = pytest.mark.e2e
 
-SCRIPT = Path(__file__).resolve().parent.parent / "docs" / "curl_examples.sh"
+SCRIPT = Path(__file__).resolve().parents[2] / "docs" / "curl_examples.sh"
 
 
 @pytest.mark.skipif(shutil.which("curl") is None, reason="curl is not installed")

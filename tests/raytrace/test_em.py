@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 import tmm
 
-from raytrace.physics import em
 from raytrace.errors import FrequencyOutOfRangeError, InputError, InvalidGeometryError
+from raytrace.physics import em
 
 EXACT = 1e-12  # relative/absolute tolerance for exact closed forms in double precision
 

@@ -17,9 +17,9 @@ from raytrace.body.phantom import Phantom
 from raytrace.body.torso import (
     DEFAULT_RESOLUTION,
     MIN_RESOLUTION,
+    SENSOR_DEPTH_M,
     build_torso,
     default_torso,
-    SENSOR_DEPTH_M,
     expected_site_media,
 )
 

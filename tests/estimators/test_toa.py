@@ -7,9 +7,17 @@ import math
 import numpy as np
 import pytest
 
-from estimators import (EstimatorInputError, GaussianPulse, PathProfile, ToneBurst, estimate_pdoa, estimate_toa,
-                        single_path, toa_crlb)
-from estimators import waveforms
+from estimators import (
+    EstimatorInputError,
+    GaussianPulse,
+    PathProfile,
+    ToneBurst,
+    estimate_pdoa,
+    estimate_toa,
+    single_path,
+    toa_crlb,
+    waveforms,
+)
 
 C = 299_792_458.0
 V = C / math.sqrt(27.9)

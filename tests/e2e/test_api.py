@@ -8,7 +8,6 @@ endpoint: the happy path, and a bad request whose ``detail`` names the field.
 from __future__ import annotations
 
 import asyncio
-import io
 import json
 import math
 
@@ -17,8 +16,7 @@ import pytest
 
 from service import schemas as s
 from service.client import APIError, AsyncClient, Client
-
-from conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
+from tests.conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
 
 pytestmark = pytest.mark.e2e
 

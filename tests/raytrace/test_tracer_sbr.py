@@ -13,12 +13,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from raytrace.solver import sbr
-from raytrace.solver.media import MediaTable
+from raytrace.body import torso
 from raytrace.body.phantom import Material, Organ, Phantom
 from raytrace.engine.scene import scene_for
-
-torso = pytest.importorskip("raytrace.body.torso")
+from raytrace.solver import sbr
+from raytrace.solver.media import MediaTable
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from service.app import create_app
 from service.cli import main, openapi_text
 from service.settings import Settings
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 OPERATIONS = {
     ("post", "/v1/channel"): "compute_channel",

@@ -16,11 +16,10 @@ import httpx
 import pytest
 import uvicorn
 
-from service.routes import channel as channel_route
 from service.app import create_app
-
-from conftest import free_port
-from test_service_api import SMALL_CHANNEL
+from service.routes import channel as channel_route
+from tests.conftest import free_port
+from tests.service.test_api import SMALL_CHANNEL
 
 
 def _wait(predicate, what: str, timeout_s: float = 60.0) -> None:

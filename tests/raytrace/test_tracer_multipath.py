@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from raytrace.spec import Antenna
 from raytrace.body.phantom import Material, Organ, Phantom
+from raytrace.spec import Antenna
 from tests.helpers import trace
 
 C = 299_792_458.0

@@ -10,8 +10,8 @@ import pytest
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from raytrace.engine.embree import EmbreeScene
 from raytrace.body.torso import default_torso
+from raytrace.engine.embree import EmbreeScene
 
 
 def _unit_directions(rng, n):

@@ -11,11 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from raytrace.body import torso
 from raytrace.physics.em import C0
 from raytrace.spec import Antenna
 from tests.helpers import trace
-
-torso = pytest.importorskip("raytrace.body.torso")
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +53,6 @@ def test_torso_paths_are_consistent_with_the_phantom(phantom):
 # ----------------------------------------------------------------- direct paths, contact sensors
 @pytest.fixture(scope="module")
 def contact_torso():
-    if not hasattr(torso, "SENSOR_DEPTH_M"):
-        pytest.skip("torso without contact sensors")
     return torso.default_torso()
 
 
@@ -150,8 +147,8 @@ def test_direct_paths_on_the_torso_are_exact(contact_torso, direct_traces):
     Newton stopping miss of 1e-9 m allows on the adjacent legs), the delay equals sum L_i Re n_i / c from its
     segments (1e-15 s), segments' media match the phantom's lookup at their midpoints,
     delays sorted, gains finite and non-zero."""
-    from raytrace.solver.media import MediaTable
     from raytrace.engine.scene import scene_for
+    from raytrace.solver.media import MediaTable
 
     ph = contact_torso
     media = MediaTable.build(ph, np.array([402e6]))
@@ -206,10 +203,10 @@ def test_reverse_search_gives_the_forward_direct_path(contact_torso, direct_trac
     (signature reversed, each surface from the other side) and refined forward, is the path
     the forward search found (same launch direction to 1e-6 rad: both are Newton solutions
     to 1e-9 m over ~0.1 m), for a pair whose forward search is well conditioned."""
+    from raytrace.engine.scene import scene_for
     from raytrace.solver.direct import reverse_seeds, reverse_signature
     from raytrace.solver.media import MediaTable
     from raytrace.solver.refine import refine
-    from raytrace.engine.scene import scene_for
 
     codes = np.array([[10, 6, 33, -1]])
     assert reverse_signature(reverse_signature(codes, np.array([3])), np.array([3])).tolist() == codes.tolist()
@@ -281,10 +278,10 @@ def test_seed_walk_in_float32_follows_the_same_surfaces_as_the_exact_walk(phanto
     next ray started on the surface it had just crossed and re-hit it at ~1e-9 m, cutting 1.7-5 %
     of the walks short. Tolerance 0.1 % of launches (a ray grazing an edge may legitimately
     split differently in float32)."""
+    from raytrace.engine.scene import scene_for
     from raytrace.solver import direct
     from raytrace.solver.launch import fibonacci_sphere
     from raytrace.solver.media import MediaTable
-    from raytrace.engine.scene import scene_for
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -308,10 +305,9 @@ def test_walk_on_the_shooting_rays_gives_the_seed_walks_seeds(phantom):
     launch directions, signatures and event counts for every receiver, closest approaches
     within 1e-3 relative (float32 positions over a few events; measured 4e-4). Its rays never
     make reception candidates: the shooting's candidates are identical with and without it."""
-    from raytrace.solver import direct
-    from raytrace.solver import sbr
-    from raytrace.solver.media import MediaTable
     from raytrace.engine.scene import scene_for
+    from raytrace.solver import direct, sbr
+    from raytrace.solver.media import MediaTable
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -342,9 +338,9 @@ def test_the_live_ray_cap_never_drops_the_walks_rays(phantom, monkeypatch):
     which cuts the shot segments by more than 20 %), the walk riding on the shooting keeps
     every one of its rays (one per launch) and gives the same seeds as without the cap
     (ranking them by power over squared length like the others changes the seeds)."""
+    from raytrace.engine.scene import scene_for
     from raytrace.solver import sbr
     from raytrace.solver.media import MediaTable
-    from raytrace.engine.scene import scene_for
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)

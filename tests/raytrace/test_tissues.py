@@ -59,8 +59,8 @@ import math
 import numpy as np
 import pytest
 
-from raytrace.physics import tissues
 from raytrace.errors import FrequencyOutOfRangeError, InputError, UnknownTissueError
+from raytrace.physics import tissues
 
 REL_TOL = 2e-4  # see module docstring
 

@@ -15,7 +15,7 @@ import pytest
 import trimesh
 from scipy.optimize import minimize_scalar
 
-from raytrace.solver.budget import Budget
+from raytrace.body.phantom import Material, Organ, Phantom
 from raytrace.errors import (
     AmbiguousPositionError,
     BudgetExceededError,
@@ -24,8 +24,8 @@ from raytrace.errors import (
     InvalidGeometryError,
     UnknownTissueError,
 )
+from raytrace.solver.budget import Budget
 from raytrace.spec import Antenna, ChannelSpec
-from raytrace.body.phantom import Material, Organ, Phantom
 from tests.helpers import trace
 
 C = 299_792_458.0

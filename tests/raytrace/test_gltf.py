@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from raytrace.errors import InputError, PhantomValidationError, UnknownTissueError
 from raytrace.body.gltf import export_glb, export_manifest, load_phantom
 from raytrace.body.library import builtin_phantoms
+from raytrace.errors import InputError, PhantomValidationError, UnknownTissueError
 
 
 def sphere(center, radius, subdivisions=2) -> trimesh.Trimesh:
