@@ -1,0 +1,61 @@
+"""The layering of docs/architecture.md, read off the import statements (AST, no import).
+
+Inside ``raytrace`` a layer imports only the layers below it; ``raytrace`` and
+``estimators`` never import ``service``; ``estimators`` does not import ``raytrace``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+#: raytrace's layers, bottom first; a module may import its own layer and those before it.
+LAYERS = ["errors", "physics", "body", "engine", "spec", "results", "solver", "top"]
+
+
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    if parts[0] != "raytrace" or len(parts) == 1:
+        return "top"
+    return parts[1] if parts[1] in LAYERS else "top"
+
+
+def _imports(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text())
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.append(node.module)
+            out += [f"{node.module}.{a.name}" for a in node.names if node.module == "raytrace"]
+    return out
+
+
+def _modules(package: str):
+    for path in sorted((ROOT / package).rglob("*.py")):
+        yield ".".join(path.relative_to(ROOT).with_suffix("").parts), path
+
+
+@pytest.mark.parametrize("module, path", list(_modules("raytrace")), ids=lambda v: str(v))
+def test_raytrace_layers_import_downward_only(module, path):
+    mine = LAYERS.index(_layer(module))
+    for imported in _imports(path):
+        root = imported.split(".")[0]
+        assert root not in ("service", "estimators"), f"{module} imports {imported}"
+        if root == "raytrace" and imported != "raytrace":
+            assert LAYERS.index(_layer(imported)) <= mine, f"{module} ({LAYERS[mine]}) imports {imported}"
+
+
+@pytest.mark.parametrize("module, path", list(_modules("estimators")), ids=lambda v: str(v))
+def test_estimators_import_neither_the_tracer_nor_the_service(module, path):
+    for imported in _imports(path):
+        assert imported.split(".")[0] not in ("service", "raytrace"), f"{module} imports {imported}"
+
+
+def test_the_layer_table_knows_every_subpackage():
+    parts = {p.stem for p in (ROOT / "raytrace").iterdir() if (p / "__init__.py").exists() or p.suffix == ".py"}
+    assert parts - {"__init__", "scenarios"} <= set(LAYERS), parts - set(LAYERS)
