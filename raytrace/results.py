@@ -45,9 +45,17 @@ class Segment:
 
 @dataclass(frozen=True, slots=True)
 class Path:
-    """One propagation path from the transmitter to a receiver."""
+    """One propagation path from the transmitter to a receiver.
+
+    ``delay_s`` is its phase delay at the carrier, ``sum L_i Re n_i / c``: what the carrier's
+    phase (and so PDOA on a narrow band, or a gain's argument) sees. ``group_delay_s`` is its
+    group delay, ``sum L_i n_g,i / c`` with the tissues' group index (docs/science.md (S22)):
+    when a pulse's envelope arrives, what a TOA estimator on a band-limited waveform measures.
+    In dispersive tissue the two differ by ~10 % (docs/science.md, "Phase and group delay").
+    """
 
     delay_s: float
+    group_delay_s: float
     gain: complex
     length_m: float
     interactions: tuple[Interaction, ...]

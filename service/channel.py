@@ -82,6 +82,7 @@ def result_to_dict(result: ChannelResult, scenario: str | None = None) -> dict[s
         for p in prof.paths:
             item: dict[str, Any] = {
                 "delay_s": _f(p.delay_s),
+                "group_delay_s": _f(p.group_delay_s),
                 "gain": _c(p.gain),
                 "gain_db": _db(p.gain_db),
                 "length_m": _f(p.length_m),

@@ -195,7 +195,11 @@ class BandGain(Out):
 
 
 class PathOut(Out):
-    delay_s: float = Field(description="Absolute propagation delay [s].")
+    delay_s: float = Field(description="Absolute phase delay at the carrier, sum L Re n / c [s].")
+    group_delay_s: float = Field(
+        description="Absolute group delay at the carrier, sum L n_g / c with the tissues' group index [s]: "
+        "when a pulse's envelope arrives (docs/science.md, 'Phase and group delay')."
+    )
     gain: Complex = Field(
         description="Complex gain a_k of h(t) = sum a_k delta(t - delay_k) at the carrier frequency_hz, "
         "baseband-equivalent (it includes the propagation phase exp(-j 2 pi f tau_k)); |a_k|^2 is the "
@@ -265,8 +269,10 @@ class BandGainIn(Strict):
 class PathIn(Strict):
     """A path of a profile: at least delay and complex gain; the other channel fields are accepted and ignored."""
 
-    delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute delay [s].")
+    delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute (phase) delay [s].")
     gain: GainIn = Field(description="Complex gain [-].")
+    group_delay_s: float | None = Field(None, ge=0.0, le=1e-3, description="Absolute group delay [s] (as a channel "
+                                        "profile gives it).")
     gain_db: float | None = None
     length_m: float | None = None
     interactions: list[Interaction] | None = Field(None, max_length=64)

@@ -192,6 +192,18 @@ def refractive_index(eps: complex | np.ndarray) -> np.ndarray:
     return np.where(n.imag > 0.0, np.conj(n), n)
 
 
+def group_index(eps: complex | np.ndarray, deps_dw: complex | np.ndarray,
+                frequency_hz: float | np.ndarray) -> np.ndarray:
+    """Group index ``n_g = Re(n + w dn/dw)`` with ``dn/dw = (d eps/d w) / (2 n)``
+    (docs/science.md (S22)): ``c / n_g`` is the speed of a narrow-band pulse's envelope,
+    and a segment of length L delays it by ``L n_g / c`` where its carrier phase is delayed
+    by ``L Re n / c``. ``deps_dw`` in s/rad (:func:`raytrace.physics.tissues.\
+complex_relative_permittivity_derivative`)."""
+    n = refractive_index(eps)
+    w = 2.0 * np.pi * _frequency(frequency_hz)
+    return (n + w * np.asarray(deps_dw, complex) / (2.0 * n)).real
+
+
 def wavenumber(eps: complex | np.ndarray, frequency_hz: float | np.ndarray) -> np.ndarray:
     """Complex wavenumber ``k = (w / c0) sqrt(eps) = beta - j alpha`` in rad/m."""
     f = _frequency(frequency_hz)

@@ -55,6 +55,19 @@ class Material:
             return self.tissue
         return f"eps_r={self.relative_permittivity:g},sigma={self.conductivity_s_per_m:g}S/m"
 
+    def complex_relative_permittivity_derivative(self, frequency_hz: float | np.ndarray) -> np.ndarray:
+        """``d eps / d w`` [s/rad]: the Cole-Cole model's, analytic, for a tissue; for an explicit
+        medium (constant eps' and sigma) that of ``-j sigma / (w eps0)``, ``j sigma / (w^2 eps0)``."""
+        if self.tissue is not None:
+            return np.asarray(tissues.complex_relative_permittivity_derivative(self.tissue, frequency_hz))
+        w = 2.0 * np.pi * np.asarray(frequency_hz, dtype=float)
+        return np.asarray(1j * float(self.conductivity_s_per_m) / (w * w * em.EPS0) + 0j)
+
+    def group_index(self, frequency_hz: float | np.ndarray) -> np.ndarray:
+        """Group index ``Re(n + w dn/dw)`` (:func:`raytrace.physics.em.group_index`)."""
+        return em.group_index(self.complex_relative_permittivity(frequency_hz),
+                              self.complex_relative_permittivity_derivative(frequency_hz), frequency_hz)
+
     def complex_relative_permittivity(self, frequency_hz: float | np.ndarray) -> np.ndarray:
         """eps' - j sigma / (w eps0) (time convention exp(+j w t); Gabriel 1996 Eq. 3
         for tissues, the definition for an explicit medium)."""

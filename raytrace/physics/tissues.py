@@ -199,6 +199,31 @@ def _cole_cole(name: str, f: np.ndarray) -> np.ndarray:
     return eps
 
 
+def _cole_cole_derivative(name: str, f: np.ndarray) -> np.ndarray:
+    """``d eps / d w`` of :func:`_cole_cole`, term by term (analytic, docs/science.md (S23)):
+    with ``u = (j w tau)^(1 - alpha)``, ``du/dw = (1 - alpha) u / w``, so a dispersion term
+    ``D / (1 + u)`` contributes ``-D (1 - alpha) u / (w (1 + u)^2)``, and the conductivity
+    term ``sigma / (j w eps0)`` contributes ``-sigma / (j w^2 eps0)`` [s/rad]."""
+    if name == "air":
+        return np.zeros_like(f, dtype=complex)
+    ef, delta, tau_s, alf, sig = _params(name)
+    w = 2.0 * np.pi * f[..., np.newaxis]
+    u = (1j * w * tau_s) ** (1.0 - alf)
+    terms = -delta * (1.0 - alf) * u / (w * (1.0 + u) ** 2)
+    w0 = w[..., 0]
+    return np.sum(terms, axis=-1) - sig / (1j * w0 * w0 * _EPS0)
+
+
+def complex_relative_permittivity_derivative(name: str, frequency_hz: float | np.ndarray) -> complex | np.ndarray:
+    """``d eps / d w`` [s/rad] of a tissue's complex relative permittivity (Gabriel 1996 Eq. 3
+    differentiated analytically, docs/science.md (S23)); what the group index needs. Errors
+    as :func:`complex_relative_permittivity`."""
+    name = _check_name(name)
+    f = _check_frequency(frequency_hz)
+    d = _cole_cole_derivative(name, f)
+    return complex(d) if d.ndim == 0 else d
+
+
 def complex_relative_permittivity(name: str, frequency_hz: float | np.ndarray) -> complex | np.ndarray:
     """Complex relative permittivity ``eps' - j sigma/(w eps0)`` of a tissue (Gabriel 1996 Eq. 3).
 

@@ -85,7 +85,8 @@ def antenna_vector(direction: np.ndarray, polarization: np.ndarray, pattern: str
 @dataclass
 class PathFields:
     gains: np.ndarray  # (P, F) complex
-    delay_s: np.ndarray  # (P,)
+    delay_s: np.ndarray  # (P,) phase delay at the centre frequency, sum L Re n / c
+    group_delay_s: np.ndarray  # (P,) group delay at the centre frequency, sum L n_g / c
     length_m: np.ndarray  # (P,)
     reflect_tir: list[np.ndarray]  # per step: (P,) True where a reflection is total (Snell has no real solution)
 
@@ -109,11 +110,13 @@ def path_gains(
     freqs = media.frequencies_hz
     n = media.n  # (F, M+1)
     n_re0 = media.n_real
+    n_g0 = media.n_group[0]
     k0 = 2.0 * np.pi * freqs / C0  # (F,)
     e = antenna_vector(launch_dirs, tx_polarization, tx_pattern).astype(complex)
     field = np.repeat(e[:, None, :], len(freqs), axis=1)  # (P, F, 3)
     optical = np.zeros((p, len(freqs)), complex)  # sum n_i(f) L_i
     delay_len = np.zeros(p)  # sum Re n_i(f0) L_i
+    group_len = np.zeros(p)  # sum n_g,i(f0) L_i
     length = np.zeros(p)
     prev = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
     med = np.full(p, tx_medium, np.int64)
@@ -127,6 +130,7 @@ def path_gains(
             mf = steps.med_from[s][j]
             optical[j] += n[:, mf + 1].T * seg[:, None]
             delay_len[j] += n_re0[mf + 1] * seg
+            group_len[j] += n_g0[mf + 1] * seg
             length[j] += seg
             prev[j] = steps.point[s][j]
             kind = steps.kind[s][j]
@@ -155,6 +159,7 @@ def path_gains(
     seg = np.linalg.norm(rx_m - prev, axis=1)
     optical += n[:, med + 1].T * seg[:, None]
     delay_len += n_re0[med + 1] * seg
+    group_len += n_g0[med + 1] * seg
     length += seg
     last_dir = (rx_m - prev) / np.maximum(seg, 1e-300)[:, None]
     # receiver projection
@@ -167,4 +172,5 @@ def path_gains(
     lam0 = C0 / freqs
     n_norm = np.sqrt(n[:, tx_medium + 1].real[None, :] * n[:, rx_medium + 1].T.real)  # (P, F)
     gains = (lam0 / (4.0 * np.pi))[None, :] * response * np.exp(-1j * k0[None, :] * optical) / np.sqrt(tube)[:, None] / n_norm
-    return PathFields(gains=gains, delay_s=delay_len / C0, length_m=length, reflect_tir=tir_flags)
+    return PathFields(gains=gains, delay_s=delay_len / C0, group_delay_s=group_len / C0, length_m=length,
+                      reflect_tir=tir_flags)

@@ -25,6 +25,7 @@ class MediaTable:
 
     frequencies_hz: np.ndarray  # (F,) first one is the centre (geometry) frequency
     n: np.ndarray  # (F, M + 1) complex
+    n_group: np.ndarray  # (F, M + 1) real group index Re(n + w dn/dw)
     materials: tuple[Material, ...]  # (M + 1,) air first
     face_transparent: np.ndarray  # (F_tri,) bool
     parent: np.ndarray  # (M,) organ -> parent medium index
@@ -58,6 +59,7 @@ class MediaTable:
             [refractive_index(np.broadcast_to(m.complex_relative_permittivity(f), f.shape)) for m in materials],
             axis=1,
         ).astype(complex)
+        n_group = np.stack([np.broadcast_to(m.group_index(f), f.shape) for m in materials], axis=1).astype(float)
         parent = np.asarray(phantom.parent, dtype=np.int64)
         organ = np.asarray(phantom.face_organ, dtype=np.int64)
         same = np.array(
@@ -68,6 +70,7 @@ class MediaTable:
         return cls(
             frequencies_hz=f,
             n=n,
+            n_group=n_group,
             materials=materials,
             face_transparent=same[organ] if len(organ) else np.zeros(0, bool),
             parent=parent,

@@ -460,6 +460,7 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
     lengths = np.linalg.norm(np.diff(pts, axis=1), axis=2)[ends].tolist()
     first = np.concatenate([[0], np.cumsum(cnt)]).tolist()  # path j's first step; its first segment: + j
     delay_s, length_m = fields.delay_s[rows].tolist(), fields.length_m[rows].tolist()
+    group_delay_s = fields.group_delay_s[rows].tolist()
     gain = fields.gains[rows, 0].tolist()
     out = []
     for j in range(n):
@@ -483,8 +484,9 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
         segments = tuple(
             Segment(names[m + 1], lengths[e + j + i], start_m=points[i], end_m=points[i + 1]) for i, m in enumerate(media)
         )
-        out.append(Path(delay_s=delay_s[j], gain=gain[j], length_m=length_m[j], interactions=tuple(interactions),
-                        segments=segments, band_gains=fields.gains[rows[j], 1:].copy() if band else None))
+        out.append(Path(delay_s=delay_s[j], group_delay_s=group_delay_s[j], gain=gain[j], length_m=length_m[j],
+                        interactions=tuple(interactions), segments=segments,
+                        band_gains=fields.gains[rows[j], 1:].copy() if band else None))
     return out
 
 
