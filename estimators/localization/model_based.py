@@ -9,9 +9,14 @@ interpolated, and rho a robust loss (soft_l1 by default: the delays of multipath
 links are not first arrivals and must not drag the fix). ``sigma_model`` is the fields'
 discretisation error as a uniform error's standard deviation, err / sqrt(3), unless given.
 
-Start: the minimum of the same cost over the domain cells on a coarse lattice (every k-th
-cell, at most :data:`START_CANDIDATES` points: a global search, no other estimator needed),
-then scipy.optimize.least_squares (trust region, bounded to the grid).
+Start: the same cost over the domain cells on a coarse lattice (every k-th cell, at most
+:data:`START_CANDIDATES` points: a global search, no other estimator needed); its
+:data:`STARTS` lowest points at least :data:`START_SEPARATION_CELLS` apart each start
+scipy.optimize.least_squares (trust region, bounded to the grid), and the lowest final
+cost wins. Several starts because the cost can have distant minima of nearly equal depth:
+a capsule below both sensor rows of the default torso reaches most sensors by head waves
+along the subcutaneous fat, and the travel times then change little along a direction
+that trades depth below the fat for height.
 """
 
 from __future__ import annotations
@@ -31,6 +36,9 @@ from .traveltime import TravelTimeField, TravelTimeFields
 
 #: Most lattice points the global start evaluates.
 START_CANDIDATES = 60_000
+#: Local solves started from the lowest lattice points, and their least separation [cells].
+STARTS = 4
+START_SEPARATION_CELLS = 6.0
 
 
 def _rho(z: np.ndarray, loss: str) -> np.ndarray:
@@ -70,9 +78,8 @@ def model_based_fix(fields: TravelTimeFields | Sequence[TravelTimeField], delays
         raise EstimatorInputError("every delay needs a positive sigma (measurement or model)", "sigma_s")
     loss = check.loss_name(loss)
     scale = finite_float(loss_scale, "loss_scale", positive=True)
-    x0 = (_global_start(ff, tau, sig, loss, scale) if initial_position_m is None
-          else check.position(initial_position_m, "initial_position_m"))
-    x0 = np.clip(x0, ff.lower_m, ff.upper_m)
+    starts = (_global_starts(ff, tau, sig, loss, scale) if initial_position_m is None
+              else [check.position(initial_position_m, "initial_position_m")])
 
     def fun(x):
         return (tau - ff.evaluate(x)[0]) / sig
@@ -80,8 +87,14 @@ def model_based_fix(fields: TravelTimeFields | Sequence[TravelTimeField], delays
     def jac(x):
         return -ff.evaluate(x)[1] / sig[:, None]
 
-    sol = least_squares(fun, x0, jac=jac, method="trf", loss=loss, f_scale=scale, bounds=(ff.lower_m, ff.upper_m),
-                        xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=MAX_EVALUATIONS)
+    sol, evaluations = None, 0
+    for x0 in starts:
+        trial = least_squares(fun, np.clip(x0, ff.lower_m, ff.upper_m), jac=jac, method="trf", loss=loss,
+                              f_scale=scale, bounds=(ff.lower_m, ff.upper_m), xtol=TOLERANCE, ftol=TOLERANCE,
+                              gtol=TOLERANCE, max_nfev=MAX_EVALUATIONS)
+        evaluations += int(trial.nfev)
+        if sol is None or trial.cost < sol.cost:
+            sol = trial
     x = sol.x
     t, grad = ff.evaluate(x)
     speed = 1.0 / np.maximum(np.linalg.norm(grad, axis=1), 1e-30)
@@ -89,14 +102,15 @@ def model_based_fix(fields: TravelTimeFields | Sequence[TravelTimeField], delays
     bound = travel_time_crlb(grad, np.maximum(meas, 1e-15))
     fit = travel_time_crlb(grad, sig)
     return PositionResult(method="model_based", position_m=x, covariance_m2=fit.covariance_m2,
-                          residuals_m=residual_s * speed, iterations=int(sol.nfev), converged=bool(sol.status > 0),
+                          residuals_m=residual_s * speed, iterations=evaluations, converged=bool(sol.status > 0),
                           bound=bound, cost=float(0.5 * np.sum((residual_s / sig) ** 2)), message=str(sol.message),
                           extra={"sigma_total_s": sig, "model_sigma_s": float(model),
-                                 "inside_domain": ff.inside_domain(x)})
+                                 "inside_domain": ff.inside_domain(x), "starts": len(starts)})
 
 
-def _global_start(ff: TravelTimeFields, tau, sig, loss, scale) -> np.ndarray:
-    """Lattice minimum of the robust cost over the domain cells (module docstring)."""
+def _global_starts(ff: TravelTimeFields, tau, sig, loss, scale) -> list[np.ndarray]:
+    """The lowest lattice points of the robust cost over the domain cells, at least
+    START_SEPARATION_CELLS apart (module docstring)."""
     cells = np.argwhere(ff.domain)
     if len(cells) == 0:
         raise EstimatorInputError("the fields share no propagation-domain cell", "fields")
@@ -105,5 +119,12 @@ def _global_start(ff: TravelTimeFields, tau, sig, loss, scale) -> np.ndarray:
     cand = cells[keep] if keep.any() else cells
     t = ff.time_s[:, cand[:, 0], cand[:, 1], cand[:, 2]]  # (S, P)
     z = ((tau[:, None] - t) / (sig[:, None] * scale)) ** 2
-    best = cand[int(np.argmin(_rho(z, loss).sum(axis=0)))]
-    return ff.origin_m + (best + 0.5) * ff.spacing_m
+    cost = _rho(z, loss).sum(axis=0)
+    chosen: list[np.ndarray] = []
+    for i in np.argsort(cost):
+        c = cand[i]
+        if all(np.linalg.norm(c - o) >= START_SEPARATION_CELLS for o in chosen):
+            chosen.append(c)
+            if len(chosen) == STARTS:
+                break
+    return [ff.origin_m + (c + 0.5) * ff.spacing_m for c in chosen]
