@@ -35,7 +35,7 @@ from .results import PositionResult
 from .traveltime import TravelTimeField, TravelTimeFields
 
 #: Most lattice points the global start evaluates.
-START_CANDIDATES = 60_000
+START_CANDIDATES = 30_000
 #: Local solves started from the lowest lattice points, and their least separation [cells].
 STARTS = 4
 START_SEPARATION_CELLS = 6.0
@@ -81,11 +81,20 @@ def model_based_fix(fields: TravelTimeFields | Sequence[TravelTimeField], delays
     starts = (_global_starts(ff, tau, sig, loss, scale) if initial_position_m is None
               else [check.position(initial_position_m, "initial_position_m")])
 
+    memo: dict = {}
+
+    def at(x):  # least_squares asks for fun and jac at the same point: interpolate once
+        key = x.tobytes()
+        if key not in memo:
+            memo.clear()
+            memo[key] = ff.evaluate(x)
+        return memo[key]
+
     def fun(x):
-        return (tau - ff.evaluate(x)[0]) / sig
+        return (tau - at(x)[0]) / sig
 
     def jac(x):
-        return -ff.evaluate(x)[1] / sig[:, None]
+        return -at(x)[1] / sig[:, None]
 
     sol, evaluations = None, 0
     for x0 in starts:
@@ -111,13 +120,9 @@ def model_based_fix(fields: TravelTimeFields | Sequence[TravelTimeField], delays
 def _global_starts(ff: TravelTimeFields, tau, sig, loss, scale) -> list[np.ndarray]:
     """The lowest lattice points of the robust cost over the domain cells, at least
     START_SEPARATION_CELLS apart (module docstring)."""
-    cells = np.argwhere(ff.domain)
-    if len(cells) == 0:
+    if not ff.domain.any():
         raise EstimatorInputError("the fields share no propagation-domain cell", "fields")
-    stride = max(1, int(np.ceil((len(cells) / START_CANDIDATES) ** (1.0 / 3.0))))
-    keep = np.all(cells % stride == 0, axis=1)
-    cand = cells[keep] if keep.any() else cells
-    t = ff.time_s[:, cand[:, 0], cand[:, 1], cand[:, 2]]  # (S, P)
+    cand, t = ff.lattice(START_CANDIDATES)  # (P, 3) cells, (S, P) times
     z = ((tau[:, None] - t) / (sig[:, None] * scale)) ** 2
     cost = _rho(z, loss).sum(axis=0)
     chosen: list[np.ndarray] = []

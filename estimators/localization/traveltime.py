@@ -57,6 +57,7 @@ CACHE_MAX_BYTES = 768 * 2**20
 
 _DIRECTIONS = 256
 _LINE_SAMPLES = 64
+_cache_lock = threading.Lock()
 
 
 def _fibonacci_sphere(n: int) -> np.ndarray:
@@ -177,12 +178,32 @@ def _solve(n: np.ndarray, origin: np.ndarray, h: float, s: np.ndarray, order: in
     if not reached.all():
         # continuation outside the domain (and in unreachable pockets): nearest reached cell
         # plus the distance to it at the largest index
-        d, nearest = ndimage.distance_transform_edt(~reached, return_indices=True)
+        if (domain & ~reached).any():  # a pocket the front cannot reach: this field's own transform
+            d, nearest = ndimage.distance_transform_edt(~reached, return_indices=True)
+        else:  # the domain's transform, shared by every sensor of the grid
+            d, nearest = _nearest_domain_cell(domain)
         time_s = np.where(reached, time_s, time_s[tuple(nearest)] + d * h * n_max / c)
     return TravelTimeField(sensor_position_m=s.copy(), origin_m=origin.copy(), spacing_m=h,
                            time_s=np.ascontiguousarray(time_s), domain=domain & reached, max_index=n_max,
                            source_index=float(n_ball), source_radius_m=radius,
                            discretisation_error_s=ERROR_FACTOR * n_max * h / c, order=order)
+
+
+_nearest: OrderedDict = OrderedDict()
+
+
+def _nearest_domain_cell(domain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance [cells] to, and index of, the nearest domain cell of every cell (cached per mask)."""
+    key = (domain.shape, hashlib.blake2b(np.packbits(domain).tobytes(), digest_size=16).hexdigest())
+    with _cache_lock:
+        hit = _nearest.get(key)
+    if hit is None:
+        hit = ndimage.distance_transform_edt(~domain, return_indices=True)
+        with _cache_lock:
+            _nearest[key] = hit
+            while len(_nearest) > 2:
+                _nearest.popitem(last=False)
+    return hit
 
 
 def _ball_index(n: np.ndarray, origin: np.ndarray, h: float, s: np.ndarray, ball: float) -> float:
@@ -204,7 +225,6 @@ def _ball_index(n: np.ndarray, origin: np.ndarray, h: float, s: np.ndarray, ball
 # ------------------------------------------------------------------------------ cache
 _cache: OrderedDict = OrderedDict()
 _cache_bytes = 0
-_cache_lock = threading.Lock()
 
 
 def grid_fingerprint(index: np.ndarray, origin: np.ndarray, spacing_m: float) -> str:
@@ -284,6 +304,7 @@ class TravelTimeFields:
         self.discretisation_error_s = max(f.discretisation_error_s for f in fields)
         self.lower_m = self.origin_m + 0.5 * self.spacing_m
         self.upper_m = self.origin_m + (np.asarray(self.shape) - 0.5) * self.spacing_m
+        self._lattices: dict = {}
 
     def __len__(self) -> int:
         return len(self.fields)
@@ -293,18 +314,30 @@ class TravelTimeFields:
         u = (np.clip(position_m, self.lower_m, self.upper_m) - self.lower_m) / self.spacing_m
         i0 = np.minimum(np.floor(u).astype(np.int64), np.asarray(self.shape) - 2)
         f = u - i0
-        block = self.time_s[:, i0[0]:i0[0] + 2, i0[1]:i0[1] + 2, i0[2]:i0[2] + 2]
+        block = self.time_s[:, i0[0]:i0[0] + 2, i0[1]:i0[1] + 2, i0[2]:i0[2] + 2].reshape(len(self.fields), 8)
         if sensors is not None:
             block = block[sensors]
-        wx = np.array([1.0 - f[0], f[0]])
-        wy = np.array([1.0 - f[1], f[1]])
-        wz = np.array([1.0 - f[2], f[2]])
+        # the 8 corner weights of the trilinear interpolant and of its three derivatives
+        wx, wy, wz = (np.array([1.0 - f[k], f[k]]) for k in range(3))
         d = np.array([-1.0, 1.0]) / self.spacing_m
-        t = np.einsum("sijk,i,j,k->s", block, wx, wy, wz)
-        grad = np.stack([np.einsum("sijk,i,j,k->s", block, d, wy, wz),
-                         np.einsum("sijk,i,j,k->s", block, wx, d, wz),
-                         np.einsum("sijk,i,j,k->s", block, wx, wy, d)], axis=1)
-        return t, grad
+        weights = np.stack([np.einsum("i,j,k->ijk", wx, wy, wz).ravel(), np.einsum("i,j,k->ijk", d, wy, wz).ravel(),
+                            np.einsum("i,j,k->ijk", wx, d, wz).ravel(), np.einsum("i,j,k->ijk", wx, wy, d).ravel()],
+                           axis=1)
+        out = block @ weights
+        return out[:, 0], out[:, 1:]
+
+    def lattice(self, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+        """Domain cells on a lattice of every k-th cell (at most about ``max_points``), and
+        their times (S, P); computed once per size."""
+        hit = self._lattices.get(max_points)
+        if hit is None:
+            cells = np.argwhere(self.domain)
+            stride = max(1, int(np.ceil((max(len(cells), 1) / max_points) ** (1.0 / 3.0))))
+            keep = np.all(cells % stride == 0, axis=1)
+            cand = cells[keep] if keep.any() else cells
+            hit = (cand, np.ascontiguousarray(self.time_s[:, cand[:, 0], cand[:, 1], cand[:, 2]]))
+            self._lattices[max_points] = hit
+        return hit
 
     def inside_domain(self, position_m: np.ndarray) -> bool:
         """Whether the cell holding ``position_m`` is in every field's propagation domain."""
