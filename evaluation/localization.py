@@ -23,15 +23,25 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from estimators.errors import EstimatorInputError
-from estimators.localization import (joint_velocity_crlb, joint_velocity_fix, linear_fix, model_based_fix,
-                                     nonlinear_fix, range_crlb, rss_fix, rss_position_crlb, travel_time_crlb)
+from estimators.localization import (
+    joint_velocity_crlb,
+    joint_velocity_fix,
+    linear_fix,
+    model_based_fix,
+    nonlinear_fix,
+    range_crlb,
+    rss_fix,
+    rss_position_crlb,
+    travel_time_crlb,
+)
 from estimators.localization.pathloss import path_loss_model
 from estimators.pdoa import estimate_pdoa
 from estimators.profile import PathProfile

@@ -18,12 +18,18 @@ fat layer, n ~ 3.4 against ~ 7.9 in muscle, or a detour through the lungs or the
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
-from evaluation.fields import DEFAULT_CELL_SIZE_M, eikonal_path, path_media, sensor_fields, voxel_grid
+from evaluation.fields import (
+    DEFAULT_CELL_SIZE_M,
+    eikonal_path,
+    path_media,
+    sensor_fields,
+    voxel_grid,
+)
 from raytrace.paths import Antenna
 from raytrace.phantom import Phantom
 from raytrace.tracer import trace_channel

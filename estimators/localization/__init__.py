@@ -22,8 +22,13 @@ from .model_based import model_based_fix
 from .multilateration import joint_velocity_fix, linear_fix, nonlinear_fix
 from .pathloss import fit_path_loss_model, path_loss_model, rss_fix
 from .results import PositionBound, PositionResult
-from .traveltime import (TravelTimeField, TravelTimeFields, cached_travel_time_field, clear_cache,
-                         travel_time_field)
+from .traveltime import (
+                         TravelTimeField,
+                         TravelTimeFields,
+                         cached_travel_time_field,
+                         clear_cache,
+                         travel_time_field,
+)
 
 __all__ = [
     "PositionBound", "PositionResult", "TravelTimeField", "TravelTimeFields", "cached_travel_time_field",

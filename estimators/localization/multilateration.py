@@ -23,7 +23,13 @@ from .._checks import finite_float
 from ..constants import SPEED_OF_LIGHT_M_PER_S, velocity_m_per_s
 from ..errors import EstimatorInputError
 from . import _validate as check
-from .bounds import _inverse_information, bound_from_jacobian, joint_velocity_crlb, range_crlb, unit_vectors
+from .bounds import (
+    _inverse_information,
+    bound_from_jacobian,
+    joint_velocity_crlb,
+    range_crlb,
+    unit_vectors,
+)
 from .results import PositionResult
 
 #: Solver tolerances (relative, scipy.optimize.least_squares) and its evaluation cap.
@@ -186,4 +192,4 @@ def _result(method, s, r, sig, x, cov, *, iterations, converged, message, bound=
                           cost=float(0.5 * np.sum((res / sig) ** 2)), message=message)
 
 
-__all__ = ["linear_fix", "nonlinear_fix", "joint_velocity_fix", "bound_from_jacobian"]
+__all__ = ["bound_from_jacobian", "joint_velocity_fix", "linear_fix", "nonlinear_fix"]

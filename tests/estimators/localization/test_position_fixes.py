@@ -10,8 +10,16 @@ import numpy as np
 import pytest
 
 from estimators.errors import EstimatorInputError
-from estimators.localization import (fit_path_loss_model, joint_velocity_crlb, joint_velocity_fix, linear_fix,
-                                     nonlinear_fix, range_crlb, rss_fix, rss_position_crlb)
+from estimators.localization import (
+    fit_path_loss_model,
+    joint_velocity_crlb,
+    joint_velocity_fix,
+    linear_fix,
+    nonlinear_fix,
+    range_crlb,
+    rss_fix,
+    rss_position_crlb,
+)
 from estimators.rss import PathLossModel
 
 C = 299_792_458.0

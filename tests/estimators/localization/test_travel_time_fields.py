@@ -9,8 +9,13 @@ import numpy as np
 import pytest
 
 from estimators.errors import EstimatorInputError
-from estimators.localization import (TravelTimeFields, cached_travel_time_field, model_based_fix, nonlinear_fix,
-                                     travel_time_field)
+from estimators.localization import (
+    TravelTimeFields,
+    cached_travel_time_field,
+    model_based_fix,
+    nonlinear_fix,
+    travel_time_field,
+)
 from estimators.localization.traveltime import cache_info, clear_cache
 
 C = 299_792_458.0
@@ -22,7 +27,8 @@ def homogeneous(n=N_MUSCLE, cells=(60, 60, 60)):
     return np.full(cells, n), np.zeros(3)
 
 
-def centres(shape, origin=np.zeros(3), h=H):
+def centres(shape, origin=None, h=H):
+    origin = np.zeros(3) if origin is None else origin
     axes = [origin[i] + (np.arange(shape[i]) + 0.5) * h for i in range(3)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
 
