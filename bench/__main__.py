@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from bench import ceiling, completeness, estimators_bench, latency, scenes
+from bench import ceiling, completeness, estimators_bench, latency, localization, scenes
 from bench.common import ROOT, growth_exponent, run_point
 from raytrace.solver.tracer import warm_up
 
@@ -98,6 +98,7 @@ def main() -> None:
     if not args.skip_scaling:
         report["scaling"] = scaling(args.quick)
     report["estimators"] = estimators_bench.throughput(1000)
+    report["localization"] = localization.localization(5 if args.quick else 20)
 
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as fh:
@@ -142,6 +143,7 @@ def main() -> None:
                 _row(f"  {label} = {x}", f"{p['trace_s']:.3f} s {p['peak_rss_mb']:.0f} MB")
     for k, v in report["estimators"].items():
         _row(k.replace("_", " "), f"{v:.3e}")
+    localization.print_rows(report["localization"], _row)
     print(f"wrote {os.path.relpath(args.out, ROOT)}")
 
 
