@@ -115,7 +115,8 @@ def main() -> None:
     _row("tracer / ceiling (best / median trace)", f"{t['ratio_to_ceiling']:.2f} / {t['ratio_to_ceiling_median']:.2f}",
          "target >= 0.50")
     cp = report["completeness"]
-    _row(f"receivers missing the strongest path of {cp['dense_rays']:.0e} rays", f"{cp['strongest_missed']} / {cp['receivers']}")
+    _row(f"receivers missing the strongest path of {cp['dense_rays']:.0e} rays",
+         f"{cp['strongest_missed']} / {cp['receivers']}")
     _row("paths within 10 dB of the strongest found", f"{cp['strong_found']} / {cp['strong_paths']}")
     _row("in-process channel, all sites p50 / p95 [s]",
          f"{li['all_sensor_sites']['p50_s']:.3f} / {li['all_sensor_sites']['p95_s']:.3f}", "target p50 <= 0.5")

@@ -17,7 +17,7 @@ import numpy as np
 from estimators.localization import model_based_fix, nonlinear_fix
 from estimators.localization.traveltime import clear_cache
 from evaluation.fields import DEFAULT_CELL_SIZE_M, sensor_fields, voxel_grid
-from raytrace.torso import BELT_SITES, UPPER_SITES, default_torso
+from raytrace.body.torso import BELT_SITES, UPPER_SITES, default_torso
 
 
 def _median_s(fn, repeat: int) -> float:

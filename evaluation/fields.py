@@ -18,9 +18,9 @@ import numpy as np
 from estimators.errors import EstimatorInputError
 from estimators.localization import TravelTimeFields, cached_travel_time_field
 from estimators.localization.traveltime import grid_fingerprint
-from raytrace.em import refractive_index
-from raytrace.phantom import Phantom
-from raytrace.voxels import VoxelGrid, voxelize
+from raytrace.body.phantom import Phantom
+from raytrace.body.voxels import VoxelGrid, voxelize
+from raytrace.physics.em import refractive_index
 
 #: Default cell edge of the travel-time grids [m] (docs/localization.md: accuracy and cost).
 DEFAULT_CELL_SIZE_M = 0.004
@@ -36,15 +36,16 @@ def organ_indices(phantom: Phantom, frequency_hz: float, kind: str = "phase") ->
 
     ``kind="phase"``: Re n = Re sqrt(eps_r*) from each organ's material (Gabriel 1996 Cole-Cole
     or explicit eps_r / sigma), the index the tracer uses for its ray geometry and delays.
-    ``kind="group"``: n_g = n + f dn/df, the index a pulse's envelope travels with; it is
-    the index the model-based fix should use for band-limited TOA, and it is not available
-    yet (the tissue module's group index is coming): this function is the one place to switch.
+    ``kind="group"``: n_g = Re(n + w dn/dw) (docs/science.md (S22)), the index a pulse's
+    envelope travels with, i.e. of the paths' ``group_delay_s``: the index for delays measured
+    on a band-limited waveform that sees the dispersion. Use the kind whose delay the
+    ranging measures: the travel-time fields must share the delays' definition.
     """
     if kind not in INDEX_KINDS:
         raise EstimatorInputError(f"unknown index kind {kind!r} ({' | '.join(INDEX_KINDS)})", "index_kind")
-    if kind == "group":
-        raise EstimatorInputError("the group index is not available yet; use 'phase'", "index_kind")
     f = float(frequency_hz)
+    if kind == "group":
+        return np.array([float(o.material.group_index(f)) for o in phantom.organs])
     return np.array([float(np.real(refractive_index(o.material.complex_relative_permittivity(f))))
                      for o in phantom.organs])
 

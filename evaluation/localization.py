@@ -4,7 +4,7 @@ beside the position bound (docs/localization.md, "End-to-end evaluation").
     evaluate_localization(phantom, capsule, sensors, ranging="gcc", methods=None, ...)
         -> LocalizationEvaluation
 
-One trace from the capsule to every sensor (:func:`raytrace.tracer.trace_channel`); per
+One trace from the capsule to every sensor (:func:`raytrace.solver.tracer.trace_channel`); per
 sensor a Monte Carlo ranging run over its channel (TOA: ``gcc`` | ``first_peak`` |
 ``all_peaks`` | ``envelope``; ``pdoa``: multi-tone regression over a band; ``rss``: CM2
 inversion with shadowing), seeded per sensor from ``seed``; trial t of every sensor forms
@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+import raytrace as rt
 from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.localization import (
@@ -49,10 +50,7 @@ from estimators.rss import estimate_rss
 from estimators.toa import METHODS as TOA_METHODS
 from estimators.toa import estimate_toa
 from evaluation.fields import DEFAULT_CELL_SIZE_M, sensor_fields
-from raytrace.budget import Budget
-from raytrace.paths import Antenna
-from raytrace.phantom import Phantom
-from raytrace.tracer import trace_channel
+from raytrace import Budget, Phantom
 
 RANGING = (*TOA_METHODS, "pdoa", "rss")
 POSITION_METHODS = ("linear", "nonlinear", "joint_velocity", "model_based", "rss")
@@ -173,12 +171,13 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     band = None
     if ranging == "pdoa":
         b = dict(DEFAULT_PDOA_BAND if pdoa_band is None else pdoa_band)
-        band = np.linspace(float(b["start_hz"]), float(b["stop_hz"]), int(b["points"]))
+        band = rt.Band(float(b["start_hz"]), float(b["stop_hz"]), int(b["points"]))
 
     t0 = time.perf_counter()
-    result = trace_channel(phantom, Antenna(x_true, name="capsule"), [Antenna(p, name=n) for p, n in zip(sens, names)],
-                           frequency_hz, band_frequencies_hz=band, rays=rays, max_interactions=max_interactions,
-                           budget=budget)
+    spec = rt.ChannelSpec(rt.Antenna(x_true, name="capsule"), tuple(rt.Antenna(p, name=n) for p, n in zip(sens, names)),
+                          phantom=phantom.name, frequency_hz=frequency_hz, band=band, rays=rays,
+                          max_interactions=max_interactions)
+    result = rt.trace_channel(spec, phantom, budget=budget)
     trace_s = time.perf_counter() - t0
     true_d = np.linalg.norm(sens - x_true, axis=1)
 
@@ -191,11 +190,11 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
                                       "move or drop it", f"sensors[{j}]")
         profile = PathProfile(
             delays_s=np.array([p.delay_s for p in prof.paths]), gains=np.array([p.gain for p in prof.paths]),
-            band_frequencies_hz=band,
+            band_frequencies_hz=None if band is None else band.frequencies_hz,
             band_gains=None if band is None else np.array([p.band_gains for p in prof.paths]),
             gains_include_delay_phase=True, reference_frequency_hz=float(frequency_hz))
         if ranging == "pdoa":
-            r = estimate_pdoa(profile, band={"start_hz": band[0], "stop_hz": band[-1], "points": len(band)},
+            r = estimate_pdoa(profile, band=band.to_dict(),
                               method="regression", snr_db=snr_db, trials=trials, seed=generators[j],
                               relative_permittivity=relative_permittivity, return_estimates=True)
             bound = r.crlb_phase_difference_m
@@ -289,7 +288,7 @@ def acceptance_rows(*, cell_size_m: float = DEFAULT_CELL_SIZE_M, trials: int = 2
                     ranging: str = "gcc", snr_db: float = 30.0, frequency_hz: float = 402e6,
                     rays: int = 100_000) -> list[LocalizationEvaluation]:
     """The default torso, its 6 capsule sites x 12 sensor sites, TOA at 402 MHz, 30 dB."""
-    from raytrace.torso import BELT_SITES, UPPER_SITES, default_torso
+    from raytrace.body.torso import BELT_SITES, UPPER_SITES, default_torso
 
     phantom = default_torso()
     capsules = [n for n, s in phantom.sites.items() if s.kind == "capsule"]
@@ -330,7 +329,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     t0 = time.perf_counter()
     rows = acceptance_rows(cell_size_m=args.cell_size_m, trials=args.trials, seed=args.seed, ranging=args.ranging,
                            snr_db=args.snr_db)
-    from raytrace.torso import default_torso
+    from raytrace.body.torso import default_torso
 
     names = [n for n, s in default_torso().sites.items() if s.kind == "capsule"]
     print(markdown_table(rows, names))

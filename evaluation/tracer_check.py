@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import raytrace as rt
 from evaluation.fields import (
     DEFAULT_CELL_SIZE_M,
     eikonal_path,
@@ -30,9 +31,7 @@ from evaluation.fields import (
     sensor_fields,
     voxel_grid,
 )
-from raytrace.paths import Antenna
-from raytrace.phantom import Phantom
-from raytrace.tracer import trace_channel
+from raytrace import Phantom
 
 
 @dataclass(frozen=True)
@@ -72,12 +71,13 @@ def check_tracer(phantom: Phantom, capsules: Sequence[str], sensors: Sequence[st
     fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m)
     grid = voxel_grid(phantom, cell_size_m)
     err = fields.discretisation_error_s
-    receivers = [Antenna(p, name=s) for s, p in zip(sensors, sens)]
+    receivers = [rt.Antenna(p, name=s) for s, p in zip(sensors, sens)]
     pairs = []
     for cap in capsules:
         x = phantom.sites[cap].position_m
-        result = trace_channel(phantom, Antenna(x, name=cap), receivers, frequency_hz, rays=rays,
-                               max_interactions=max_interactions)
+        spec = rt.ChannelSpec(rt.Antenna(x, name=cap), tuple(receivers), phantom=phantom.name,
+                              frequency_hz=frequency_hz, rays=rays, max_interactions=max_interactions)
+        result = rt.trace_channel(spec, phantom)
         t_eik, _ = fields.evaluate(x)
         for j, name in enumerate(sensors):
             first = result.profiles[j].first_path_delay_s

@@ -11,7 +11,7 @@ import trimesh
 
 from estimators.errors import EstimatorInputError
 from evaluation.localization import evaluate_localization
-from raytrace.phantom import Material, Organ, Phantom
+from raytrace.body.phantom import Material, Organ, Phantom
 
 C = 299_792_458.0
 EPS_R = 27.9
@@ -29,8 +29,8 @@ CAPSULE = [0.012, -0.021, 0.017]
 def box():
     # lossy enough (0.8 S/m) that the walls' echoes (>= 0.36 m more path) are > 50 dB down
     mesh = trimesh.creation.box(extents=(0.6, 0.6, 0.6))
-    return Phantom.build("box", [Organ("body", Material(relative_permittivity=EPS_R, conductivity_s_per_m=SIGMA_S_PER_M),
-                                       mesh)])
+    body = Material(relative_permittivity=EPS_R, conductivity_s_per_m=SIGMA_S_PER_M)
+    return Phantom.build("box", [Organ("body", body, mesh)])
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,8 @@ import pytest
 
 from evaluation.fields import organ_indices, voxel_grid
 from evaluation.tracer_check import check_tracer
-from raytrace.tissues import dielectric
-from raytrace.torso import BELT_SITES, UPPER_SITES, default_torso, expected_site_media
+from raytrace.body.torso import BELT_SITES, UPPER_SITES, default_torso, expected_site_media
+from raytrace.physics.tissues import dielectric
 
 C = 299_792_458.0
 EPS0 = 8.8541878128e-12
@@ -75,3 +75,26 @@ def test_organ_indices_are_the_phase_index_at_the_carrier():
         d = dielectric(organ.material.tissue, 402e6)
         eps = d.relative_permittivity - 1j * d.conductivity_s_per_m / (2 * np.pi * 402e6 * EPS0)
         assert value == pytest.approx(np.sqrt(eps).real, rel=1e-12)
+
+
+def test_group_delays_of_direct_paths_match_the_eikonal_group_travel_time():
+    """The eikonal solver on the GROUP index (docs/science.md (S22)) is an oracle for the
+    tracer's ``group_delay_s`` sharing no code with it: on a homogeneous lossy, dispersive
+    muscle sphere the direct path is the Fermat path, so its group delay must equal the
+    first-arrival time of the group-index field within the grid's stated error."""
+    import raytrace as rt
+    from evaluation.fields import sensor_fields
+
+    phantom = rt.get_phantom("homogeneous-sphere")
+    capsule = phantom.sites["centre"].position_m
+    sensors = np.array([[0.05, 0.02, -0.01], [-0.03, -0.06, 0.02], [0.0, 0.01, 0.07]])
+    fields = sensor_fields(phantom, sensors, 402e6, cell_size_m=0.004, kind="group")
+    t_eik, _ = fields.evaluate(capsule)
+    spec = rt.ChannelSpec(rt.Antenna(capsule), tuple(rt.Antenna(s) for s in sensors), phantom=phantom.name,
+                          max_interactions=1, rays=2000)
+    result = rt.trace_channel(spec)
+    for j, prof in enumerate(result.profiles):
+        direct = prof.paths[0]
+        assert direct.interactions == ()
+        assert abs(direct.group_delay_s - float(t_eik[j])) <= fields.discretisation_error_s
+        assert abs(direct.delay_s - float(t_eik[j])) > fields.discretisation_error_s  # the phase delay is not it

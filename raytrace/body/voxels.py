@@ -1,9 +1,9 @@
 """A phantom on a regular voxel grid: the medium (organ index, -1 for air) of every cell.
 
 Cell (i, j, k) spans ``origin_m + [i, i+1) x [j, j+1) x [k, k+1) * spacing_m`` and takes the
-medium at its centre, looked up with :meth:`raytrace.phantom.Phantom.medium_index` (the
+medium at its centre, looked up with :meth:`raytrace.body.phantom.Phantom.medium_index` (the
 phantom's own point-in-organ rule). That lookup refuses points within
-:data:`raytrace.phantom.SURFACE_TOLERANCE_M` of a surface; a batch holding one is retried
+:data:`raytrace.body.phantom.SURFACE_TOLERANCE_M` of a surface; a batch holding one is retried
 with every point nudged by ``k * NUDGE_CELLS`` cells (k = 1, 2, ...) along a fixed oblique
 direction, so a cell's sample point is its centre up to a few thousandths of a cell.
 
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from raytrace.body.phantom import AIR_INDEX, Phantom
 from raytrace.errors import AmbiguousPositionError, InputError
-from raytrace.phantom import AIR_INDEX, Phantom
 
 #: Most cells one grid may hold.
 MAX_CELLS = 32_000_000
