@@ -2,8 +2,10 @@
 
 A path k of h(t) = sum_k a_k delta(t - tau_k) is drawn at tau_k with height
 20 log10 |a_k| (= 10 log10 of the power transfer |a_k|^2; docs/service.md),
-coloured by its number of interactions (0 = the direct, refraction-free path
-through the media; 1, 2, ... reflections and refractions).
+coloured by its number of interactions (reflections, refractions and total
+internal reflections; 0 in a homogeneous medium's line of sight). Paths with no
+reflection at all (refracted straight through the media: the direct path) are
+ringed.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ def _label(n: int) -> str:
     if n < 0:
         return "interactions not given"
     if n == 0:
-        return "direct (0 interactions)"
+        return "0 interactions (line of sight)"
     if n >= MANY_INTERACTIONS:
         return f"{MANY_INTERACTIONS}+ interactions"
     return "1 interaction" if n == 1 else f"{n} interactions"
@@ -72,7 +74,7 @@ def power_delay_profile(profile, *, dynamic_range_db: float = 60.0, relative_per
     ``profile``: a dict (or :class:`ProfileData`) with ``paths[].delay_s``, ``paths[].gain {re, im}``
     and optionally ``paths[].interactions`` (their count picks the colour), ``receiver``,
     ``reference_frequency_hz``, ``geometric_distance_m``. One stem container per interaction
-    count, labelled, in increasing count; the first path's delay is marked.
+    count, labelled, in increasing count; refraction-only paths ringed; the first path's delay is marked.
     """
     req = PdpRequest.model_validate(dict(profile=profile, dynamic_range_db=dynamic_range_db,
                                          relative_permittivity=relative_permittivity, title=title,
@@ -97,6 +99,11 @@ def power_delay_profile(profile, *, dynamic_range_db: float = 60.0, relative_per
         stems = ax.stem(tau_ns[sel], gain_db[sel], bottom=floor, basefmt=" ", label=_label(int(n)))
         stems.markerline.set(color=colour, markersize=5)
         stems.stemlines.set(color=colour, linewidth=1.4)
+    kinds = [None if p.interactions is None else {i.kind for i in p.interactions} for p in prof.paths]
+    direct = np.array([k is not None and k <= {"refraction"} for k in kinds]) & (gain_db >= floor)
+    if direct.any():  # no reflection: the path that crosses the media straight (refracted at each surface)
+        ax.plot(tau_ns[direct], gain_db[direct], linestyle="none", marker="o", markersize=10, markerfacecolor="none",
+                markeredgecolor="0.15", markeredgewidth=1.2, label="refraction only (direct path)")
     first = float(tau_ns.min())
     ax.axvline(first, color="0.35", linestyle=":", linewidth=1.0,
                label=rf"first path $\tau_1$ = {first:.4g} ns")
@@ -111,7 +118,7 @@ def power_delay_profile(profile, *, dynamic_range_db: float = 60.0, relative_per
                        title=f"{hidden} weaker paths (< {floor:.0f} dB) not shown" if hidden else None,
                        title_fontsize="small")
     legend.set_zorder(5)
-    right = max(float(tau_ns.max()), first) * 1.08 + 0.05
+    right = float(tau_ns[gain_db >= floor].max()) * 1.08 + 0.05
     ax.set_xlim(0.0, right)
     ax.set_ylim(floor, top + 0.1 * req.dynamic_range_db)
     ax.set_xlabel(r"Delay $\tau$ [ns]")

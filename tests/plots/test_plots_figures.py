@@ -54,7 +54,7 @@ def test_pdp_stems_sit_at_the_paths_delays_and_gains():
     ax = fig.axes[0]
     stems = [c for c in ax.containers if isinstance(c, StemContainer)]
     # one container per interaction count shown, in increasing count; the -134 dB path is left out
-    assert [c.get_label() for c in stems] == ["direct (0 interactions)", "1 interaction", "2 interactions"]
+    assert [c.get_label() for c in stems] == ["0 interactions (line of sight)", "1 interaction", "2 interactions"]
     top_db = 20 * math.log10(abs(GAINS[0]))
     drawn = {}
     for c in stems:
@@ -304,3 +304,18 @@ def test_ranging_errors_bad_input_names_the_field():
     with pytest.raises(ValidationError) as info:
         ranging_errors([])
     assert tuple(info.value.errors()[0]["loc"]) == ("methods",)
+
+
+def test_pdp_rings_refraction_only_paths():
+    prof = {"paths": [
+        {"delay_s": 2.45e-9, "gain": {"re": 5e-3, "im": 0}, "interactions": [{"kind": "refraction"}] * 3},
+        {"delay_s": 2.50e-9, "gain": {"re": 4e-3, "im": 0},
+         "interactions": [{"kind": "refraction"}, {"kind": "total_internal_reflection"}]},
+        {"delay_s": 3.00e-9, "gain": {"re": 1e-3, "im": 0}, "interactions": [{"kind": "reflection"}]},
+    ]}
+    ax = power_delay_profile(prof).axes[0]
+    (ring,) = [ln for ln in ax.get_lines() if ln.get_label().startswith("refraction only")]
+    assert list(ring.get_xdata()) == pytest.approx([2.45])  # only the path with no reflection of any kind
+    # the axis ends after the last path shown, not after paths below the dynamic range
+    weak = {"paths": prof["paths"] + [{"delay_s": 9e-9, "gain": {"re": 1e-9, "im": 0}}]}
+    assert power_delay_profile(weak).axes[0].get_xlim()[1] == pytest.approx(3.0 * 1.08 + 0.05)
