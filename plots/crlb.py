@@ -85,6 +85,7 @@ class CrlbRequest(PlotRequest):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={"examples": [_EXAMPLE]})
 
     carrier: CarrierRange = Field(description="The carrier (PDOA: centre) frequencies of the x axis.")
+    height_in: float = Field(5.0, ge=2.0, le=20.0, description="Figure height [in].")
     toa: list[ToaSeries] = Field([], max_length=MAX_SERIES, description="TOA bound curves (Eq 4.16-4.17).")
     pdoa: list[PdoaSeries] = Field([], max_length=MAX_SERIES, description="Two-tone PDOA bound curves (Eq 5.16).")
     rss: list[RssReference] = Field([], max_length=MAX_SERIES, description="RSS bounds, horizontal lines.")
@@ -96,8 +97,13 @@ class CrlbRequest(PlotRequest):
         return self
 
 
-_HZ = EngFormatter(unit="Hz", sep=" ")
-_S = EngFormatter(unit="s", sep=" ")
+def _hz(value: float) -> str:
+    """``10 GHz``: a fresh formatter each time (an axis's formatter is bound to its axis, so none is shared)."""
+    return EngFormatter(unit="Hz", sep=" ").format_eng(value)
+
+
+def _s(value: float) -> str:
+    return EngFormatter(unit="s", sep=" ").format_eng(value)
 
 
 def _curve(fn, where: str, grid_hz: np.ndarray) -> np.ndarray:
@@ -112,7 +118,7 @@ def _curve(fn, where: str, grid_hz: np.ndarray) -> np.ndarray:
 
 
 def crlb_vs_frequency(carrier, *, toa=(), pdoa=(), rss=(), title: str | None = None, width_in: float = 8.0,
-                      height_in: float = 4.5) -> Figure:
+                      height_in: float = 5.0) -> Figure:
     """Range-error bounds sigma_d [mm] (log) against the carrier [Hz]: one line per ``toa`` / ``pdoa``
     series (see the module docstring for the equations), dashed phase-difference bounds, dotted
     horizontal RSS references. Each line's label names its parameters."""
@@ -125,7 +131,7 @@ def crlb_vs_frequency(carrier, *, toa=(), pdoa=(), rss=(), title: str | None = N
     for i, s in enumerate(req.toa):
         sigma = _curve(lambda f, s=s: bounds.toa_crlb(f, s.duration_s, s.bandwidth_hz, s.snr_db,
                                                       s.relative_permittivity).sigma_m, f"toa[{i}]", grid)
-        label = s.label or (f"TOA: W {_HZ(s.bandwidth_hz)}, $T_0$ {_S(s.duration_s)}, SNR {s.snr_db:g} dB, "
+        label = s.label or (f"TOA: W {_hz(s.bandwidth_hz)}, $T_0$ {_s(s.duration_s)}, SNR {s.snr_db:g} dB, "
                             rf"$\varepsilon_r$ {s.relative_permittivity:g}")
         ax.plot(grid, sigma * 1e3, color=next(colour), linewidth=1.6, label=label)
     for i, s in enumerate(req.pdoa):
@@ -137,8 +143,8 @@ def crlb_vs_frequency(carrier, *, toa=(), pdoa=(), rss=(), title: str | None = N
             return bounds.pdoa_crlb(f, s.tone_spacing_hz, s.snr_db, s.duration_s, s.relative_permittivity)
 
         sigma = _curve(lambda f, bound=bound: bound(f).sigma_m, f"pdoa[{i}]", grid)
-        t0 = _S(s.duration_s) if s.duration_s is not None else f"1/W ({_S(1.0 / s.tone_spacing_hz)})"
-        label = s.label or (f"PDOA two tones: W {_HZ(s.tone_spacing_hz)}, $T_0$ {t0}, SNR {s.snr_db:g} dB")
+        t0 = _s(s.duration_s) if s.duration_s is not None else f"1/W ({_s(1.0 / s.tone_spacing_hz)})"
+        label = s.label or (f"PDOA two tones: W {_hz(s.tone_spacing_hz)}, $T_0$ {t0}, SNR {s.snr_db:g} dB")
         c = next(colour)
         ax.plot(grid, sigma * 1e3, color=c, linewidth=1.6, label=label)
         if s.phase_difference:
@@ -159,11 +165,11 @@ def crlb_vs_frequency(carrier, *, toa=(), pdoa=(), rss=(), title: str | None = N
     if req.carrier.log:
         ax.set_xscale("log")
     ax.set_xlim(grid[0], grid[-1])
-    ax.xaxis.set_major_formatter(_HZ)
+    ax.xaxis.set_major_formatter(EngFormatter(unit="Hz", sep=" "))  # one per axis: formatters bind to it
     ax.set_xlabel("Carrier frequency (PDOA: centre of the two tones)")
     ax.set_ylabel(r"Range error bound $\sigma_d$ [mm]")
     ax.grid(True, which="both", color="0.9", linewidth=0.6)
     ax.set_axisbelow(True)
-    ax.legend(loc="best", fontsize="small")
+    fig.legend(loc="outside lower center", ncols=2, fontsize="small", frameon=False)
     ax.set_title(req.title if req.title is not None else "Cramér-Rao bounds on the range vs carrier frequency")
     return fig

@@ -235,7 +235,7 @@ def test_crlb_curves_match_the_closed_forms():
     assert rss.get_ydata()[0] == pytest.approx(17.2, rel=0.01)
     assert ax.get_yscale() == "log" and "[mm]" in ax.get_ylabel()
     shape, ink, _ = image_stats(render("crlb", body))
-    assert shape == (675, 1200) and ink > 0.02
+    assert shape == (750, 1200) and ink > 0.02  # 8 x 5 in at 150 dpi
 
 
 def test_crlb_toa_curve_is_the_single_tone_bound_at_every_carrier():
