@@ -110,7 +110,8 @@ def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
     assert pixels["drawn"] > 0.10 * pixels["total"], pixels
     legend = page.locator("#legend li").all_inner_texts()
     assert any(t.startswith("liver") for t in legend) and any(t.startswith("muscle") for t in legend)
-    assert page.locator("#capsule option").count() == 6 and page.locator("#sensors input:checked").count() == 12
+    # the 6 capsule sites and the entry for a typed position; the 12 sensor sites, all picked
+    assert page.locator("#capsule option").count() == 7 and page.locator("#sensors input:checked").count() == 12
 
     assert page.input_value("#rays") == "20000"  # the page's default
     page.click("#trace")
@@ -162,9 +163,15 @@ def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
         pixels = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
         # scaled mm -> m and framed: the box covers much of the view (unscaled it would be 1000x too big)
         assert 0.05 * pixels["total"] < pixels["drawn"] < 0.95 * pixels["total"], pixels
+        # the capsule at a typed position (mm) instead of a site: inside the sphere, 20 mm off its centre
+        page.select_option("#capsule", "(a position)")
+        assert page.input_value("#capsule-z") == "10.0"  # prefilled from the site
+        for axis, value in zip("xyz", ["0", "20", "0"]):
+            page.fill(f"#capsule-{axis}", value)
         page.click("#trace")
         state = wait_state(page, "window.viewerState.traces === 1 && !window.viewerState.tracing "
                            "&& window.viewerState.pdp !== null", errors, external)
+        assert state["transmitter"] == pytest.approx([0.0, 0.02, 0.0])
         assert state["receivers"][0]["receiver"] == "side" and state["paths"] == state["receivers"][0]["paths"] > 0
         assert errors == [] and external == [], (errors, external)
     finally:

@@ -6,10 +6,12 @@ import { Scene3D } from './scene.js';
 const $ = (id) => document.getElementById(id);
 const GAIN_RANGE_DB = 60; // paths are coloured over the strongest path's gain minus this
 const MAX_PRESELECTED_SENSORS = 12;
+const POSITION = '(a position)'; // the capsule select's entry for a position typed in mm
+const AXES = ['x', 'y', 'z'];
 const KIND_LETTER = { reflection: 'R', refraction: 'T', total_internal_reflection: 'TIR' };
 
 const state = {
-  phantom: null, ready: false, organs: 0, sites: 0, tracing: false, traces: 0, paths: 0,
+  phantom: null, ready: false, organs: 0, sites: 0, tracing: false, traces: 0, paths: 0, transmitter: null,
   receivers: [], pdp: null, error: null,
 };
 window.viewerState = state;
@@ -81,7 +83,7 @@ async function loadPhantom(id) {
   const capsules = sitesOf('capsule').length;
   const sensors = sitesOf('sensor').length;
   status(`${info.name}: ${info.organs.length} organs, ${info.triangles} triangles, ${capsules} capsule and `
-    + `${sensors} sensor sites.${capsules && sensors ? '' : ' Tracing needs a capsule site and a sensor site.'}`);
+    + `${sensors} sensor sites.${sensors ? '' : ' Tracing needs a sensor site.'}`);
 }
 
 /** The phantom's bounds, or, when the phantom dwarfs its sites (a slab, a half-space), the sites' box plus 10 cm. */
@@ -105,8 +107,28 @@ function markerSize(phantom, box) {
   return Math.max(Math.min(0.012 * extent, closest / 3), 1e-4);
 }
 
+/** The transmitter of a channel request: the picked capsule site, or the typed position. */
+function transmitter() {
+  if ($('capsule').value !== POSITION) return { site: $('capsule').value };
+  return { position_m: AXES.map((a) => Number($(`capsule-${a}`).value) / 1000) };
+}
+
+function capsuleChanged() {
+  const typed = $('capsule').value === POSITION;
+  $('capsule-position').hidden = !typed;
+  const site = info.sites[$('capsule').value];
+  if (site) AXES.forEach((a, k) => { $(`capsule-${a}`).value = (site.position_m[k] * 1000).toFixed(1); });
+  markSites();
+}
+
 function fillSites() {
-  $('capsule').replaceChildren(...sitesOf('capsule').map((name) => new Option(name, name)));
+  const capsules = sitesOf('capsule');
+  $('capsule').replaceChildren(...capsules.map((name) => new Option(name, name)), new Option(POSITION, POSITION));
+  if (!capsules.length) {
+    const centre = AXES.map((a, k) => (info.bounds_m[0][k] + info.bounds_m[1][k]) / 2);
+    AXES.forEach((a, k) => { $(`capsule-${a}`).value = (centre[k] * 1000).toFixed(1); });
+  }
+  capsuleChanged();
   $('sensors').replaceChildren(...sitesOf('sensor').map((name, i) => {
     const label = document.createElement('label');
     const box = Object.assign(document.createElement('input'), { type: 'checkbox', value: name, checked: i < MAX_PRESELECTED_SENSORS });
@@ -114,7 +136,7 @@ function fillSites() {
     label.append(box, name);
     return label;
   }));
-  $('trace').disabled = !sitesOf('capsule').length || !sitesOf('sensor').length;
+  $('trace').disabled = !sitesOf('sensor').length;
   markSites();
 }
 
@@ -146,7 +168,7 @@ async function trace() {
   const body = {
     phantom: state.phantom,
     frequency_hz: Number($('frequency').value) * 1e6,
-    transmitter: { site: $('capsule').value },
+    transmitter: transmitter(),
     receivers: receivers.map((site) => ({ site })),
     rays: Number($('rays').value),
     max_interactions: Number($('interactions').value),
@@ -164,7 +186,7 @@ async function trace() {
     const high = gains.length ? Math.max(...gains) : 0;
     view.setPaths(channel, high - GAIN_RANGE_DB, high);
     Object.assign(state, {
-      paths: view.pathCount(), traces: state.traces + 1,
+      paths: view.pathCount(), traces: state.traces + 1, transmitter: channel.transmitter.position_m,
       receivers: channel.profiles.map((p) => ({ receiver: p.receiver, paths: p.paths.length })),
     });
     $('gain-min').textContent = `${(high - GAIN_RANGE_DB).toFixed(0)} dB`;
@@ -237,6 +259,7 @@ view.renderer.domElement.addEventListener('pointerup', (e) => {
   if (!site) return;
   if (site.kind === 'capsule') {
     $('capsule').value = site.name;
+    capsuleChanged();
   } else {
     const box = $('sensors').querySelector(`input[value="${CSS.escape(site.name)}"]`);
     box.checked = !box.checked;
@@ -246,7 +269,7 @@ view.renderer.domElement.addEventListener('pointerup', (e) => {
 });
 
 $('phantom').addEventListener('change', (e) => loadPhantom(e.target.value).catch((err) => status(`Loading failed: ${err.message}`, true)));
-$('capsule').addEventListener('change', markSites);
+$('capsule').addEventListener('change', capsuleChanged);
 $('all-sensors').addEventListener('click', () => { $('sensors').querySelectorAll('input').forEach((b) => { b.checked = true; }); markSites(); });
 $('no-sensors').addEventListener('click', () => { $('sensors').querySelectorAll('input').forEach((b) => { b.checked = false; }); markSites(); });
 $('trace').addEventListener('click', trace);
