@@ -110,6 +110,7 @@ def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
     assert pixels["drawn"] > 0.10 * pixels["total"], pixels
     legend = page.locator("#legend li").all_inner_texts()
     assert any(t.startswith("liver") for t in legend) and any(t.startswith("muscle") for t in legend)
+    assert not page.is_visible("#capsule-position") and not page.is_visible("#gain-scale")  # until asked for
     # the 6 capsule sites and the entry for a typed position; the 12 sensor sites, all picked
     assert page.locator("#capsule option").count() == 7 and page.locator("#sensors input:checked").count() == 12
 
@@ -123,6 +124,7 @@ def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
     # every sensor site sees every capsule site directly (README), so each has at least one path
     assert all(r["paths"] >= 1 for r in receivers), receivers
     assert state["paths"] == sum(r["paths"] for r in receivers)  # one polyline per path in the scene
+    assert page.is_visible("#gain-scale")
     after = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
     assert after["changed"] > 500, after  # the polylines were drawn over the organs
     pdp = page.evaluate("() => { const img = document.getElementById('pdp'); "
@@ -165,6 +167,7 @@ def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
         assert 0.05 * pixels["total"] < pixels["drawn"] < 0.95 * pixels["total"], pixels
         # the capsule at a typed position (mm) instead of a site: inside the sphere, 20 mm off its centre
         page.select_option("#capsule", "(a position)")
+        assert page.is_visible("#capsule-position")
         assert page.input_value("#capsule-z") == "10.0"  # prefilled from the site
         for axis, value in zip("xyz", ["0", "20", "0"]):
             page.fill(f"#capsule-{axis}", value)
