@@ -27,7 +27,7 @@ schema.config.phases.coverage.enabled = os.environ.get("CAPSULE_RT_PLOT_FUZZ_COV
 
 
 @schema.parametrize()
-@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@settings(max_examples=15, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 def test_plot_routes_never_fail_and_conform(case):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # generated titles use glyphs no font has
