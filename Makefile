@@ -18,8 +18,12 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/capsule-rt serve
 
+CHROMIUM ?= /usr/bin/chromium
+
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	@test -x $(CHROMIUM) || echo "make test: no Chromium at $(CHROMIUM), so the browser tests (viewer, /docs) \
+	are skipped; install Debian's package to run them: apt-get install chromium"
+	CAPSULE_RT_CHROMIUM=$(CHROMIUM) $(BIN)/python -m pytest
 
 bench: $(STAMP)
 	$(BIN)/python -m bench

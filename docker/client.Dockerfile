@@ -19,6 +19,7 @@ COPY pyproject.toml README.md ./
 COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
+COPY plots ./plots
 # The local project with its test extra; versions are constrained in pyproject.toml.
 # hadolint ignore=DL3013
 RUN pip install --no-cache-dir ".[test]" \

@@ -17,6 +17,7 @@ COPY pyproject.toml README.md ./
 COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
+COPY plots ./plots
 # The warm-up compiles the tracer's numba kernels into the image, so a container's start does
 # not pay the ~17 s compile. numba only uses a cache directory it can write to: the cache is
 # handed to the service's user.

@@ -22,7 +22,7 @@ from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import RequestContextMiddleware
 from service.registry import Registry
-from service.routes import bounds, catalogue, channel, ops, phantoms, ranging
+from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging
 from service.settings import Settings
 from service.storage import PhantomStore
 
@@ -48,6 +48,7 @@ TAGS = [
     {"name": "bounds", "description": "Closed-form Cramér-Rao bounds."},
     {"name": "catalogue", "description": "Tissues and built-in scenarios."},
     {"name": "phantoms", "description": "Built-in and uploaded phantoms."},
+    {"name": "plots", "description": "Figures of channels, bounds and ranging errors (PNG, SVG, PDF)."},
     {"name": "operations", "description": "Health, readiness, metrics."},
 ]
 
@@ -85,11 +86,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description=DESCRIPTION,
         openapi_tags=TAGS,
         lifespan=lifespan,
+        docs_url=None,  # /docs is served from packaged assets (service.routes.pages), redoc dropped
+        redoc_url=None,
     )
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, bounds, catalogue, phantoms, ops):
+    for module in (channel, ranging, bounds, plots, catalogue, phantoms, ops):
         app.include_router(module.router)
+    pages.install(app)
     app.add_middleware(RequestContextMiddleware, metrics=metrics)
     _document_manifest(app)
     return app

@@ -4,6 +4,7 @@
     capsule-rt channel REQUEST.json [--output OUT.json]
     capsule-rt demo [--rays N]
     capsule-rt openapi [--output openapi.json] [--check]
+    capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
+
+from plots import cli as plots_cli
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
@@ -232,6 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--output", "-o", default=str(REPO_ROOT / "openapi.json"))
     o.add_argument("--check", action="store_true", help="exit 1 if the file differs instead of writing it")
     o.set_defaults(func=_cmd_openapi)
+    plots_cli.add_parser(sub)
     return p
 
 

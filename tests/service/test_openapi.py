@@ -30,6 +30,10 @@ OPERATIONS = {
     ("get", "/healthz"): "healthz",
     ("get", "/readyz"): "readyz",
     ("get", "/metrics"): "metrics",
+    ("post", "/v1/plots/pdp"): "plot_pdp",
+    ("post", "/v1/plots/cfr"): "plot_cfr",
+    ("post", "/v1/plots/crlb"): "plot_crlb",
+    ("post", "/v1/plots/ranging_errors"): "plot_ranging_errors",
 }
 
 

@@ -1,0 +1,202 @@
+// The 3-D scene: organs from the phantom's .glb, site markers, ray paths. Phantom frame: metres, z up.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { gainColour, tissueColour } from './palette.js';
+
+export const BACKGROUND = 0x14171c;
+const CAPSULE = 0xff8c1a;
+const SENSOR = 0x3d8bfd;
+const IDLE = 0x5d6677;
+const SHELL_OPACITY = 0.08; // organs that hold other organs (skin, fat, muscle wall...)
+const ORGAN_OPACITY = 0.4;
+
+export class Scene3D {
+  constructor(container) {
+    this.container = container;
+    // preserveDrawingBuffer: the canvas can be read back (screenshots, the browser tests)
+    this.renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(window.devicePixelRatio);
+    this.renderer.setClearColor(BACKGROUND);
+    container.appendChild(this.renderer.domElement);
+    this.scene = new THREE.Scene();
+    this.camera = new THREE.PerspectiveCamera(40, 1, 0.001, 100);
+    this.camera.up.set(0, 0, 1);
+    this.scene.add(new THREE.AmbientLight(0xffffff, 1.2));
+    const light = new THREE.DirectionalLight(0xffffff, 1.6);
+    light.position.set(0.3, -1, 0.6);
+    this.camera.add(light);
+    this.scene.add(this.camera);
+    this.controls = new OrbitControls(this.camera, this.renderer.domElement);
+    this.controls.addEventListener('change', () => this.render());
+    this.organs = new THREE.Group();
+    this.sites = new THREE.Group();
+    this.paths = new THREE.Group();
+    this.scene.add(this.organs, this.sites, this.paths);
+    this.frames = 0;
+    new ResizeObserver(() => this.resize()).observe(container);
+    this.resize();
+  }
+
+  resize() {
+    const { clientWidth: w, clientHeight: h } = this.container;
+    if (!w || !h) return;
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+    this.render();
+  }
+
+  render() {
+    this.renderer.render(this.scene, this.camera);
+    this.frames += 1;
+  }
+
+  /** Replace the organs by those of a .glb; returns {organ name: [meshes]}. `organs` is the phantom's
+   *  organ list (name, tissue, parent): the colour is the tissue's, shells are fainter than leaves. */
+  async loadOrgans(glb, organs, scale) {
+    clear(this.organs);
+    const gltf = await new GLTFLoader().parseAsync(glb, '');
+    const byName = Object.fromEntries(organs.map((o) => [o.name, o]));
+    const parents = new Set(organs.map((o) => o.parent));
+    const meshes = {};
+    gltf.scene.scale.setScalar(scale);
+    gltf.scene.traverse((obj) => {
+      if (!obj.isMesh) return;
+      const name = nodeName(gltf, obj);
+      const organ = byName[name] || { name, tissue: null };
+      const shell = parents.has(name);
+      obj.geometry.computeVertexNormals();
+      obj.material = new THREE.MeshLambertMaterial({
+        color: new THREE.Color(tissueColour(organ.tissue, name)), transparent: true,
+        opacity: shell ? SHELL_OPACITY : ORGAN_OPACITY, depthWrite: false, side: THREE.DoubleSide,
+      });
+      obj.renderOrder = shell ? 0 : 1;
+      (meshes[name] ||= []).push(obj);
+    });
+    this.organs.add(gltf.scene);
+    return meshes;
+  }
+
+  /** Markers of the sites {name: {kind, position_m}}; `size_m` their radius. */
+  setSites(sites, size_m) {
+    clear(this.sites);
+    const sphere = new THREE.SphereGeometry(size_m, 16, 12);
+    const box = new THREE.BoxGeometry(1.4 * size_m, 1.4 * size_m, 1.4 * size_m);
+    for (const [name, site] of Object.entries(sites)) {
+      const capsule = site.kind === 'capsule';
+      const marker = new THREE.Mesh(capsule ? sphere : box, new THREE.MeshBasicMaterial({ color: IDLE }));
+      marker.position.fromArray(site.position_m);
+      marker.userData = { name, kind: site.kind };
+      marker.renderOrder = 3;
+      this.sites.add(marker);
+    }
+  }
+
+  /** Colour the markers: the picked capsule orange, the picked sensors blue, the rest grey. */
+  markSites(capsule, sensors) {
+    for (const marker of this.sites.children) {
+      const { name, kind } = marker.userData;
+      const on = kind === 'capsule' ? name === capsule : sensors.has(name);
+      marker.material.color.setHex(on ? (kind === 'capsule' ? CAPSULE : SENSOR) : IDLE);
+      marker.scale.setScalar(on ? 1.0 : 0.7);
+    }
+    this.render();
+  }
+
+  /** The site marker under a pointer event, or null. */
+  pick(event) {
+    const rect = this.renderer.domElement.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((event.clientX - rect.left) / rect.width) * 2 - 1,
+      -((event.clientY - rect.top) / rect.height) * 2 + 1);
+    const ray = new THREE.Raycaster();
+    ray.setFromCamera(ndc, this.camera);
+    const hit = ray.intersectObjects(this.sites.children, false)[0];
+    return hit ? hit.object.userData : null;
+  }
+
+  /** Look at a box [[xmin, ymin, zmin], [xmax, ymax, zmax]] from the front (-y), a little above. */
+  fit(bounds) {
+    const box = new THREE.Box3(new THREE.Vector3(...bounds[0]), new THREE.Vector3(...bounds[1]));
+    const centre = box.getCenter(new THREE.Vector3());
+    const radius = Math.max(box.getSize(new THREE.Vector3()).length() / 2, 1e-3);
+    const distance = radius / Math.sin((this.camera.fov * Math.PI) / 360);
+    this.camera.position.copy(centre).add(new THREE.Vector3(0.45, -1, 0.35).normalize().multiplyScalar(distance));
+    this.camera.near = distance / 1000;
+    this.camera.far = distance * 10;
+    this.camera.updateProjectionMatrix();
+    this.controls.target.copy(centre);
+    this.controls.update();
+    this.render();
+  }
+
+  /** Draw every path of a /v1/channel response as a polyline transmitter -> interactions -> receiver,
+   *  coloured by its gain from `lowDb` (darkest) to `highDb` (brightest). One line object per receiver. */
+  setPaths(channel, lowDb, highDb) {
+    clear(this.paths);
+    const tx = channel.transmitter.position_m;
+    channel.profiles.forEach((profile, r) => {
+      const points = [];
+      const colours = [];
+      for (const path of profile.paths) {
+        const rgb = gainColour((path.gain_db - lowDb) / (highDb - lowDb || 1));
+        const vertices = [tx, ...path.interactions.map((i) => i.point_m), profile.position_m];
+        for (let k = 0; k + 1 < vertices.length; k++) {
+          points.push(...vertices[k], ...vertices[k + 1]);
+          colours.push(...rgb, ...rgb);
+        }
+      }
+      const geometry = new THREE.BufferGeometry();
+      geometry.setAttribute('position', new THREE.Float32BufferAttribute(points, 3));
+      geometry.setAttribute('color', new THREE.Float32BufferAttribute(colours, 3));
+      const lines = new THREE.LineSegments(geometry, new THREE.LineBasicMaterial({ vertexColors: true, transparent: true }));
+      lines.userData = { receiver: profile.receiver, index: r, paths: profile.paths.length };
+      lines.renderOrder = 2;
+      this.paths.add(lines);
+    });
+    this.render();
+  }
+
+  clearPaths() {
+    clear(this.paths);
+    this.render();
+  }
+
+  /** Fade every receiver's paths but the selected one's; outline one path of it in white (or none). */
+  focus(receiver, path) {
+    for (const lines of this.paths.children) {
+      if (lines.userData.highlight) continue;
+      lines.material.opacity = receiver === null || lines.userData.receiver === receiver ? 1.0 : 0.25;
+    }
+    this.paths.children.filter((l) => l.userData.highlight).forEach((l) => { this.paths.remove(l); l.geometry.dispose(); });
+    if (path) {
+      const geometry = new THREE.BufferGeometry().setFromPoints(path.map((p) => new THREE.Vector3(...p)));
+      const line = new THREE.Line(geometry, new THREE.LineBasicMaterial({ color: 0xffffff, depthTest: false }));
+      line.userData = { highlight: true };
+      line.renderOrder = 4;
+      this.paths.add(line);
+    }
+    this.render();
+  }
+
+  /** Polylines drawn (one per path), over all receivers. */
+  pathCount() {
+    return this.paths.children.reduce((n, l) => n + (l.userData.paths || 0), 0);
+  }
+}
+
+function clear(group) {
+  for (const child of [...group.children]) {
+    group.remove(child);
+    child.traverse((o) => { o.geometry?.dispose(); o.material?.dispose?.(); });
+  }
+}
+
+/** The glTF node name an object comes from (GLTFLoader sanitises object names; the json keeps them). */
+function nodeName(gltf, obj) {
+  for (let o = obj; o; o = o.parent) {
+    const index = gltf.parser.associations.get(o)?.nodes;
+    if (index !== undefined && gltf.parser.json.nodes[index].mesh !== undefined) return gltf.parser.json.nodes[index].name;
+  }
+  return obj.name;
+}

@@ -1,0 +1,204 @@
+"""The viewer and the API docs in a real headless browser: Debian's Chromium driven by Playwright,
+against a real uvicorn server (conftest ``live_url``), with every request to another host cut off
+and recorded (the pages must work offline: three.js and Swagger UI are served by the service).
+
+No Chromium at ``/usr/bin/chromium`` (or ``CAPSULE_RT_CHROMIUM``): the tests skip and say so, except
+in CI (``.ci/run`` installs the browser, and there a skip is a failure: tests/conftest.py). Playwright
+never downloads a browser here: it only drives the system's.
+
+``CAPSULE_RT_VIEWER_SCREENSHOT=docs/img/viewer.png`` also writes the viewer's screenshot there
+(the README's picture); otherwise it goes to the test's temporary directory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from urllib.parse import urlparse
+
+import httpx
+import pytest
+from playwright.sync_api import TimeoutError as PlaywrightTimeout
+from playwright.sync_api import sync_playwright
+
+from tests.conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
+
+pytestmark = [pytest.mark.e2e, pytest.mark.browser]
+
+CHROMIUM = os.environ.get("CAPSULE_RT_CHROMIUM", "/usr/bin/chromium")
+# as root and headless; no background connections (the machine has no network but localhost)
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+BACKGROUND = (0x14, 0x17, 0x1C)  # scene.js BACKGROUND
+
+# pixels of the scene's canvas that differ from the background (channel sum > 24), read back in the
+# page (the renderer keeps its drawing buffer); `window.__pixels` keeps them to diff a later frame
+COUNT_PIXELS = """([r, g, b]) => {
+  const canvas = document.querySelector('#scene canvas');
+  const copy = Object.assign(document.createElement('canvas'), {width: canvas.width, height: canvas.height});
+  const ctx = copy.getContext('2d');
+  ctx.drawImage(canvas, 0, 0);
+  const data = ctx.getImageData(0, 0, copy.width, copy.height).data;
+  let drawn = 0, changed = 0;
+  for (let i = 0; i < data.length; i += 4) {
+    if (Math.abs(data[i] - r) + Math.abs(data[i + 1] - g) + Math.abs(data[i + 2] - b) > 24) drawn++;
+    if (window.__pixels && Math.abs(data[i] - window.__pixels[i]) + Math.abs(data[i + 1] - window.__pixels[i + 1])
+        + Math.abs(data[i + 2] - window.__pixels[i + 2]) > 24) changed++;
+  }
+  window.__pixels = data;
+  return {drawn, changed, total: data.length / 4};
+}"""
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if shutil.which(CHROMIUM) is None:
+        reason = (f"no Chromium at {CHROMIUM}: the browser tests need Debian's package (apt-get install chromium; "
+                  ".ci/run installs it)")
+        pytest.skip(reason)
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture
+def page(browser, live_url):
+    """A page whose requests to any host but the server's are aborted and recorded; console errors and
+    uncaught exceptions recorded too. Yields (page, errors, external_requests)."""
+    context = browser.new_context(viewport={"width": 1400, "height": 820})
+    server = urlparse(live_url).netloc
+    external: list[str] = []
+
+    def only_the_server(route):
+        if urlparse(route.request.url).netloc == server:
+            route.continue_()
+        else:
+            external.append(route.request.url)
+            route.abort()
+
+    context.route("**/*", only_the_server)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("console", lambda msg: errors.append(f"console.{msg.type}: {msg.text}") if msg.type == "error" else None)
+    page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
+    yield page, errors, external
+    context.close()
+
+
+def wait_state(page, condition: str, errors: list[str], external: list[str], timeout_s: float = 60.0) -> dict:
+    """window.viewerState once ``condition`` holds; on a timeout, fail saying what the page logged."""
+    try:
+        page.wait_for_function(f"() => window.viewerState && ({condition})", timeout=timeout_s * 1000)
+    except PlaywrightTimeout:
+        state = page.evaluate("() => window.viewerState || null")
+        pytest.fail(f"viewer never got to {condition!r} in {timeout_s} s; state {state}; console errors "
+                    f"{errors}; requests to other hosts {external}")
+    return page.evaluate("() => window.viewerState")
+
+
+def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
+    page, errors, external = page
+    page.goto(f"{live_url}/viewer")
+    state = wait_state(page, "window.viewerState.ready", errors, external, timeout_s=30)
+    assert state["phantom"] == "torso" and state["organs"] == 15 and state["sites"] == 18, state
+    pixels = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
+    # the torso fills a good part of the view; a blank or failed WebGL canvas has ~0 such pixels
+    assert pixels["drawn"] > 0.10 * pixels["total"], pixels
+    legend = page.locator("#legend li").all_inner_texts()
+    assert any(t.startswith("liver") for t in legend) and any(t.startswith("muscle") for t in legend)
+    assert not page.is_visible("#capsule-position") and not page.is_visible("#gain-scale")  # until asked for
+    # the 6 capsule sites and the entry for a typed position; the 12 sensor sites, all picked
+    assert page.locator("#capsule option").count() == 7 and page.locator("#sensors input:checked").count() == 12
+
+    assert page.input_value("#rays") == "20000"  # the page's default
+    page.click("#trace")
+    state = wait_state(page, "window.viewerState.traces === 1 && !window.viewerState.tracing "
+                       "&& window.viewerState.pdp !== null", errors, external)
+    assert state["error"] is None, state["error"]
+    receivers = state["receivers"]
+    assert len(receivers) == 12
+    # every sensor site sees every capsule site directly (README), so each has at least one path
+    assert all(r["paths"] >= 1 for r in receivers), receivers
+    assert state["paths"] == sum(r["paths"] for r in receivers)  # one polyline per path in the scene
+    assert page.is_visible("#gain-scale")
+    after = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
+    assert after["changed"] > 500, after  # the polylines were drawn over the organs
+    pdp = page.evaluate("() => { const img = document.getElementById('pdp'); "
+                        "return [img.naturalWidth, img.naturalHeight]; }")
+    assert pdp[0] > 300 and pdp[1] > 200, pdp
+    rows = page.locator("#paths tbody tr")
+    first = next(r for r in receivers if r["paths"])
+    assert rows.count() == first["paths"]
+    rows.first.click()  # outline one path; must not disturb anything
+    assert page.locator("#paths tbody tr.picked").count() == 1
+
+    shot = Path(os.environ.get("CAPSULE_RT_VIEWER_SCREENSHOT") or tmp_path / "viewer.png")
+    page.screenshot(path=str(shot))
+    assert shot.stat().st_size > 20_000
+    assert errors == [] and external == [], (errors, external)
+
+
+def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
+    page, errors, external = page
+    meshes = nested_phantom_meshes()
+    for mesh in meshes.values():
+        mesh.apply_scale(1000.0)  # a 200 mm box holding a 40 mm sphere, in millimetres
+    manifest = phantom_manifest(name="browser box", units="mm", sites={
+        "capsule": [0.0, 0.0, 10.0], "side": {"kind": "sensor", "position_m": [0.099, 0.0, 0.0]}})
+    r = httpx.post(f"{live_url}/v1/phantoms", timeout=60, files={
+        "mesh": ("box.glb", glb_bytes(meshes), "model/gltf-binary"),
+        "manifest": ("manifest.json", json.dumps(manifest), "application/json")})
+    assert r.status_code == 201, r.text
+    phantom_id = r.json()["id"]
+    try:
+        page.goto(f"{live_url}/viewer")
+        wait_state(page, "window.viewerState.ready", errors, external)
+        assert phantom_id in page.locator("#phantom option").evaluate_all("opts => opts.map(o => o.value)")
+        page.select_option("#phantom", phantom_id)
+        state = wait_state(page, f"window.viewerState.ready && window.viewerState.phantom === '{phantom_id}'",
+                           errors, external)
+        assert state["organs"] == 2 and state["sites"] == 2
+        pixels = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
+        # scaled mm -> m and framed: the box covers much of the view (unscaled it would be 1000x too big)
+        assert 0.05 * pixels["total"] < pixels["drawn"] < 0.95 * pixels["total"], pixels
+        # the capsule at a typed position (mm) instead of a site: inside the sphere, 20 mm off its centre
+        page.select_option("#capsule", "(a position)")
+        assert page.is_visible("#capsule-position")
+        assert page.input_value("#capsule-z") == "10.0"  # prefilled from the site
+        for axis, value in zip("xyz", ["0", "20", "0"]):
+            page.fill(f"#capsule-{axis}", value)
+        page.click("#trace")
+        state = wait_state(page, "window.viewerState.traces === 1 && !window.viewerState.tracing "
+                           "&& window.viewerState.pdp !== null", errors, external)
+        assert state["transmitter"] == pytest.approx([0.0, 0.02, 0.0])
+        assert state["receivers"][0]["receiver"] == "side" and state["paths"] == state["receivers"][0]["paths"] > 0
+        assert errors == [] and external == [], (errors, external)
+    finally:
+        httpx.delete(f"{live_url}/v1/phantoms/{phantom_id}", timeout=30)
+
+
+def test_viewer_reports_a_bad_trace_on_the_page(page, live_url):
+    page, errors, external = page
+    page.goto(f"{live_url}/viewer")
+    wait_state(page, "window.viewerState.ready", errors, external)
+    page.fill("#rays", "0")
+    page.click("#trace")
+    state = wait_state(page, "window.viewerState.error !== null && !window.viewerState.tracing", errors, external)
+    assert "body.rays" in state["error"], state  # the API's 422 names the field; the page shows it
+    assert page.locator("#status.error").count() == 1
+    # the 422 itself is the one console error Chromium logs for a failed fetch; nothing else
+    assert all("422" in e for e in errors) and external == [], (errors, external)
+
+
+def test_swagger_ui_renders_offline(page, live_url):
+    page, errors, external = page
+    page.goto(f"{live_url}/docs")
+    page.wait_for_selector(".swagger-ui .info .title", timeout=30_000)
+    assert "CapsuleRT" in page.inner_text(".swagger-ui .info .title")
+    page.wait_for_function("() => document.querySelectorAll('.opblock').length >= 20", timeout=30_000)
+    summaries = page.locator(".opblock-summary-path").all_inner_texts()
+    assert "/v1/channel" in [s.strip() for s in summaries] and any("/v1/plots/pdp" in s for s in summaries)
+    assert errors == [] and external == [], (errors, external)
