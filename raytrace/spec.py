@@ -396,8 +396,10 @@ class ChannelSpec:
 
     def _check_geometric_optics(self, phantom: Phantom, tx_medium: int) -> None:
         """Ray optics needs the wavelength well below the bodies it crosses; a wavelength longer
-        than the whole phantom (its largest bounding-box extent) is a frequency where the tracer's
-        answer means nothing (e.g. ``frequency_hz: 402``, MHz typed as Hz: gains of +40 dB).
+        than the whole phantom (its size: the diagonal of its bounding box, the longest straight
+        line it can hold) is a frequency where the tracer's answer means nothing (e.g.
+        ``frequency_hz: 402``, MHz typed as Hz: gains of +40 dB). Organs nearer the wavelength are
+        the profiles' electrical-size warnings' business, not a refusal.
         Checked in the transmitter's tissue, where every path starts, at the carrier and every band
         frequency; raises :class:`~raytrace.errors.FrequencyOutOfRangeError` naming the field and
         the valid range for this transmitter. A transmitter in air (a test scene next to a small
@@ -406,7 +408,7 @@ class ChannelSpec:
         if tx_medium < 0:
             return
         lo, hi = np.asarray(phantom.bounds_m[0], float), np.asarray(phantom.bounds_m[1], float)
-        size = float(np.max(hi - lo))
+        size = float(np.linalg.norm(hi - lo))
         material = self.homogeneous or phantom.organs[tx_medium].material
         checks = [("frequency_hz", self.frequency_hz)]
         if self.band is not None:
@@ -423,7 +425,7 @@ class ChannelSpec:
                          f"the tracer's valid range for this transmitter is {f_min:.4g}-{FREQUENCY_MAX_HZ:g} Hz")
                 raise FrequencyOutOfRangeError(
                     f"{f:g} Hz: the wavelength in the transmitter's medium ({where}) is {lam:.4g} m, longer than "
-                    f"the phantom ({size:.4g} m, its largest extent), where geometric optics does not hold; "
+                    f"the phantom ({size:.4g} m, its bounding-box diagonal), where geometric optics does not hold; "
                     f"{valid} (the wavelength no longer than the phantom). A frequency in MHz typed as Hz?",
                     field=name)
 

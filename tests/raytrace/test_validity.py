@@ -30,15 +30,15 @@ def _spec(**kw):
 
 @pytest.mark.parametrize("frequency_hz", [402.0, 10e3])
 def test_a_frequency_below_geometric_optics_is_refused_naming_the_field_and_the_range(frequency_hz):
-    # 402 Hz (MHz typed as Hz): the wavelength in the small intestine is ~200 m, against a 0.53 m torso
+    # 402 Hz (MHz typed as Hz): the wavelength in the small intestine is ~200 m, against a 0.67 m torso
     torso = rt.get_phantom("torso")
     with pytest.raises(FrequencyOutOfRangeError) as exc:
         _spec(frequency_hz=frequency_hz).resolve(torso)
     assert exc.value.field == "frequency_hz"
     low = float(re.search(r"valid range for this transmitter is ([0-9.e+]+)-", exc.value.reason).group(1))
-    # the stated lower limit is where the small intestine's wavelength equals the torso's largest
-    # extent (0.2 % : the message's four digits)
-    size = float(np.max(torso.bounds_m[1] - torso.bounds_m[0]))
+    # the stated lower limit is where the small intestine's wavelength equals the torso's size, its
+    # bounding-box diagonal (0.2 %: the message's four digits)
+    size = float(np.linalg.norm(torso.bounds_m[1] - torso.bounds_m[0]))
     assert _wavelength("small_intestine", low) == pytest.approx(size, rel=2e-3)
     _spec(frequency_hz=low * 1.01).resolve(torso)  # just above it: accepted
 
