@@ -45,6 +45,7 @@ MAX_SAMPLES_PER_TRIAL = 1 << 18
 """Cap on samples per observation (about 13 us at 20 GS/s)."""
 
 _PATH_CHUNK_ELEMENTS = 1 << 21  # paths x samples evaluated at once (bounded memory)
+_SPECTRUM_FLOOR = 1e-20  # |S_a|^2 relative to its peak below which H is not evaluated (amplitude 1e-10)
 
 
 def _check_common(carrier_hz, sample_rate_hz, amplitude, field_prefix: str) -> tuple[float, float, float]:
@@ -225,15 +226,23 @@ def _fft_grid(waveform: Waveform, n_samples: int) -> tuple[int, np.ndarray, np.n
 
 
 def _received_through_band(waveform: Waveform, profile: PathProfile, n_samples: int, normalise: bool) -> np.ndarray:
+    """F^-1{S_a H}, H evaluated only where |S_a| exceeds 1e-10 of its peak (a Gaussian pulse's
+    spectrum fills a few percent of the bins; the bins left out change the waveform by < 1e-10
+    relative each, far below any noise; a burst's sinc spectrum keeps every bin)."""
     nfft, f, spectrum = _fft_grid(waveform, n_samples)
+    power = np.abs(spectrum) ** 2
+    keep = np.flatnonzero(power >= _SPECTRUM_FLOOR * power.max())
+    fk = f[keep]
     scale = profile.gain_scale if normalise else 1.0
-    h = np.zeros(nfft, complex)
-    chunk = max(1, _PATH_CHUNK_ELEMENTS // nfft)
+    h = np.zeros(keep.size, complex)
+    chunk = max(1, _PATH_CHUNK_ELEMENTS // max(keep.size, 1))
     for start in range(0, profile.delays_s.size, chunk):
         sl = slice(start, start + chunk)
-        b = profile.path_responses(f, sl, extrapolate=True, scale=scale)
-        h += np.sum(b * np.exp(-2j * np.pi * f[None, :] * profile.delays_s[sl, None]), axis=0)
-    return scipy.fft.ifft(spectrum * h)[:n_samples]
+        b = profile.path_responses(fk, sl, extrapolate=True, scale=scale)
+        h += np.sum(b * np.exp(-2j * np.pi * fk[None, :] * profile.delays_s[sl, None]), axis=0)
+    out = np.zeros(nfft, complex)
+    out[keep] = spectrum[keep] * h
+    return scipy.fft.ifft(out)[:n_samples]
 
 
 def band_coverage(waveform: Waveform, profile: PathProfile, n_samples: int) -> float | None:
