@@ -3,7 +3,8 @@
 Input is a channel profile (no dependency on the tracer or the service):
 
     PathProfile(delays_s, gains, band_frequencies_hz=None, band_gains=None,
-                gains_include_delay_phase=False, reference_frequency_hz=None)
+                gains_include_delay_phase=False, reference_frequency_hz=None, group_delays_s=None)
+        .channel_model -> "band_gains" | "group_delay" | "non_dispersive"   (how H(f) is known)
         .frequency_response(frequencies_hz) -> complex H(f)
 
 Ranging (Monte Carlo, vectorised over trials, seeded; return result dataclasses):
@@ -11,10 +12,14 @@ Ranging (Monte Carlo, vectorised over trials, seeded; return result dataclasses)
     estimate_toa(profile, method="all"|"first_peak"|"all_peaks"|"gcc"|"envelope",
                  waveform=ToneBurst()|GaussianPulse()|dict, snr_db=30.0, trials=100, seed=0,
                  relative_permittivity=27.9, true_distance_m=None,
-                 return_estimates=False) -> list[TOAResult]
+                 return_estimates=False, link=None) -> list[TOAResult]
     estimate_pdoa(profile, frequencies_hz=None, band=None, method="two_tone"|"regression",
                   snr_db=30.0, trials=100, seed=0, relative_permittivity=27.9,
-                  true_distance_m=None, duration_s=None, return_estimates=False) -> PDOAResult
+                  true_distance_m=None, duration_s=None, return_estimates=False, link=None) -> PDOAResult
+
+    The TOA waveform goes through the profile's own H(f) (dispersion, Fresnel, absorption at
+    every frequency when the profile has band gains); PDOA's tones default to the profile's band.
+    ``link=LinkBudget(...)`` (or its dict) replaces ``snr_db`` by P_t + G - kTBF.
     estimate_rss(profile=None, *, rss_dbm=None, transmit_power_dbm=None,
                  model="cm2_deep_tissue"|"cm2_near_surface", trials=100, seed=0,
                  true_distance_m=None, shadowing=True, return_estimates=False) -> RSSResult
@@ -30,8 +35,15 @@ Bounds (closed forms, derivations in estimators.bounds):
     waveform_toa_crlb(waveform, snr_db, bandwidth_hz, relative_permittivity=27.9,
                       carrier_phase_known=True) -> TOABound
 
+Channel outputs (estimators.channel_response; Sionna RT's cfr / cir / taps, absolute delays):
+
+    cfr(profile, frequencies_hz) -> H(f)
+    cir(profile, sample_rate_hz, bandwidth_hz=None, centre_hz=None, ...) -> (times_s, h)
+    taps(profile, bandwidth_hz, centre_hz=None, l_min=None, l_max=None) -> (l, h_l)
+
 Results carry method, distance_m (mean), delay_s, std_m, error_m / rmse_m
-(with true_distance_m), crlb_m, trials and optionally estimates_m; PDOAResult
+(with true_distance_m), crlb_m, trials, snr_db (the SNR used), channel_model
+(TOA also band_coverage) and optionally estimates_m; PDOAResult
 adds max_unambiguous_range_m, crlb_phase_difference_m, wrapped and
 wrap_reason; RSSResult adds model, path_loss_db, median_distance_m.
 
@@ -44,8 +56,10 @@ Errors: every invalid input raises EstimatorInputError (a ValueError) with
 """
 
 from .bounds import PDOABound, RSSBound, TOABound, multitone_crlb, pdoa_crlb, rss_crlb, toa_crlb, waveform_toa_crlb
+from .channel_response import cfr, cir, taps
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY, SPEED_OF_LIGHT_M_PER_S, velocity_m_per_s
 from .errors import EstimatorInputError
+from .link import MICS_EIRP_DBM, LinkBudget
 from .pdoa import estimate_pdoa
 from .profile import PathProfile, single_path
 from .results import PDOAResult, RSSResult, TOAResult
@@ -54,8 +68,9 @@ from .toa import estimate_toa, make_waveform
 from .waveforms import GaussianPulse, ToneBurst
 
 __all__ = [
-    "CM2_MODELS", "DEFAULT_RELATIVE_PERMITTIVITY", "EstimatorInputError", "GaussianPulse", "PDOABound",
-    "PDOAResult", "PathProfile", "RSSBound", "RSSResult", "SPEED_OF_LIGHT_M_PER_S", "TOABound", "TOAResult",
-    "ToneBurst", "estimate_pdoa", "estimate_rss", "estimate_toa", "make_waveform", "multitone_crlb",
-    "pdoa_crlb", "rss_crlb", "single_path", "toa_crlb", "velocity_m_per_s", "waveform_toa_crlb",
+    "CM2_MODELS", "DEFAULT_RELATIVE_PERMITTIVITY", "EstimatorInputError", "GaussianPulse", "LinkBudget",
+    "MICS_EIRP_DBM", "PDOABound", "PDOAResult", "PathProfile", "RSSBound", "RSSResult", "SPEED_OF_LIGHT_M_PER_S",
+    "TOABound", "TOAResult", "ToneBurst", "cfr", "cir", "estimate_pdoa", "estimate_rss", "estimate_toa",
+    "make_waveform", "multitone_crlb", "pdoa_crlb", "rss_crlb", "single_path", "taps", "toa_crlb",
+    "velocity_m_per_s", "waveform_toa_crlb",
 ]

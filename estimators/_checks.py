@@ -44,13 +44,20 @@ def relative_permittivity(value: Any, field: str = "relative_permittivity") -> f
     return eps
 
 
-def snr_db(value: Any, field: str = "snr_db") -> float | None:
+SNR_RANGE_DB = (-50.0, 200.0)
+"""What a request may ask for as ``snr_db``."""
+LINK_SNR_FLOOR_DB = -300.0
+"""Lowest SNR a link budget may produce (a sensor in deep shadow): the noise is then 1e30 times
+the signal, still finite in float64; below, the estimate would be noise alone either way."""
+
+
+def snr_db(value: Any, field: str = "snr_db", floor_db: float = SNR_RANGE_DB[0]) -> float | None:
     """SNR in dB, or None for noiseless; bounded to a physically meaningful range."""
     if value is None:
         return None
     snr = finite_float(value, field)
-    if not -50.0 <= snr <= 200.0:
-        raise EstimatorInputError(f"must lie in [-50, 200] dB, got {snr!r}", field)
+    if not floor_db <= snr <= SNR_RANGE_DB[1]:
+        raise EstimatorInputError(f"must lie in [{floor_db:g}, {SNR_RANGE_DB[1]:g}] dB, got {snr!r}", field)
     return snr
 
 
@@ -69,10 +76,11 @@ class MonteCarloInputs:
     __slots__ = ("snr_db", "trials", "rng", "relative_permittivity", "velocity_m_per_s", "true_distance_m")
 
     def __init__(self, snr_db_value: Any, trials: Any, seed: Any, relative_permittivity_value: Any,
-                 true_distance_m: Any) -> None:
+                 true_distance_m: Any, from_link: bool = False) -> None:
         from .constants import velocity_m_per_s
 
-        self.snr_db = snr_db(snr_db_value)
+        self.snr_db = (snr_db(snr_db_value, "link", LINK_SNR_FLOOR_DB) if from_link
+                       else snr_db(snr_db_value))
         self.trials = trials_count(trials)
         self.rng = generator(seed)
         self.relative_permittivity = relative_permittivity(relative_permittivity_value)

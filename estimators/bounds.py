@@ -67,7 +67,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import finite_float
+from ._checks import LINK_SNR_FLOOR_DB, finite_float
 from ._checks import relative_permittivity as _check_eps
 from ._checks import snr_db as _check_snr
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
@@ -94,7 +94,8 @@ class RSSBound:
 
 
 def _snr_linear(snr_db: float) -> float:
-    value = _check_snr(snr_db)
+    # a bound is a formula: it holds down to a link budget's deepest shadow (LINK_SNR_FLOOR_DB)
+    value = _check_snr(snr_db, floor_db=LINK_SNR_FLOOR_DB)
     if value is None:
         raise EstimatorInputError("is required for a bound", "snr_db")
     return 10.0 ** (value / 10.0)

@@ -56,6 +56,7 @@ from ._checks import MonteCarloInputs, finite_float
 from .bounds import multitone_crlb, pdoa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
+from .link import LinkBudget, make_link
 from .profile import PathProfile
 from .results import PDOAResult, summarise
 
@@ -82,9 +83,16 @@ def band_frequencies(band: Mapping | Sequence) -> np.ndarray:
     return np.linspace(start, stop, int(points))
 
 
-def _frequencies(method: str, frequencies_hz, band) -> np.ndarray:
-    if (frequencies_hz is None) == (band is None):
+def _frequencies(method: str, frequencies_hz, band, profile: PathProfile) -> np.ndarray:
+    if frequencies_hz is not None and band is not None:
         raise EstimatorInputError("give exactly one of frequencies_hz or band", "frequencies_hz")
+    if frequencies_hz is None and band is None:
+        if profile.band_frequencies_hz is None:
+            raise EstimatorInputError("give frequencies_hz or band (the profile has no band of its own to default to)",
+                                      "frequencies_hz")
+        frequencies_hz = profile.band_frequencies_hz  # the profile's own band (docs/api.md)
+        if method == "two_tone":
+            frequencies_hz = frequencies_hz[[0, -1]] if frequencies_hz.size > 1 else frequencies_hz
     if band is not None:
         f = band_frequencies(band)
         field = "band"
@@ -167,25 +175,32 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
                   snr_db: float | None = 30.0, trials: int = 100, seed=0,
                   relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                   true_distance_m: float | None = None, duration_s: float | None = None,
-                  return_estimates: bool = False) -> PDOAResult:
+                  return_estimates: bool = False, link: LinkBudget | Mapping | None = None) -> PDOAResult:
     """Monte Carlo PDOA ranging over ``profile`` (docs/api.md POST /v1/ranging/pdoa).
 
     Args:
         profile: the channel (its frequency response is evaluated at the tones).
         frequencies_hz: ``[f1, f2]`` (two_tone) or an equally spaced list (regression);
             or ``band={"start_hz", "stop_hz", "points"}`` (two_tone uses its two ends).
+            Neither: the profile's own band frequencies (two_tone: its two ends).
         method: ``two_tone`` | ``regression``.
         snr_db: in-band SNR (see module docstring); None = noiseless.
         trials (1..10000), seed (int >= 0 or Generator), relative_permittivity,
         true_distance_m (adds error_m / rmse_m and the wrap check), duration_s (T0,
         default 1 / bandwidth), return_estimates.
+        link: a :class:`~estimators.link.LinkBudget` (or its dict) instead of ``snr_db``: the
+            in-band SNR is then (S24) from the profile's own path gain over the tones' span
+            W unless the link gives a bandwidth; ``snr_db`` is ignored.
     """
     if not isinstance(profile, PathProfile):
         raise EstimatorInputError("must be a PathProfile", "profile")
     if method not in METHODS:
         raise EstimatorInputError(f"unknown method {method!r} (two_tone | regression)", "method")
-    f = _frequencies(method, frequencies_hz, band)
-    mc = MonteCarloInputs(snr_db, trials, seed, relative_permittivity, true_distance_m)
+    f = _frequencies(method, frequencies_hz, band, profile)
+    link = make_link(link)
+    if link is not None:
+        snr_db = link.snr_db(profile.path_gain_db, float(f[-1] - f[0]))
+    mc = MonteCarloInputs(snr_db, trials, seed, relative_permittivity, true_distance_m, from_link=link is not None)
     snr, n_trials, rng, eps, v = mc.snr_db, mc.trials, mc.rng, mc.relative_permittivity, mc.velocity_m_per_s
     true_distance_m = mc.true_distance_m
     width = float(f[-1] - f[0])
@@ -230,4 +245,5 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
                       std_m=stats.std_m, error_m=stats.error_m, rmse_m=stats.rmse_m, crlb_m=crlb,
                       crlb_phase_difference_m=crlb_pd, max_unambiguous_range_m=max_range,
                       wrapped=reason is not None, wrap_reason=reason, trials=n_trials, frequencies_hz=f,
-                      estimates_m=dist if return_estimates else None)
+                      estimates_m=dist if return_estimates else None, snr_db=snr,
+                      channel_model=profile.channel_model)

@@ -39,7 +39,13 @@ class TOAResult:
 
     delay_s is the mean delay estimate; distance_m = v * delay_s.
     crlb_m is the TOA bound (Eq 4.16-4.17) for the same waveform, SNR and
-    sampling (W = fs / 2); None when noiseless.
+    sampling (W = fs / 2); None when noiseless. snr_db is the per-sample SNR
+    the trials ran at (from the request, or from its link budget; None when
+    noiseless). channel_model names how the waveform went through the
+    channel (estimators.profile: ``band_gains``, ``group_delay`` or
+    ``non_dispersive``); band_coverage is the share of the transmitted
+    waveform's energy inside the profile's band (``band_gains`` only; the
+    rest went through the first-order continuation of the band gains).
     """
 
     method: str
@@ -51,6 +57,9 @@ class TOAResult:
     crlb_m: float | None
     trials: int
     estimates_m: np.ndarray | None = field(default=None, repr=False, compare=False)
+    snr_db: float | None = None
+    channel_model: str = "non_dispersive"
+    band_coverage: float | None = None
 
 
 @dataclass(frozen=True)
@@ -65,7 +74,9 @@ class PDOAResult:
     full two-tone / multi-tone bound (Eq 5.16, carrier term included, carrier
     ambiguity assumed resolved); crlb_phase_difference_m the bound of an
     estimator that only uses phase differences (the W^2/4 term) -- the one
-    this estimator should approach.
+    this estimator should approach. snr_db is the in-band SNR the trials ran
+    at (request or link budget); channel_model how H(f) was evaluated at the
+    tones (estimators.profile).
     """
 
     method: str
@@ -82,6 +93,8 @@ class PDOAResult:
     trials: int
     frequencies_hz: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.empty(0))
     estimates_m: np.ndarray | None = field(default=None, repr=False, compare=False)
+    snr_db: float | None = None
+    channel_model: str = "non_dispersive"
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,17 @@ samples); GCC and envelope only need Nyquist.
 Multipath: all methods measure the composite received waveform; with paths
 closer than the resolution (about 1 / bandwidth) they return a weighted
 group/phase delay, not the first path -- that bias is what the emulator shows.
+
+Dispersion (docs/science.md "Waveforms through the channel", (S25)-(S26)): the
+received waveform is the inverse transform of S(f) H(f) with the profile's own
+H(f) (waveforms.received). Through dispersive tissue the envelope arrives at
+the group delay tau_g = -d arg H / dw, while the carrier keeps the phase
+-arg H(f_c) = w_c tau_phi. ``envelope`` measures tau_g; the carrier methods'
+fine step follows the carrier phase, so they return tau_phi + m / f_c, the
+carrier-phase delay on the cycle nearest the envelope's tau_g (m the nearest
+whole number of periods to (tau_g - tau_phi) f_c): a different delay, by the
+dispersion and the interfaces' Fresnel phases, and a cycle off when
+|tau_phi - tau_g| exceeds half a period.
 """
 
 from __future__ import annotations
@@ -64,6 +75,7 @@ from ._checks import MonteCarloInputs
 from .bounds import waveform_toa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
+from .link import LinkBudget, make_link
 from .profile import PathProfile
 from .results import TOAResult, summarise
 from .waveforms import (
@@ -71,6 +83,7 @@ from .waveforms import (
     ToneBurst,
     Waveform,
     add_awgn,
+    band_coverage,
     observation_samples,
     received,
     signal_power,
@@ -229,7 +242,8 @@ def peak_delays(rx: np.ndarray, tx_crests: np.ndarray, grid: np.ndarray, fs: flo
 def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform | Mapping | None = None,
                  snr_db: float | None = 30.0, trials: int = 100, seed=0,
                  relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
-                 true_distance_m: float | None = None, return_estimates: bool = False) -> list[TOAResult]:
+                 true_distance_m: float | None = None, return_estimates: bool = False,
+                 link: LinkBudget | Mapping | None = None) -> list[TOAResult]:
     """Monte Carlo TOA ranging over ``profile`` (docs/api.md POST /v1/ranging/toa).
 
     Args:
@@ -243,8 +257,13 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         relative_permittivity: velocity assumption (default 27.9).
         true_distance_m: adds error_m / rmse_m.
         return_estimates: attach the per-trial distance estimates.
+        link: a :class:`~estimators.link.LinkBudget` (or its dict) instead of ``snr_db``: the
+            per-sample SNR is then (S24) from the profile's own path gain, over the noise
+            bandwidth fs / 2 unless the link gives one; ``snr_db`` is ignored.
 
-    Returns one TOAResult per method. crlb_m is the Eq 4.16 bound for this
+    The waveform goes through the profile's channel model (module docstring,
+    waveforms.received); each result names it (``channel_model``) and reports the
+    ``snr_db`` used. Returns one TOAResult per method. crlb_m is the Eq 4.16 bound for this
     waveform and SNR with W = fs / 2 (None when noiseless); the envelope
     method's is the envelope-only bound (None for a rectangular burst, whose
     envelope has unbounded bandwidth). Every trial yields an estimate; below
@@ -261,7 +280,10 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         raise EstimatorInputError(
             f"unknown method {method!r} (first_peak | all_peaks | gcc | envelope | all)", "method")
     wf = make_waveform(waveform)
-    mc = MonteCarloInputs(snr_db, trials, seed, relative_permittivity, true_distance_m)
+    link = make_link(link)
+    if link is not None:
+        snr_db = link.snr_db(profile.path_gain_db, wf.sample_rate_hz / 2.0)
+    mc = MonteCarloInputs(snr_db, trials, seed, relative_permittivity, true_distance_m, from_link=link is not None)
     snr, n_trials, rng, eps, v = mc.snr_db, mc.trials, mc.rng, mc.relative_permittivity, mc.velocity_m_per_s
     true_distance_m = mc.true_distance_m
     fs, fc = wf.sample_rate_hz, wf.carrier_hz
@@ -306,6 +328,7 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
             if "all_peaks" in est:
                 est["all_peaks"][sl] = allp
 
+    coverage = band_coverage(wf, profile, n)
     crlb = None if snr is None else waveform_toa_crlb(wf, snr, fs / 2.0, eps).sigma_m
     crlb_env = None
     if snr is not None and "envelope" in methods and wf.kind != "tone_burst":
@@ -317,5 +340,6 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         out.append(TOAResult(method=m, distance_m=stats.distance_m, delay_s=float(np.mean(est[m])),
                              std_m=stats.std_m, error_m=stats.error_m, rmse_m=stats.rmse_m,
                              crlb_m=crlb_env if m == "envelope" else crlb,
-                             trials=n_trials, estimates_m=dist if return_estimates else None))
+                             trials=n_trials, estimates_m=dist if return_estimates else None, snr_db=snr,
+                             channel_model=profile.channel_model, band_coverage=coverage))
     return out

@@ -71,13 +71,23 @@ class Path:
 
 @dataclass(frozen=True)
 class ReceiverProfile:
-    """Every path found to one receiver, sorted by delay, with summary statistics."""
+    """Every path found to one receiver, sorted by delay, with summary statistics.
+
+    ``smallest_organ`` is the electrically smallest organ its paths cross and
+    ``smallest_organ_size_wavelengths`` its width in wavelengths of its own tissue at the
+    carrier; ``warnings`` says when that is below one wavelength, where geometric optics
+    stops (:mod:`raytrace.solver.validity`, docs/science.md section 8). None / () without
+    a path through an organ.
+    """
 
     receiver: str
     position_m: np.ndarray
     medium: str
     geometric_distance_m: float
     paths: tuple[Path, ...]
+    smallest_organ: str | None = None
+    smallest_organ_size_wavelengths: float | None = None
+    warnings: tuple[str, ...] = ()
 
     @property
     def first_path_delay_s(self) -> float | None:

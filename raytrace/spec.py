@@ -28,6 +28,7 @@ import numpy as np
 
 from raytrace.body.phantom import Phantom
 from raytrace.errors import CapsuleRTError, FrequencyOutOfRangeError, InputError, InvalidGeometryError, NotFoundError
+from raytrace.physics.em import C0, refractive_index
 from raytrace.physics.materials import Material
 from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 
@@ -45,6 +46,28 @@ BOUNDS_MARGIN_FRACTION = 1.0
 MAX_DYNAMIC_RANGE_DB = 300.0
 #: Receiver names: what the API accepts (also used for file and column names by sweeps).
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+
+
+def wavelength_m(material: Material, frequency_hz: float | np.ndarray) -> np.ndarray:
+    """Wavelength of a plane wave in ``material``, ``c / (f Re n)`` [m] (docs/science.md, section 8)."""
+    f = np.asarray(frequency_hz, float)
+    return C0 / (f * refractive_index(material.complex_relative_permittivity(f)).real)
+
+
+def geometric_optics_min_frequency_hz(material: Material, size_m: float) -> float | None:
+    """Lowest frequency of the tissue model's range at which the wavelength in ``material`` is no
+    longer than ``size_m`` (None: not even at its highest). The wavelength falls monotonically
+    with frequency in every passive medium of the model (``f Re n`` grows with f: the group
+    velocity is positive), so a bisection in log f finds it to 1e-6 relative."""
+    if wavelength_m(material, FREQUENCY_MAX_HZ) > size_m:
+        return None
+    lo, hi = math.log(FREQUENCY_MIN_HZ), math.log(FREQUENCY_MAX_HZ)
+    if wavelength_m(material, FREQUENCY_MIN_HZ) <= size_m:
+        return FREQUENCY_MIN_HZ
+    while hi - lo > 1e-6:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if wavelength_m(material, math.exp(mid)) <= size_m else (mid, hi)
+    return math.exp(hi)
 
 
 def _at(prefix: str, exc: CapsuleRTError) -> CapsuleRTError:
@@ -353,6 +376,7 @@ class ChannelSpec:
             for i, r in enumerate(rx):
                 phantom.medium_index(r[None, :], field=leaf(self.receivers[i], f"receivers[{i}]"))
             raise
+        self._check_geometric_optics(phantom, tx_medium)
         for i in range(len(rx)):
             if np.linalg.norm(rx[i] - tx) < MIN_SEPARATION_M:
                 raise InvalidGeometryError(
@@ -369,6 +393,41 @@ class ChannelSpec:
             rx_polarization=np.array([r.polarization for r in self.receivers]),
             rx_pattern=np.array([r.pattern for r in self.receivers]),
         )
+
+    def _check_geometric_optics(self, phantom: Phantom, tx_medium: int) -> None:
+        """Ray optics needs the wavelength well below the bodies it crosses; a wavelength longer
+        than the whole phantom (its size: the diagonal of its bounding box, the longest straight
+        line it can hold) is a frequency where the tracer's answer means nothing (e.g.
+        ``frequency_hz: 402``, MHz typed as Hz: gains of +40 dB). Organs nearer the wavelength are
+        the profiles' electrical-size warnings' business, not a refusal.
+        Checked in the transmitter's tissue, where every path starts, at the carrier and every band
+        frequency; raises :class:`~raytrace.errors.FrequencyOutOfRangeError` naming the field and
+        the valid range for this transmitter. A transmitter in air (a test scene next to a small
+        body) is not checked here: its line of sight is exact at any frequency, and each profile's
+        electrical size (``smallest_organ_size_wavelengths``) flags the organs its paths cross."""
+        if tx_medium < 0:
+            return
+        lo, hi = np.asarray(phantom.bounds_m[0], float), np.asarray(phantom.bounds_m[1], float)
+        size = float(np.linalg.norm(hi - lo))
+        material = self.homogeneous or phantom.organs[tx_medium].material
+        checks = [("frequency_hz", self.frequency_hz)]
+        if self.band is not None:
+            if self.band.start_hz is not None:
+                checks += [("band.start_hz", self.band.start_hz), ("band.stop_hz", self.band.stop_hz)]
+            else:
+                checks += [(f"band.frequencies_hz[{i}]", f) for i, f in enumerate(self.band.frequencies_hz)]
+        where = phantom.medium_name(tx_medium)
+        for name, f in checks:
+            lam = float(wavelength_m(material, f))
+            if lam > size:
+                f_min = geometric_optics_min_frequency_hz(material, size)
+                valid = (f"no frequency up to {FREQUENCY_MAX_HZ:g} Hz is" if f_min is None else
+                         f"the tracer's valid range for this transmitter is {f_min:.4g}-{FREQUENCY_MAX_HZ:g} Hz")
+                raise FrequencyOutOfRangeError(
+                    f"{f:g} Hz: the wavelength in the transmitter's medium ({where}) is {lam:.4g} m, longer than "
+                    f"the phantom ({size:.4g} m, its bounding-box diagonal), where geometric optics does not hold; "
+                    f"{valid} (the wavelength no longer than the phantom). A frequency in MHz typed as Hz?",
+                    field=name)
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,7 +17,7 @@ import numpy as np
 from raytrace import ChannelResult, ChannelSpec, Phantom
 from service.errors import NotFound, Unprocessable
 from service.registry import Registry
-from service.schemas import GAIN_DB_FLOOR, ChannelRequest
+from service.schemas import GAIN_DB_FLOOR, MAX_OUTPUT_SAMPLES, ChannelOutputs, ChannelRequest
 from service.settings import Settings
 
 
@@ -33,7 +33,7 @@ def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tupl
             raise NotFound(f"unknown scenario {req.scenario!r}; known scenarios: {known} (GET /v1/scenarios)",
                            loc=["body", "scenario"])
         base = scenario.spec
-    given = req.model_dump(exclude_none=True, exclude={"scenario"})
+    given = req.model_dump(exclude_none=True, exclude={"scenario", "outputs"})
     spec = ChannelSpec.from_dict(given, base)
     phantom = registry.get(spec.phantom, field_loc=["body", "phantom"])
     checks = [
@@ -46,7 +46,80 @@ def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tupl
         if value is not None and value > cap:
             source = "" if loc[1] in given else (" (the scenario's value)" if base is not None else " (the default)")
             raise Unprocessable(f"{value}{source} exceeds this server's limit of {cap}", loc=loc)
+    _check_outputs(req.outputs, spec)
     return spec, phantom
+
+
+def _check_outputs(outputs: ChannelOutputs | None, spec: ChannelSpec) -> None:
+    """Channel outputs come from the paths' band gains: they need a band, and taps one that holds
+    the band centre +- W/2 (checked before the trace, not after it)."""
+    if outputs is None or not (outputs.cfr or outputs.cir or outputs.taps):
+        return
+    if spec.band is None:
+        raise Unprocessable("channel outputs are computed from the paths' band gains: give a band",
+                            loc=["body", "band"])
+    f = spec.band.frequencies_hz
+    if f.size < 2 and (outputs.cir or outputs.taps):
+        raise Unprocessable("an impulse response or taps need a band of at least two frequencies",
+                            loc=["body", "band"])
+    if outputs.taps is not None:
+        centre, half = 0.5 * (f[0] + f[-1]), 0.5 * (f[-1] - f[0])
+        if outputs.taps.bandwidth_hz / 2 > half * (1 + 1e-12):
+            raise Unprocessable(
+                f"the band centre {centre:.6g} Hz +- {outputs.taps.bandwidth_hz / 2:.6g} Hz leaves the band "
+                f"[{f[0]:.6g}, {f[-1]:.6g}] Hz: widen the band or narrow the taps", loc=["body", "outputs", "taps",
+                                                                                       "bandwidth_hz"])
+
+
+def _profile_outputs(result: ChannelResult, prof, outputs: ChannelOutputs) -> dict[str, Any]:
+    """cfr / cir / taps of one receiver (estimators.channel_response), as JSON arrays."""
+    from estimators import PathProfile
+    from estimators.channel_response import cfr, cir, taps
+    from estimators.errors import EstimatorInputError
+
+    out: dict[str, Any] = {"cfr": None, "cir": None, "taps": None}
+    band = result.band_frequencies_hz
+    if not prof.paths or band is None:
+        return out
+    profile = PathProfile([p.delay_s for p in prof.paths], [p.gain for p in prof.paths],
+                          band_frequencies_hz=band, band_gains=[p.band_gains for p in prof.paths],
+                          gains_include_delay_phase=True, reference_frequency_hz=result.frequency_hz,
+                          group_delays_s=[p.group_delay_s for p in prof.paths])
+    norm = outputs.normalize_delays
+    centre, width = 0.5 * (band[0] + band[-1]), float(band[-1] - band[0])
+    try:
+        if outputs.cfr:
+            h = cfr(profile, band, normalize_delays=norm)
+            out["cfr"] = {"frequency_hz": [_f(x) for x in band], "re": [_f(x) for x in h.real],
+                          "im": [_f(x) for x in h.imag]}
+        if outputs.cir is not None:
+            c = outputs.cir
+            n = c.num_samples
+            if n is None:
+                end = float(profile.delays_s.max()) - (profile.first_path_delay_s if norm else 0.0) + 8.0 / width
+                n = max(1, int(math.ceil((end - c.start_s) * c.sample_rate_hz)) + 1)
+                if n > MAX_OUTPUT_SAMPLES:
+                    raise Unprocessable(f"the default span needs {n} samples, over the limit of {MAX_OUTPUT_SAMPLES}: "
+                                        "give num_samples or a lower sample_rate_hz",
+                                        loc=["body", "outputs", "cir", "num_samples"])
+            t, h = cir(profile, c.sample_rate_hz, bandwidth_hz=width, centre_hz=centre, start_s=c.start_s,
+                       num_samples=n, normalize_delays=norm)
+            out["cir"] = {"time_s": [_f(x) for x in t], "re": [_f(x) for x in h.real], "im": [_f(x) for x in h.imag],
+                          "centre_hz": _f(centre), "bandwidth_hz": _f(width)}
+        if outputs.taps is not None:
+            tp = outputs.taps
+            ell, h = taps(profile, tp.bandwidth_hz, centre_hz=centre, l_min=tp.l_min, l_max=tp.l_max,
+                          normalize_delays=norm)
+            if ell.size > MAX_OUTPUT_SAMPLES:
+                raise Unprocessable(f"{ell.size} taps exceed the limit of {MAX_OUTPUT_SAMPLES}: give l_min and l_max",
+                                    loc=["body", "outputs", "taps", "l_max"])
+            out["taps"] = {"l": [int(x) for x in ell], "delay_s": [_f(x) for x in ell / tp.bandwidth_hz],
+                           "re": [_f(x) for x in h.real], "im": [_f(x) for x in h.imag],
+                           "centre_hz": _f(centre), "bandwidth_hz": _f(tp.bandwidth_hz)}
+    except EstimatorInputError as exc:
+        what = "cir" if exc.field in ("num_samples", "sample_rate_hz", "start_s") else "taps"
+        raise Unprocessable(exc.reason, loc=["body", "outputs", what, exc.field or ""]) from None
+    return out
 
 
 # ------------------------------------------------------------------ conversion
@@ -73,8 +146,10 @@ def _v(a) -> list[float]:
     return [_f(x) for x in np.asarray(a, float).reshape(3)]
 
 
-def result_to_dict(result: ChannelResult, scenario: str | None = None) -> dict[str, Any]:
-    """The :class:`service.schemas.ChannelResponse` dict of a tracer result (no NaN/inf)."""
+def result_to_dict(result: ChannelResult, scenario: str | None = None,
+                   outputs: ChannelOutputs | None = None) -> dict[str, Any]:
+    """The :class:`service.schemas.ChannelResponse` dict of a tracer result (no NaN/inf), with the
+    channel ``outputs`` asked for (cfr / cir / taps per receiver)."""
     band = result.band_frequencies_hz
     profiles = []
     for prof in result.profiles:
@@ -111,6 +186,12 @@ def result_to_dict(result: ChannelResult, scenario: str | None = None) -> dict[s
                 "rms_delay_spread_s": _f(prof.rms_delay_spread_s),
                 "reference_frequency_hz": _f(result.frequency_hz),
                 "gains_include_delay_phase": True,
+                "smallest_organ": prof.smallest_organ,
+                "smallest_organ_size_wavelengths": (None if prof.smallest_organ_size_wavelengths is None
+                                                    else _f(prof.smallest_organ_size_wavelengths)),
+                "warnings": list(prof.warnings),
+                **(_profile_outputs(result, prof, outputs) if outputs is not None
+                   else {"cfr": None, "cir": None, "taps": None}),
             }
         )
     return {

@@ -1,7 +1,7 @@
 """``capsule-rt``: serve the API, run a channel request locally, a demo, or write openapi.json.
 
     capsule-rt serve [--host H] [--port P] [--workers N] [--data-dir DIR]
-    capsule-rt channel REQUEST.json [--output OUT.json]
+    capsule-rt channel REQUEST.json [--output OUT.json] [--export OUT.npz | OUT.csv]
     capsule-rt demo [--rays N]
     capsule-rt openapi [--output openapi.json] [--check]
     capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
@@ -104,7 +104,7 @@ def run_channel_request(payload: dict) -> dict[str, Any]:
     req = ChannelRequest.model_validate(payload)
     spec, phantom = ops.to_spec(req, registry, settings)
     budget = Budget(deadline_s=settings.request_deadline_s, max_ray_segments=settings.max_ray_segments)
-    out = ops.result_to_dict(trace_channel(spec, phantom, budget=budget), req.scenario)
+    out = ops.result_to_dict(trace_channel(spec, phantom, budget=budget), req.scenario, req.outputs)
     return json.loads(ChannelResponse.model_validate(out).model_dump_json())
 
 
@@ -131,9 +131,63 @@ def _cmd_channel(args: argparse.Namespace) -> int:
     text = json.dumps(out, indent=2) + "\n"
     if args.output:
         Path(args.output).write_text(text)
-    else:
+    elif not args.export:
         sys.stdout.write(text)
+    if args.export:
+        try:
+            export_outputs(out, Path(args.export))
+        except (OSError, ValueError) as exc:
+            print(json.dumps({"detail": [{"loc": ["export"], "msg": str(exc), "type": "export_failed"}]}),
+                  file=sys.stderr)
+            return 2
     return 0
+
+
+def export_outputs(response: dict[str, Any], path: Path) -> None:
+    """Write a channel response's per-receiver ``cfr`` / ``cir`` / ``taps`` to ``path``: ``.npz``
+    (numpy: ``<receiver>/cfr_frequency_hz``, ``<receiver>/cfr`` complex, ``<receiver>/cir_time_s``,
+    ``<receiver>/cir``, ``<receiver>/taps_l``, ``<receiver>/taps_delay_s``, ``<receiver>/taps``) or
+    ``.csv`` (one row per value: ``receiver,output,index,frequency_hz,delay_s,re,im``; ``delay_s`` is
+    the time of a cir sample or the delay of a tap, absolute unless the request normalised delays)."""
+    import csv
+
+    import numpy as np
+
+    arrays: dict[str, np.ndarray] = {}
+    rows: list[tuple] = []
+    for prof in response["profiles"]:
+        name = prof["receiver"]
+        if prof.get("cfr"):
+            c = prof["cfr"]
+            h = np.asarray(c["re"]) + 1j * np.asarray(c["im"])
+            arrays[f"{name}/cfr_frequency_hz"], arrays[f"{name}/cfr"] = np.asarray(c["frequency_hz"]), h
+            rows += [(name, "cfr", i, f, "", z.real, z.imag) for i, (f, z) in enumerate(zip(c["frequency_hz"], h))]
+        if prof.get("cir"):
+            c = prof["cir"]
+            h = np.asarray(c["re"]) + 1j * np.asarray(c["im"])
+            arrays[f"{name}/cir_time_s"], arrays[f"{name}/cir"] = np.asarray(c["time_s"]), h
+            rows += [(name, "cir", i, "", t, z.real, z.imag) for i, (t, z) in enumerate(zip(c["time_s"], h))]
+        if prof.get("taps"):
+            c = prof["taps"]
+            h = np.asarray(c["re"]) + 1j * np.asarray(c["im"])
+            arrays[f"{name}/taps_l"], arrays[f"{name}/taps_delay_s"] = np.asarray(c["l"]), np.asarray(c["delay_s"])
+            arrays[f"{name}/taps"] = h
+            rows += [(name, "taps", ell, "", d, z.real, z.imag) for ell, d, z in zip(c["l"], c["delay_s"], h)]
+    if not arrays:
+        raise ValueError("the response holds no channel outputs: add \"outputs\" (cfr, cir, taps) and a band "
+                         "to the request")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        np.savez(path, **arrays)
+    elif suffix == ".csv":
+        with path.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["receiver", "output", "index", "frequency_hz", "delay_s", "re", "im"])
+            w.writerows((r[0], r[1], r[2], r[3] if r[3] == "" else repr(float(r[3])),
+                         r[4] if r[4] == "" else repr(float(r[4])), repr(float(r[5])), repr(float(r[6])))
+                        for r in rows)
+    else:
+        raise ValueError(f"unknown export format {path.suffix!r}: use .npz or .csv")
 
 
 def _table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:
@@ -227,6 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("channel", help="run a POST /v1/channel body locally and print the response JSON")
     c.add_argument("file", help="JSON file with the request body")
     c.add_argument("--output", "-o", default=None, help="write the response here instead of stdout")
+    c.add_argument("--export", default=None, help="also write the request's channel outputs (cfr / cir / taps) "
+                   "to this .npz or .csv file")
     c.set_defaults(func=_cmd_channel)
     d = sub.add_parser("demo", help="trace thesis-fig-5-6 and a default-torso case; print paths and TOA/PDOA")
     d.add_argument("--rays", type=int, default=20_000)

@@ -23,6 +23,11 @@ def path_profile(profile: ProfileIn):
 
     delays = np.array([p.delay_s for p in profile.paths], float)
     gains = np.array([complex(p.gain.re, p.gain.im) for p in profile.paths])
+    # a channel profile's group delays give the first-order dispersive model when it has no band
+    # gains (estimators.profile); a hand-made profile may give them too (with its reference frequency)
+    group = None
+    if all(p.group_delay_s is not None for p in profile.paths):
+        group = np.array([p.group_delay_s for p in profile.paths], float)
     band_f = band_g = None
     with_band = [p.band_gains for p in profile.paths if p.band_gains]
     if with_band and len(with_band) == len(profile.paths):
@@ -37,7 +42,17 @@ def path_profile(profile: ProfileIn):
         band_gains=band_g,
         gains_include_delay_phase=profile.gains_include_delay_phase,
         reference_frequency_hz=profile.reference_frequency_hz,
+        group_delays_s=group,
     )
+
+
+def _link(req: RangingCommon) -> dict[str, Any] | None:
+    """The request's link as the estimators take it; refuses a link next to an explicit snr_db."""
+    if req.link is None:
+        return None
+    if "snr_db" in req.model_fields_set:
+        raise Unprocessable("give snr_db or link, not both (the link budget sets the SNR)", loc=["body", "link"])
+    return req.link.model_dump()
 
 
 def _check_trials(req: RangingCommon, settings: Settings) -> None:
@@ -69,6 +84,9 @@ def _result(r: Any, **extra: Any) -> dict[str, Any]:
         "model": getattr(r, "model", None),
         "path_loss_db": _num(getattr(r, "path_loss_db", None)),
         "median_distance_m": _num(getattr(r, "median_distance_m", None)),
+        "snr_db": _num(getattr(r, "snr_db", None)),
+        "channel_model": getattr(r, "channel_model", None),
+        "band_coverage": _num(getattr(r, "band_coverage", None)),
     }
     out.update(extra)
     for key in ("distance_m", "std_m"):
@@ -98,6 +116,7 @@ def toa(req: ToaRequest, settings: Settings) -> dict[str, Any]:
         seed=req.seed,
         relative_permittivity=req.relative_permittivity,
         true_distance_m=req.true_distance_m,
+        link=_link(req),
     )
     return _response([_result(r) for r in results], "gcc" if req.method == "all" else req.method)
 
@@ -128,6 +147,7 @@ def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
         duration_s=req.duration_s,
         relative_permittivity=req.relative_permittivity,
         true_distance_m=req.true_distance_m,
+        link=_link(req),
     )
     return _response([_result(result)], req.method)
 

@@ -22,6 +22,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
+from estimators.link import MICS_EIRP_DBM
 from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 from raytrace.spec import MAX_DYNAMIC_RANGE_DB, NAME_PATTERN, ChannelSpec
 from service.settings import (
@@ -113,6 +114,41 @@ class ReceiverIn(AntennaIn):
 
 
 # ----------------------------------------------------------------- channel
+#: Cap on the samples of an impulse response / the taps per receiver [-].
+MAX_OUTPUT_SAMPLES = 4096
+
+
+class CirIn(Strict):
+    sample_rate_hz: float = Field(gt=0.0, le=1e12, description="Sampling rate of the impulse response [Hz].")
+    num_samples: int | None = Field(
+        None, ge=1, le=MAX_OUTPUT_SAMPLES,
+        description=f"Samples [-] (default: up to 8 / bandwidth after the last path; <= {MAX_OUTPUT_SAMPLES}).")
+    start_s: float = Field(0.0, ge=-1e-3, le=1e-3, description="Time of the first sample [s] (0: the emission).")
+
+
+class TapsIn(Strict):
+    bandwidth_hz: float = Field(gt=0.0, le=20e9, description="System bandwidth W: taps at l / W [Hz]; the band "
+                                "centre +- W/2 must lie inside `band`.")
+    l_min: int | None = Field(None, ge=-100_000, le=100_000, description="First tap index [-] (default: six "
+                              "before the first path's).")
+    l_max: int | None = Field(None, ge=-100_000, le=100_000, description="Last tap index [-] (default: six after "
+                              "the last path's).")
+
+
+class ChannelOutputs(Strict):
+    """Per-receiver channel outputs as channel emulators give them (docs/science.md "Channel outputs"),
+    computed from the paths' band gains: the request needs a `band`."""
+
+    cfr: bool = Field(False, description="The summed frequency response H(f) at every band frequency (complex, "
+                      "with dispersion).")
+    cir: CirIn | None = Field(None, description="The baseband impulse response over the band (around its centre), "
+                              "sampled at `sample_rate_hz` [1/s].")
+    taps: TapsIn | None = Field(None, description="Discrete taps h_l = h(l / W) / W at bandwidth W around the band "
+                                "centre [-].")
+    normalize_delays: bool = Field(False, description="Time axis from the first path's delay instead of the "
+                                   "emission (absolute delays by default).")
+
+
 class ChannelRequest(Strict):
     """A channel computation (docs/api.md "Channel")."""
 
@@ -175,6 +211,9 @@ class ChannelRequest(Strict):
         description="Paths weaker than the strongest by more than this are dropped [dB] "
         f"(default {SPEC_DEFAULTS['dynamic_range_db']:g}).",
     )
+    outputs: ChannelOutputs | None = Field(
+        None, description="Also return each receiver's frequency response, impulse response and/or taps "
+        "(requires `band`).")
 
 
 class Interaction(Out):
@@ -212,6 +251,29 @@ class PathOut(Out):
     band_gains: list[BandGain] | None = None
 
 
+class CfrOut(Out):
+    frequency_hz: list[float] = Field(description="Frequencies [Hz] (the band's).")
+    re: list[float] = Field(description="Re H(f) [-].")
+    im: list[float] = Field(description="Im H(f) [-].")
+
+
+class CirOut(Out):
+    time_s: list[float] = Field(description="Sample times [s]: absolute (0 = emission) unless normalize_delays.")
+    re: list[float] = Field(description="Re h(t) [1/s].")
+    im: list[float] = Field(description="Im h(t) [1/s].")
+    centre_hz: float = Field(description="Frequency the baseband is taken around [Hz].")
+    bandwidth_hz: float = Field(description="Band the response is limited to, centred on centre_hz [Hz].")
+
+
+class TapsOut(Out):
+    l: list[int] = Field(description="Tap indices [-].")  # noqa: E741 (Sionna's and the textbooks' name)
+    delay_s: list[float] = Field(description="Tap delays l / W [s]: absolute unless normalize_delays.")
+    re: list[float] = Field(description="Re h_l [-].")
+    im: list[float] = Field(description="Im h_l [-].")
+    centre_hz: float = Field(description="Frequency the baseband is taken around [Hz].")
+    bandwidth_hz: float = Field(description="W [Hz].")
+
+
 class ProfileOut(Out):
     receiver: str
     position_m: Vec3 = Field(description="Receiver position [m].")
@@ -227,6 +289,14 @@ class ProfileOut(Out):
         description="The tracer's gains include the propagation phase exp(-j k0 n L) (baseband-equivalent "
         "convention); the ranging endpoints use this flag to avoid counting it twice.",
     )
+    smallest_organ: str | None = Field(None, description="The electrically smallest organ the paths cross.")
+    smallest_organ_size_wavelengths: float | None = Field(
+        None, description="Its width in wavelengths of its own tissue at the carrier [-] (docs/science.md, section 8).")
+    warnings: list[str] = Field(default_factory=list, description="Where the ray model is doubtful (an organ "
+                                "crossed is below one wavelength wide).")
+    cfr: CfrOut | None = Field(None, description="With outputs.cfr: the summed frequency response over the band.")
+    cir: CirOut | None = Field(None, description="With outputs.cir: the impulse response.")
+    taps: TapsOut | None = Field(None, description="With outputs.taps: the discrete taps.")
 
 
 class PlacedAntenna(Out):
@@ -291,6 +361,12 @@ class ProfileIn(Strict):
     first_path_delay_s: float | None = None
     path_gain_db: float | None = None
     rms_delay_spread_s: float | None = None
+    smallest_organ: str | None = Field(None, max_length=128)
+    smallest_organ_size_wavelengths: float | None = None
+    warnings: list[Annotated[str, StringConstraints(max_length=1000)]] | None = Field(None, max_length=16)
+    cfr: CfrOut | None = None
+    cir: CirOut | None = None
+    taps: TapsOut | None = None
     gains_include_delay_phase: bool = Field(
         False,
         description="false (default, a hand-made h(t) = sum a_k delta(t - delay_k)): gains exclude the propagation "
@@ -316,9 +392,25 @@ _EXAMPLE_PROFILE = {
 }
 
 
+class LinkIn(Strict):
+    """A radio link instead of an SNR: snr_db = P_t + G - 10 log10(k T B / 1 mW) - F (docs/science.md (S24)),
+    G the profile's path gain."""
+
+    transmit_power_dbm: float = Field(MICS_EIRP_DBM, ge=-100.0, le=60.0, description="Transmit power (EIRP) [dBm] "
+                                      "(default the MICS limit, 25 uW = -16.02 dBm).")
+    noise_figure_db: float = Field(0.0, ge=0.0, le=60.0, description="Receiver noise figure F [dB] (default 0: the "
+                                   "thermal floor).")
+    temperature_k: float = Field(290.0, gt=0.0, le=1e4, description="Noise temperature T [K] (default 290 K, the "
+                                 "noise figure's reference).")
+    bandwidth_hz: float | None = Field(None, gt=0.0, le=1e12, description="Noise bandwidth B [Hz] (default the "
+                                       "method's: TOA fs / 2, PDOA the tones' span, bounds their bandwidth).")
+
+
 class RangingCommon(Strict):
     profile: ProfileIn
-    snr_db: float = Field(30.0, ge=-50.0, le=200.0, description="Signal-to-noise ratio [dB].")
+    snr_db: float = Field(30.0, ge=-50.0, le=200.0, description="Signal-to-noise ratio [dB] (or give `link`).")
+    link: LinkIn | None = Field(None, description="Derive the SNR from this link budget and the profile's path "
+                                "gain instead of `snr_db`.")
     trials: int = Field(100, ge=1, le=MAX_TRIALS, description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}).")
     seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the noise generator [-].")
     relative_permittivity: float = Field(
@@ -440,6 +532,14 @@ class RangingResult(Out):
     model: str | None = Field(None, description="RSS: the path-loss model inverted.")
     path_loss_db: float | None = Field(None, description="RSS: deterministic path loss that was inverted [dB].")
     median_distance_m: float | None = Field(None, description="RSS: inversion without shadowing [m].")
+    snr_db: float | None = Field(None, description="TOA / PDOA: the SNR the trials ran at (given, or from `link`) "
+                                 "[dB].")
+    channel_model: str | None = Field(
+        None, description="TOA / PDOA: how the channel was evaluated: `band_gains` (dispersion, Fresnel and "
+        "absorption at every frequency), `group_delay` (first-order: phase and group delays), or "
+        "`non_dispersive` (delays only).")
+    band_coverage: float | None = Field(None, description="TOA, band_gains: share of the waveform's energy inside "
+                                        "the profile's band [-].")
 
 
 class RangingResponse(RangingResult):
@@ -463,9 +563,13 @@ class ToaBoundRequest(Strict):
     carrier_hz: float = Field(ge=1.0, le=1e12, description="Tone frequency [Hz].")
     duration_s: float = Field(ge=1e-15, le=1.0, description="Observation time T0 [s].")
     bandwidth_hz: float = Field(ge=1.0, le=1e12, description="Receiver (noise) bandwidth W [Hz].")
-    snr_db: float = Field(ge=-100.0, le=200.0, description="Signal-to-noise ratio [dB].")
+    snr_db: float | None = Field(None, ge=-100.0, le=200.0, description="Signal-to-noise ratio [dB] (or give `link` "
+                                 "and `path_gain_db`).")
     relative_permittivity: float = Field(27.9, ge=1.0, le=1000.0, description="Relative permittivity [-].")
     delay_s: float = Field(0.0, ge=0.0, le=1.0, description="True delay tau [s].")
+    link: LinkIn | None = Field(None, description="Derive the SNR over `bandwidth_hz` from this link instead.")
+    path_gain_db: float | None = Field(None, ge=-400.0, le=20.0, description="With `link`: the channel's power "
+                                       "gain, a profile's path_gain_db [dB].")
 
 
 class PdoaBoundRequest(Strict):
@@ -480,11 +584,16 @@ class PdoaBoundRequest(Strict):
     )
     center_hz: float = Field(ge=1.0, le=1e12, description="Centre frequency f0 [Hz].")
     tone_spacing_hz: float = Field(ge=1e-3, le=1e12, description="Tone spacing W [Hz] (< 2 center_hz).")
-    snr_db: float = Field(ge=-100.0, le=200.0, description="In-band signal-to-noise ratio [dB].")
+    snr_db: float | None = Field(None, ge=-100.0, le=200.0, description="In-band signal-to-noise ratio [dB] (or "
+                                 "give `link` and `path_gain_db`).")
     duration_s: float | None = Field(
         None, ge=1e-15, le=1.0, description="Observation time T0 [s] (default 1 / tone_spacing_hz, i.e. W T0 = 1)."
     )
     relative_permittivity: float = Field(27.9, ge=1.0, le=1000.0, description="Relative permittivity [-].")
+    link: LinkIn | None = Field(None, description="Derive the in-band SNR over the tone spacing from this link "
+                                "instead.")
+    path_gain_db: float | None = Field(None, ge=-400.0, le=20.0, description="With `link`: the channel's power "
+                                       "gain, a profile's path_gain_db [dB].")
 
 
 class RssBoundRequest(Strict):
@@ -501,6 +610,7 @@ class RssBoundRequest(Strict):
 class ToaBoundResponse(Out):
     sigma_s: float = Field(description="Bound on the delay std [s].")
     sigma_m: float = Field(description="Bound on the distance std [m].")
+    snr_db: float | None = Field(None, description="The SNR the bound is for (given, or from `link`) [dB].")
 
 
 class PdoaBoundResponse(Out):
@@ -508,6 +618,7 @@ class PdoaBoundResponse(Out):
     sigma_m: float = Field(description="Bound on the distance std, two-tone with carrier term [m].")
     sigma_phase_difference_s: float = Field(description="Bound on the delay std from the tone spacing alone [s].")
     sigma_phase_difference_m: float = Field(description="Bound on the distance std from the tone spacing alone [m].")
+    snr_db: float | None = Field(None, description="The SNR the bound is for (given, or from `link`) [dB].")
 
 
 class RssBoundResponse(Out):

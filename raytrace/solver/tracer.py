@@ -92,6 +92,7 @@ from raytrace.solver.refine import (
     refine_by_continuation,
 )
 from raytrace.solver.sbr import shoot
+from raytrace.solver.validity import smallest_organ
 from raytrace.spec import Antenna, ChannelSpec
 
 #: Worker threads of one request: the direct-path search and the shooting's launch batches,
@@ -265,9 +266,11 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
                        band is not None)
     profiles = []
     start = 0
+    widths: dict[int, float] = {}
     for r, antenna in enumerate(receivers):
         paths = tuple(made[start:start + len(per_rx[r])])
         start += len(per_rx[r])
+        organ, size, warning = smallest_organ(phantom, media.n[0], float(frequency_hz), paths, widths)
         profiles.append(
             ReceiverProfile(
                 receiver=antenna.name,
@@ -275,6 +278,9 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
                 medium=phantom.medium_name(int(rx_medium[r])),
                 geometric_distance_m=float(np.linalg.norm(rx[r] - tx)),
                 paths=paths,
+                smallest_organ=organ,
+                smallest_organ_size_wavelengths=size,
+                warnings=() if warning is None else (warning,),
             )
         )
     n_paths = len(made)

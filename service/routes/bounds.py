@@ -7,6 +7,7 @@ import math
 from fastapi import APIRouter
 
 from estimators import bounds
+from estimators.link import LinkBudget
 from service.errors import Unprocessable, error_responses
 from service.schemas import (
     PdoaBoundRequest,
@@ -18,6 +19,20 @@ from service.schemas import (
 )
 
 router = APIRouter(prefix="/v1/bounds", tags=["bounds"])
+
+
+def _snr_db(req: ToaBoundRequest | PdoaBoundRequest, bandwidth_hz: float) -> float:
+    """The request's snr_db, or the one its link gives over ``bandwidth_hz`` (docs/science.md (S24))."""
+    if req.link is None:
+        if req.snr_db is None:
+            raise Unprocessable("give snr_db, or link with path_gain_db", loc=["body", "snr_db"])
+        return req.snr_db
+    if req.snr_db is not None:
+        raise Unprocessable("give snr_db or link, not both (the link budget sets the SNR)", loc=["body", "link"])
+    if req.path_gain_db is None:
+        raise Unprocessable("required with link (the channel's power gain, a profile's path_gain_db)",
+                            loc=["body", "path_gain_db"])
+    return LinkBudget(**req.link.model_dump()).snr_db(req.path_gain_db, bandwidth_hz)
 
 
 def _finite(values: dict[str, float]) -> dict[str, float]:
@@ -39,11 +54,11 @@ def _finite(values: dict[str, float]) -> dict[str, float]:
 )
 async def bound_toa(req: ToaBoundRequest) -> ToaBoundResponse:
     """sigma_tau^2 = Is / (2 SNR W T0 Itau) for A cos(w (t - tau)) observed for T0
-    (w = 2 pi f; the thesis listing's f-for-w slip is corrected), sigma_m = v sigma_tau."""
-    b = bounds.toa_crlb(
-        req.carrier_hz, req.duration_s, req.bandwidth_hz, req.snr_db, req.relative_permittivity, req.delay_s
-    )
-    return ToaBoundResponse(**_finite({"sigma_s": b.sigma_s, "sigma_m": b.sigma_m}))
+    (w = 2 pi f; the thesis listing's f-for-w slip is corrected), sigma_m = v sigma_tau.
+    The SNR is `snr_db`, or P_t + G - kTBF over `bandwidth_hz` from `link` and `path_gain_db`."""
+    snr = _snr_db(req, req.bandwidth_hz)
+    b = bounds.toa_crlb(req.carrier_hz, req.duration_s, req.bandwidth_hz, snr, req.relative_permittivity, req.delay_s)
+    return ToaBoundResponse(**_finite({"sigma_s": b.sigma_s, "sigma_m": b.sigma_m}), snr_db=snr)
 
 
 @router.post(
@@ -55,8 +70,10 @@ async def bound_toa(req: ToaBoundRequest) -> ToaBoundResponse:
 )
 async def bound_pdoa(req: PdoaBoundRequest) -> PdoaBoundResponse:
     """sigma_s = [8 pi^2 (f0^2 + W^2/4) E/N0]^(-1/2) (carrier ambiguity resolved) and the
-    phase-difference-only bound from the W^2/4 term; distances by v = c / sqrt(eps_r)."""
-    b = bounds.pdoa_crlb(req.center_hz, req.tone_spacing_hz, req.snr_db, req.duration_s, req.relative_permittivity)
+    phase-difference-only bound from the W^2/4 term; distances by v = c / sqrt(eps_r).
+    The SNR is `snr_db`, or P_t + G - kTBF over the tone spacing from `link` and `path_gain_db`."""
+    snr = _snr_db(req, req.tone_spacing_hz)
+    b = bounds.pdoa_crlb(req.center_hz, req.tone_spacing_hz, snr, req.duration_s, req.relative_permittivity)
     return PdoaBoundResponse(
         **_finite(
             {
@@ -65,7 +82,8 @@ async def bound_pdoa(req: PdoaBoundRequest) -> PdoaBoundResponse:
                 "sigma_phase_difference_s": b.sigma_phase_difference_s,
                 "sigma_phase_difference_m": b.sigma_phase_difference_m,
             }
-        )
+        ),
+        snr_db=snr,
     )
 
 

@@ -301,6 +301,9 @@ def test_channel_profile_through_http_ranges_like_the_estimators(api):
     r = api.post("/v1/ranging/toa", json={"profile": prof, **ranging})
     assert r.status_code == 200, r.text
     over_http = r.json()
-    (ours,) = estimate_toa(_profile(direct, 402e6), method="gcc", snr_db=30.0, trials=10, seed=7)
+    # the channel profile carries each path's group delay, so both sides use the group-delay model
+    ours_profile = dataclasses.replace(_profile(direct, 402e6), group_delays_s=[p.group_delay_s for p in direct])
+    (ours,) = estimate_toa(ours_profile, method="gcc", snr_db=30.0, trials=10, seed=7)
+    assert over_http["channel_model"] == "group_delay"
     assert over_http["distance_m"] == pytest.approx(ours.distance_m, abs=1e-12)
     assert over_http["std_m"] == pytest.approx(ours.std_m, abs=1e-12)
