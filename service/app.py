@@ -18,11 +18,12 @@ from service import __version__
 from service.compute import ComputeGate
 from service.deps import AppState
 from service.errors import install_error_handlers
+from service.jobs import SweepJobs
 from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import RequestContextMiddleware
 from service.registry import Registry
-from service.routes import bounds, catalogue, channel, ops, phantoms, ranging
+from service.routes import bounds, catalogue, channel, ops, phantoms, ranging, sweeps
 from service.settings import Settings
 from service.storage import PhantomStore
 
@@ -48,6 +49,7 @@ TAGS = [
     {"name": "bounds", "description": "Closed-form Cramér-Rao bounds."},
     {"name": "catalogue", "description": "Tissues and built-in scenarios."},
     {"name": "phantoms", "description": "Built-in and uploaded phantoms."},
+    {"name": "sweeps", "description": "Sweep jobs: positions x receivers x frequencies, run in worker processes."},
     {"name": "operations", "description": "Health, readiness, metrics."},
 ]
 
@@ -58,6 +60,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     metrics = Metrics()
     registry = Registry(store=PhantomStore(settings.data_dir))
     gate = ComputeGate(settings.max_concurrency, settings.max_queue, settings.retry_after_s, metrics)
+    sweep_jobs = SweepJobs(settings, registry)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -69,6 +72,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # move them out of the cyclic collector's sight, or each full collection walks them all
         # (~70 ms with the GIL held, about every fifth channel request; docs/tracer.md)
         gc.freeze()
+        sweep_jobs.start()
         log.info(
             "ready",
             extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios), "data_dir": str(settings.data_dir),
@@ -78,6 +82,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             gate.cancel_all()
+            await anyio.to_thread.run_sync(sweep_jobs.stop)
 
     app = FastAPI(
         title="CapsuleRT",
@@ -87,8 +92,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
+    app.state.sweeps = sweep_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, bounds, catalogue, phantoms, ops):
+    for module in (channel, ranging, bounds, catalogue, phantoms, sweeps, ops):
         app.include_router(module.router)
     app.add_middleware(RequestContextMiddleware, metrics=metrics)
     _document_manifest(app)

@@ -4,6 +4,8 @@
     capsule-rt channel REQUEST.json [--output OUT.json]
     capsule-rt demo [--rays N]
     capsule-rt openapi [--output openapi.json] [--check]
+    capsule-rt sweep SPEC --out DIR [--cluster ADDRESS] [--resume]   (service.sweep_cli)
+    capsule-rt experiment NAME --out DIR                             (service.sweep_cli)
 """
 
 from __future__ import annotations
@@ -226,12 +228,15 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--output", "-o", default=None, help="write the response here instead of stdout")
     c.set_defaults(func=_cmd_channel)
     d = sub.add_parser("demo", help="trace thesis-fig-5-6 and a default-torso case; print paths and TOA/PDOA")
-    d.add_argument("--rays", type=int, default=20_000)
+    d.add_argument("--rays", type=int, default=20_000, help="rays launched per trace (default 20000)")
     d.set_defaults(func=_cmd_demo)
     o = sub.add_parser("openapi", help="write openapi.json (stable key order)")
     o.add_argument("--output", "-o", default=str(REPO_ROOT / "openapi.json"))
     o.add_argument("--check", action="store_true", help="exit 1 if the file differs instead of writing it")
     o.set_defaults(func=_cmd_openapi)
+    from service import sweep_cli
+
+    sweep_cli.add_parsers(sub)
     return p
 
 

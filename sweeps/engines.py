@@ -47,6 +47,9 @@ def default_workers() -> int:
 class SerialEngine:
     name = "serial"
 
+    def close(self) -> None:
+        pass
+
     def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None) -> Iterator[Result]:
         for i, item in enumerate(inputs):
             if cancel is not None and cancel.is_set():
@@ -58,28 +61,50 @@ class SerialEngine:
 
 
 class ProcessEngine:
+    """A pool of ``workers`` spawned processes, kept between runs (each worker keeps its phantoms
+    and compiled kernels) until :meth:`close`; rebuilt after a worker died or a run was cancelled."""
+
     def __init__(self, workers: int) -> None:
         self.workers = int(workers)
         self.name = f"local:{self.workers}"
         self.restarts = 0
-        #: pids of the current pool's workers (for operators and tests)
-        self.pids: list[int] = []
+        self._pool: cf.ProcessPoolExecutor | None = None
+
+    @property
+    def pids(self) -> list[int]:
+        """pids of the current pool's workers (for operators and tests)."""
+        return [p.pid for p in (getattr(self._pool, "_processes", None) or {}).values()]
+
+    def _get_pool(self) -> cf.ProcessPoolExecutor:
+        if self._pool is None:
+            self._pool = cf.ProcessPoolExecutor(max_workers=self.workers,
+                                                mp_context=multiprocessing.get_context("spawn"))
+        return self._pool
+
+    def _kill(self) -> None:
+        if self._pool is not None:
+            _terminate(self._pool)
+            self._pool = None
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
 
     def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None) -> Iterator[Result]:
         pending = dict(enumerate(inputs))
-        context = multiprocessing.get_context("spawn")
+        restarts = 0
         while pending:
-            pool = cf.ProcessPoolExecutor(max_workers=min(self.workers, len(pending)), mp_context=context)
+            pool = self._get_pool()
             futures = {pool.submit(fn, item): i for i, item in pending.items()}
             broken = False
             try:
                 not_done = set(futures)
                 while not_done:
                     if cancel is not None and cancel.is_set():
-                        _terminate(pool)
+                        self._kill()
                         return
                     done, not_done = cf.wait(not_done, timeout=POLL_S, return_when=cf.FIRST_COMPLETED)
-                    self.pids = [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
                     for fut in done:
                         i = futures[fut]
                         exc = fut.exception()
@@ -91,13 +116,12 @@ class ProcessEngine:
                     if broken:
                         break
             finally:
-                if broken or pending:
-                    _terminate(pool)
-                else:
-                    pool.shutdown(wait=True)
+                if broken or pending:  # a dead worker, a cancel, or the consumer stopped early
+                    self._kill()
             if broken:
+                restarts += 1
                 self.restarts += 1
-                if self.restarts > MAX_POOL_RESTARTS:
+                if restarts > MAX_POOL_RESTARTS:
                     for i in list(pending):
                         pending.pop(i)
                         yield i, RuntimeError(f"a worker process died and the pool was restarted "
@@ -135,32 +159,31 @@ class DaskEngine:
             self._client = None
 
     def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None) -> Iterator[Result]:
-        from distributed import as_completed
-
         client = self.client()
         run_id = secrets.token_hex(4)  # fresh keys: a resubmitted task is never a cached old result
         futures = [client.submit(fn, item, key=f"capsule-rt-sweep-{run_id}-{i}", pure=False)
                    for i, item in enumerate(inputs)]
-        index = {f.key: i for i, f in enumerate(futures)}
-        ac = as_completed(futures)
+        pending = dict(enumerate(futures))
         try:
-            while not ac.is_empty():
+            while pending:
                 if cancel is not None and cancel.is_set():
-                    client.cancel(futures)
                     return
-                batch = ac.next_batch(block=False)
-                if not batch:
+                finished = [i for i, f in pending.items() if f.done()]
+                if not finished:
                     time.sleep(POLL_S / 4)
                     continue
-                for fut in batch:
+                for i in finished:
+                    fut = pending.pop(i)
                     if fut.status == "error":
-                        yield index[fut.key], fut.exception()
+                        yield i, fut.exception()
                     elif fut.status == "cancelled":
-                        yield index[fut.key], RuntimeError("the task was cancelled on the cluster")
+                        yield i, RuntimeError("the task was cancelled on the cluster")
                     else:
-                        yield index[fut.key], fut.result()
+                        yield i, fut.result()
         finally:
-            client.cancel([f for f in futures if not f.done()])
+            unfinished = [f for f in pending.values() if not f.done()]
+            if unfinished:
+                client.cancel(unfinished)
 
 
 def make_engine(workers: int | None = None, cluster: str | None = None):

@@ -120,6 +120,7 @@ def execute(store: SweepDir, spec: SweepSpec, plan: Plan, source: PhantomSource,
     per_task = {t: len(plan.task_positions(t)) * len(plan.frequencies_hz) for t in range(plan.n_tasks)}
     failures: dict[int, list[dict]] = {t: f for t, f in completed.items() if t not in todo}
     done_before = sum(per_task[t] for t in failures)
+    own_engine = engine is None
     engine = engine or make_engine(workers, cluster)
     started = time.monotonic()
     elapsed_before = float(previous.get("elapsed_s") or 0.0)
@@ -172,9 +173,8 @@ def execute(store: SweepDir, spec: SweepSpec, plan: Plan, source: PhantomSource,
         publish()
         raise
     finally:
-        close = getattr(engine, "close", None)
-        if close is not None and engine is not None and cluster:
-            close()
+        if own_engine:
+            engine.close()
     cancelled = cancel is not None and cancel.is_set()
     complete = state["tasks_done"] == plan.n_tasks
     if complete:
