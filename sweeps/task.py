@@ -7,7 +7,8 @@ builds the phantom once per process (:func:`phantom_for`, cached; the tracer cac
 scene per phantom), then for each position and frequency traces one
 :class:`~raytrace.ChannelSpec` to every receiver and ranges every link.
 
-Determinism: the noise of every Monte Carlo estimate is drawn from
+Determinism: BLAS runs on one thread in a task (:func:`run_task`), and the noise of every
+Monte Carlo estimate is drawn from
 ``SeedSequence(spec.seed, spawn_key=(position, frequency, receiver, family))`` with the
 sweep's global indices (family 0 TOA, 1 PDOA, 2 RSS; the TOA methods share their noise,
 as ``estimate_toa(method="all")`` does), so a row's numbers do not depend on which task or
@@ -182,7 +183,16 @@ def _append(columns: dict[str, list], row: dict, n_before: int) -> None:
 
 
 def run_task(job: TaskInput) -> TaskOutput:
-    """Run one task (module docstring)."""
+    """Run one task (module docstring), with one BLAS thread: a multi-threaded BLAS sums in an order
+    that depends on its thread count (Dask's workers default to 1, a plain process to the CPUs),
+    which moved the last bits of a GCC estimate; parallelism comes from the workers anyway."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_task(job)
+
+
+def _run_task(job: TaskInput) -> TaskOutput:
     started = time.monotonic()
     spec = SweepSpec(job.spec)
     plan = job.plan

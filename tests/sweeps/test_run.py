@@ -258,3 +258,26 @@ def test_localization_extension_point_adds_per_position_rows(tmp_path):
         assert r["along_tract_error_m"] == pytest.approx(line.project(expected) - r["s_m"], abs=1e-12)
         assert r["receivers_used"] == sum(x["toa_gcc_distance_m"] is not None for x in links)
     assert (tmp_path / "sweep" / "localization.parquet").exists()
+
+
+def test_a_task_does_not_depend_on_the_blas_thread_count():
+    """Dask's workers run BLAS on 1 thread (OMP/OPENBLAS_NUM_THREADS=1), a plain process on every CPU;
+    the estimators' matrix products then sum in another order and moved the last bits of a GCC
+    spread on this link set (measured), so run_task pins BLAS to one thread. Its rows must be the
+    same whatever the caller's BLAS threads."""
+    from threadpoolctl import threadpool_limits
+
+    from sweeps.plan import make_plan
+    from sweeps.run import _task_plan
+    from sweeps.task import PhantomSource, TaskInput, run_task
+
+    spec = load_spec({"capsule_positions": [{"s_m": 0.2}], "receivers": "sensors",
+                      "channel": {"rays": 20000, "max_interactions": 4, "dynamic_range_db": 60},
+                      "ranging": {"toa": {"methods": ["gcc"]}}, "trials": 20, "seed": 1})
+    plan = make_plan(spec, default_torso())
+    job = TaskInput(0, spec.to_dict(), _task_plan(plan.to_dict(), plan.task_positions(0)), PhantomSource("torso"))
+    with threadpool_limits(limits=1, user_api="blas"):
+        one = run_task(job).rows
+    with threadpool_limits(limits=2, user_api="blas"):
+        two = run_task(job).rows
+    assert one == two
