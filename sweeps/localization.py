@@ -14,8 +14,8 @@ A localizer is a function ``fn(inputs: LocalizationInputs, options: dict) -> pos
 (3,) | None`` registered under a name with :func:`register`; ``options`` are the spec
 entry's other keys (validated by the localizer's own ``validate`` callable, errors
 naming ``localization.methods[i].<key>``). Built-in localizers are registered at import
-time by :mod:`sweeps.localizers` when the position estimators
-(``estimators.localization``) are available on this tree; ``available()`` lists them.
+time by :mod:`sweeps.localizers` (``linear``, ``nonlinear``, ``rss``) when the position
+estimators (``estimators.localization``) are on this tree; ``available()`` lists them.
 
 Spec form::
 
@@ -95,7 +95,9 @@ def _load_builtins() -> None:
     global _builtins_loaded
     if not _builtins_loaded:
         _builtins_loaded = True
-        if importlib.util.find_spec("sweeps.localizers") is not None:
+        # the position estimators are a separate package of this project (estimators.localization):
+        # the built-in localizers exist exactly when it does
+        if importlib.util.find_spec("estimators.localization") is not None:
             importlib.import_module("sweeps.localizers")
 
 
