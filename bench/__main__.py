@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from bench import ceiling, completeness, estimators_bench, latency, localization, scenes
+from bench import sweeps as sweeps_bench
 from bench.common import ROOT, growth_exponent, run_point
 from raytrace.solver.tracer import warm_up
 
@@ -72,6 +73,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
     ap.add_argument("--skip-http", action="store_true", help="skip the HTTP latency benchmark")
     ap.add_argument("--skip-scaling", action="store_true", help="skip the sub-process scaling sweep")
+    ap.add_argument("--skip-sweeps", action="store_true", help="skip the sweep engines' throughput")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "latest.json"))
     args = ap.parse_args()
     rays = 20_000 if args.quick else 100_000
@@ -99,6 +101,8 @@ def main() -> None:
         report["scaling"] = scaling(args.quick)
     report["estimators"] = estimators_bench.throughput(1000)
     report["localization"] = localization.localization(5 if args.quick else 20)
+    if not args.skip_sweeps:
+        report["sweeps"] = sweeps_bench.run(args.quick)
 
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as fh:
@@ -145,6 +149,8 @@ def main() -> None:
     for k, v in report["estimators"].items():
         _row(k.replace("_", " "), f"{v:.3e}")
     localization.print_rows(report["localization"], _row)
+    if "sweeps" in report:
+        sweeps_bench.print_rows(report["sweeps"], _row)
     print(f"wrote {os.path.relpath(args.out, ROOT)}")
 
 

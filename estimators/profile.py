@@ -184,6 +184,21 @@ class PathProfile:
         object.__setattr__(self, "baseband_band_gains", base_band)
 
     # ------------------------------------------------------------------ derived
+    @classmethod
+    def from_traced(cls, paths, reference_frequency_hz: float, band_frequencies_hz=None) -> "PathProfile":
+        """The profile of a tracer's paths (objects with ``delay_s``, ``group_delay_s``, ``gain``
+        and ``band_gains``, as ``raytrace.Path``; no import of the tracer here): their gains
+        carry the propagation phase at ``reference_frequency_hz``, band gains are used when
+        ``band_frequencies_hz`` is given and every path has them, and group delays always."""
+        paths = list(paths)
+        band = None
+        if band_frequencies_hz is not None and paths and all(p.band_gains is not None for p in paths):
+            band = [p.band_gains for p in paths]
+        return cls([p.delay_s for p in paths], [p.gain for p in paths],
+                   band_frequencies_hz=None if band is None else band_frequencies_hz, band_gains=band,
+                   gains_include_delay_phase=True, reference_frequency_hz=float(reference_frequency_hz),
+                   group_delays_s=[p.group_delay_s for p in paths])
+
     @property
     def first_path_delay_s(self) -> float:
         """Earliest path delay (the geometric TOA target of a ranging method)."""

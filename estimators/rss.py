@@ -63,19 +63,28 @@ CM2_MODELS = {
 
 
 def estimate_rss(profile: PathProfile | None = None, *, rss_dbm: float | None = None,
-                 transmit_power_dbm: float | None = None, model: str = "cm2_deep_tissue",
+                 transmit_power_dbm: float | None = None, model: "str | PathLossModel" = "cm2_deep_tissue",
                  trials: int = 100, seed=0, true_distance_m: float | None = None,
                  shadowing: bool = True, return_estimates: bool = False) -> RSSResult:
     """Monte Carlo RSS ranging (docs/api.md POST /v1/ranging/rss).
 
     Give ``profile`` (path loss = -path gain; ``transmit_power_dbm`` is then not
     needed) or ``rss_dbm`` together with ``transmit_power_dbm``. ``model`` is
-    ``cm2_deep_tissue`` | ``cm2_near_surface``. ``shadowing=False`` gives the
+    ``cm2_deep_tissue`` | ``cm2_near_surface``, or a :class:`PathLossModel` (one fitted to a
+    phantom: ``sweeps.pathloss.fit_path_loss``). ``shadowing=False`` gives the
     deterministic inversion in every trial. trials 1..10000, seed int >= 0 or Generator.
     """
-    if model not in CM2_MODELS:
+    if isinstance(model, PathLossModel):  # e.g. one fitted to a phantom (sweeps.pathloss)
+        m = model
+        finite_float(m.path_loss_d0_db, "model.path_loss_d0_db")
+        finite_float(m.exponent, "model.exponent", positive=True)
+        finite_float(m.shadowing_db, "model.shadowing_db", nonnegative=True)
+        finite_float(m.reference_distance_m, "model.reference_distance_m", positive=True)
+        model = m.name
+    elif model not in CM2_MODELS:
         raise EstimatorInputError(f"unknown model {model!r} ({' | '.join(CM2_MODELS)})", "model")
-    m = CM2_MODELS[model]
+    else:
+        m = CM2_MODELS[model]
     if (profile is None) == (rss_dbm is None):
         raise EstimatorInputError("give exactly one of profile or rss_dbm", "profile")
     if profile is not None:

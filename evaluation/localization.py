@@ -188,11 +188,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         if not prof.paths:
             raise EstimatorInputError("no propagation path reaches this sensor (geometric-optics shadow); "
                                       "move or drop it", f"sensors[{j}]")
-        profile = PathProfile(
-            delays_s=np.array([p.delay_s for p in prof.paths]), gains=np.array([p.gain for p in prof.paths]),
-            band_frequencies_hz=None if band is None else band.frequencies_hz,
-            band_gains=None if band is None else np.array([p.band_gains for p in prof.paths]),
-            gains_include_delay_phase=True, reference_frequency_hz=float(frequency_hz))
+        profile = PathProfile.from_traced(prof.paths, frequency_hz, None if band is None else band.frequencies_hz)
         if ranging == "pdoa":
             r = estimate_pdoa(profile, band=band.to_dict(),
                               method="regression", snr_db=snr_db, trials=trials, seed=generators[j],

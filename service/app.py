@@ -18,11 +18,12 @@ from service import __version__
 from service.compute import ComputeGate
 from service.deps import AppState
 from service.errors import install_error_handlers
+from service.jobs import SweepJobs
 from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import RequestContextMiddleware
 from service.registry import Registry
-from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging
+from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging, sweeps
 from service.settings import Settings
 from service.storage import PhantomStore
 
@@ -49,6 +50,7 @@ TAGS = [
     {"name": "catalogue", "description": "Tissues and built-in scenarios."},
     {"name": "phantoms", "description": "Built-in and uploaded phantoms."},
     {"name": "plots", "description": "Figures of channels, bounds and ranging errors (PNG, SVG, PDF)."},
+    {"name": "sweeps", "description": "Sweep jobs: positions x receivers x frequencies, run in worker processes."},
     {"name": "operations", "description": "Health, readiness, metrics."},
 ]
 
@@ -59,6 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     metrics = Metrics()
     registry = Registry(store=PhantomStore(settings.data_dir))
     gate = ComputeGate(settings.max_concurrency, settings.max_queue, settings.retry_after_s, metrics)
+    sweep_jobs = SweepJobs(settings, registry)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -70,6 +73,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # move them out of the cyclic collector's sight, or each full collection walks them all
         # (~70 ms with the GIL held, about every fifth channel request; docs/tracer.md)
         gc.freeze()
+        sweep_jobs.start()
         log.info(
             "ready",
             extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios), "data_dir": str(settings.data_dir),
@@ -79,6 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             gate.cancel_all()
+            await anyio.to_thread.run_sync(sweep_jobs.stop)
 
     app = FastAPI(
         title="CapsuleRT",
@@ -90,8 +95,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         redoc_url=None,
     )
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
+    app.state.sweeps = sweep_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, bounds, plots, catalogue, phantoms, ops):
+    for module in (channel, ranging, bounds, plots, catalogue, phantoms, sweeps, ops):
         app.include_router(module.router)
     pages.install(app)
     app.add_middleware(RequestContextMiddleware, metrics=metrics)

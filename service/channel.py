@@ -81,10 +81,7 @@ def _profile_outputs(result: ChannelResult, prof, outputs: ChannelOutputs) -> di
     band = result.band_frequencies_hz
     if not prof.paths or band is None:
         return out
-    profile = PathProfile([p.delay_s for p in prof.paths], [p.gain for p in prof.paths],
-                          band_frequencies_hz=band, band_gains=[p.band_gains for p in prof.paths],
-                          gains_include_delay_phase=True, reference_frequency_hz=result.frequency_hz,
-                          group_delays_s=[p.group_delay_s for p in prof.paths])
+    profile = PathProfile.from_traced(prof.paths, result.frequency_hz, band)
     norm = outputs.normalize_delays
     centre, width = 0.5 * (band[0] + band[-1]), float(band[-1] - band[0])
     try:

@@ -5,6 +5,8 @@
     capsule-rt demo [--rays N]
     capsule-rt openapi [--output openapi.json] [--check]
     capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
+    capsule-rt sweep SPEC --out DIR [--cluster ADDRESS] [--resume]   (service.sweep_cli)
+    capsule-rt experiment NAME --out DIR                             (service.sweep_cli)
 """
 
 from __future__ import annotations
@@ -285,13 +287,16 @@ def build_parser() -> argparse.ArgumentParser:
                    "to this .npz or .csv file")
     c.set_defaults(func=_cmd_channel)
     d = sub.add_parser("demo", help="trace thesis-fig-5-6 and a default-torso case; print paths and TOA/PDOA")
-    d.add_argument("--rays", type=int, default=20_000)
+    d.add_argument("--rays", type=int, default=20_000, help="rays launched per trace (default 20000)")
     d.set_defaults(func=_cmd_demo)
     o = sub.add_parser("openapi", help="write openapi.json (stable key order)")
     o.add_argument("--output", "-o", default=str(REPO_ROOT / "openapi.json"))
     o.add_argument("--check", action="store_true", help="exit 1 if the file differs instead of writing it")
     o.set_defaults(func=_cmd_openapi)
     plots_cli.add_parser(sub)
+    from service import sweep_cli
+
+    sweep_cli.add_parsers(sub)
     return p
 
 

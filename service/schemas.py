@@ -705,6 +705,16 @@ class ManifestSite(Strict):
     position_m: Vec3 = Field(description="Position [m] (always metres, whatever `units`).")
 
 
+class ManifestCentrelinePiece(Strict):
+    organ: Name = Field(description="The organ (mesh node) this piece runs inside.")
+    points: list[Vec3] = Field(min_length=2, max_length=20_000, description="Polyline vertices in `units`.")
+
+
+class ManifestCentreline(Strict):
+    pieces: list[ManifestCentrelinePiece] = Field(
+        min_length=1, max_length=256, description="Pieces in travel order; the position jumps between pieces.")
+
+
 class Manifest(Strict):
     """The JSON part of an upload (docs/api.md "POST /v1/phantoms"); checked again, strictly, by the loader."""
 
@@ -734,6 +744,12 @@ class Manifest(Strict):
         default_factory=dict,
         max_length=1024,
         description="Site name -> [x, y, z] in `units`, or {kind, position_m} with the position in metres.",
+    )
+    centrelines: dict[Name, ManifestCentreline] = Field(
+        default_factory=dict,
+        max_length=16,
+        description="Named paths through the organs (the GI tract: `gi_tract`); a capsule position may be given by "
+        "arc length along one (sweeps). Every point must lie inside its piece's organ.",
     )
 
 

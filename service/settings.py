@@ -83,6 +83,18 @@ class Settings(BaseSettings):
         True, description="Build the built-in phantoms (default torso, scenarios) at start."
     )
 
+    # Sweeps (docs/sweeps.md).
+    sweep_workers: int | None = Field(
+        None, ge=1, le=256, description="Worker processes of a sweep job (default: the CPUs of the machine)."
+    )
+    sweep_cluster: str | None = Field(
+        None, description="Address of an existing Dask scheduler (tcp://host:8786) that runs the sweep jobs instead."
+    )
+    sweep_max_queue: int = Field(4, ge=1, le=1024, description="Sweep jobs queued or running at once; beyond: 503.")
+    sweep_max_traces: int = Field(
+        20_000, ge=1, le=100_000, description="Max traces (capsule positions x frequencies) of one sweep."
+    )
+
     @model_validator(mode="after")
     def _resolve(self) -> "Settings":
         self.data_dir = Path(self.data_dir).expanduser()

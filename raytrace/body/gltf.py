@@ -9,14 +9,19 @@ mesh nodes are named after organs, and a manifest::
      "organs": {"<node name>": {"tissue": "muscle"}
                             | {"relative_permittivity": 50.0, "conductivity_s_per_m": 0.0}},
      "sites": {"<name>": [x, y, z]                                   # in `units`
-               | {"kind": "capsule" | "sensor", "position_m": [x, y, z]}}}   # metres
+               | {"kind": "capsule" | "sensor", "position_m": [x, y, z]}},  # metres
+     "centrelines": {"gi_tract": {"pieces": [{"organ": "<node name>",      # optional
+                                              "points": [[x, y, z], ...]}, ...]}}}   # in `units`
 
 Site kinds: the bare-list form has no kind; it is inferred from where the
 point lies: in air -> ``sensor`` (a skin-worn receiver), inside any organ ->
 ``capsule``. The object form states it (``kind`` optional there too, same
 inference) and, as its field name says, is always in metres. Names of
 organs and sites match ``^[A-Za-z0-9_.-]{1,64}$``; unknown keys anywhere in
-the manifest are rejected.
+the manifest are rejected. Centrelines (``raytrace.body.centreline``; the GI
+tract is named ``gi_tract``) are chains of polyline pieces, each inside the
+organ it names: every point, sampled every millimetre, must lie in that
+organ's medium, or the upload is refused naming the piece.
 
 Loading is all-or-nothing: any defect raises
 :class:`~raytrace.errors.PhantomValidationError` (or
@@ -55,8 +60,9 @@ from typing import Any, Mapping
 import numpy as np
 import trimesh
 
+from raytrace.body.centreline import Centreline
 from raytrace.body.phantom import AIR_INDEX, Material, Organ, Phantom, Site
-from raytrace.errors import InvalidGeometryError, PhantomValidationError, UnknownTissueError
+from raytrace.errors import InputError, InvalidGeometryError, PhantomValidationError, UnknownTissueError
 
 __all__ = [
     "DEFAULT_MAX_BYTES",
@@ -74,6 +80,7 @@ DEFAULT_MAX_BYTES = 64 * 2**20
 DEFAULT_MAX_TRIANGLES = 2_000_000
 MAX_ORGANS = 256
 MAX_SITES = 1024
+MAX_CENTRELINES = 16
 MAX_PERMITTIVITY = 1000.0
 MAX_CONDUCTIVITY_S_PER_M = 1000.0
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -101,7 +108,7 @@ def validate_manifest(manifest: Any) -> dict:
     """
     if not isinstance(manifest, Mapping):
         raise _fail("the manifest must be a JSON object", "manifest")
-    allowed = {"name", "description", "units", "organs", "sites"}
+    allowed = {"name", "description", "units", "organs", "sites", "centrelines"}
     unknown = sorted(set(manifest) - allowed)
     if unknown:
         raise _fail(f"unknown key {unknown[0]!r}; allowed: {', '.join(sorted(allowed))}",
@@ -150,7 +157,24 @@ def validate_manifest(manifest: Any) -> dict:
             sites[site_name] = (kind, None, _vec3(spec["position_m"], f"{where}.position_m"))
         else:
             sites[site_name] = (None, _vec3(spec, where), None)
-    return {"name": name, "description": description, "units": units, "organs": organs, "sites": sites}
+    return {"name": name, "description": description, "units": units, "organs": organs, "sites": sites,
+            "centrelines": _centrelines(manifest.get("centrelines", {}), _UNITS[units])}
+
+
+def _centrelines(spec: Any, scale: float) -> dict[str, Centreline]:
+    if not isinstance(spec, Mapping):
+        raise _fail("must be an object mapping centreline names to {pieces}", "manifest.centrelines")
+    if len(spec) > MAX_CENTRELINES:
+        raise _fail(f"{len(spec)} centrelines exceed the cap of {MAX_CENTRELINES}", "manifest.centrelines")
+    out = {}
+    for name, line in spec.items():
+        where = f"manifest.centrelines.{name}"
+        _check_name(name, where)
+        try:
+            out[name] = Centreline.from_dict(line, field=where, scale=scale, points_key="points")
+        except InputError as exc:
+            raise _fail(exc.reason, exc.field) from None
+    return out
 
 
 def _check_name(name: Any, where: str) -> None:
@@ -502,6 +526,9 @@ def load_phantom(
     if check_crossings:
         _check_no_crossings(phantom)
     _add_sites(phantom, spec["sites"], scale)
+    for name, line in spec["centrelines"].items():
+        line.check_inside(phantom, field=f"manifest.centrelines.{name}")
+        phantom.centrelines[name] = line
     phantom.metadata.update({"source": "upload", "units": spec["units"]})
     return phantom
 
@@ -578,6 +605,10 @@ def export_manifest(phantom: Phantom) -> dict:
             for name, site in phantom.sites.items()
         },
     }
+    if phantom.centrelines:
+        manifest["centrelines"] = {
+            name: {"pieces": [{"organ": p.organ, "points": p.points_m.tolist()} for p in line.pieces]}
+            for name, line in phantom.centrelines.items()}
     if phantom.description:
         manifest["description"] = phantom.description[:2000]
     return manifest

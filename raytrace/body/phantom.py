@@ -88,6 +88,8 @@ class Phantom:
     vertex_normals: np.ndarray  # (V, 3) smooth normals, per organ (never blended across organs)
     description: str = ""
     metadata: dict = field(default_factory=dict)
+    #: Named paths through the organs (``raytrace.body.centreline``), e.g. the GI tract.
+    centrelines: dict = field(default_factory=dict)
 
     # ------------------------------------------------------------------ build
     @classmethod

@@ -101,6 +101,21 @@ a direct path from all six capsule sites at resolutions 48, 64 and 96 and
 at 5e4 and 1e5 rays, so each is inside a reachable patch, not on its
 edge. Other contact positions: :func:`contact_point`.
 
+GI tract centreline
+-------------------
+``phantom.centrelines["gi_tract"]`` (:func:`gi_tract`, a
+:class:`~raytrace.body.centreline.Centreline`): the capsule's way through the
+stomach (fundus -> body -> antrum), the small intestine (a loop from the
+subject's left upper to right lower quadrant, through both small-intestine
+sites), then the ascending colon (caecum upwards), the transverse colon
+(right to left) and the descending colon (downwards). Each piece is a smooth
+curve (centripetal Catmull-Rom through the control points of
+``_GI_CONTROL_MIRD``) that stays at least 3 mm inside its organ at every
+resolution (tests/raytrace/test_centreline.py), and every capsule site lies
+on it. The organs are separate closed surfaces (no duodenum, no colic
+flexures), so the position jumps at the four junctions while the arc length
+``s_m``, counted inside the lumens only, runs on (total 0.688 m).
+
 Resolution
 ----------
 ``build_torso(resolution)``: ``resolution`` points around every ring and
@@ -119,6 +134,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from raytrace.body.centreline import GI_TRACT, Centreline, smooth_polyline
 from raytrace.body.phantom import Material, Organ, Phantom
 from raytrace.body.shapes import rounded_cylinder, superquadric
 from raytrace.physics.tissues import DEFAULT_FAT
@@ -133,6 +149,7 @@ __all__ = [
     "TORSO_NAME",
     "build_torso",
     "contact_point",
+    "gi_tract",
     "default_torso",
     "expected_site_media",
 ]
@@ -238,6 +255,28 @@ _CAPSULE_SITES_MIRD: dict[str, tuple[str, tuple[float, float, float]]] = {
     "transverse_colon": ("transverse_colon", (0.0, -23.1, -75.0)),
     "descending_colon": ("descending_colon", (78.6, -23.1, -167.9)),
 }
+
+# GI tract centreline: control points per organ in MIRD coordinates [mm], in the order a
+# capsule passes them; each list runs through that organ's capsule site(s) (module doc).
+_GI_CONTROL_MIRD: tuple[tuple[str, tuple[tuple[float, float, float], ...]], ...] = (
+    ("stomach", ((64.0, -34.0, 75.0), (64.0, -34.0, 15.0), (56.0, -36.0, -30.0), (50.0, -38.0, -40.0))),
+    ("small_intestine", ((30.0, -20.0, -112.0), (5.0, -32.0, -115.0), (-20.0, -25.0, -125.0),
+                         (-30.0, -10.0, -138.0), (0.0, -4.0, -145.0), (20.0, -5.0, -155.0),
+                         (26.0, -20.0, -165.0), (0.0, -30.0, -169.0), (-30.0, -18.0, -165.0))),
+    ("ascending_colon", ((-73.3, -23.1, -178.0), (-73.3, -23.1, -142.2), (-73.3, -23.1, -104.0))),
+    ("transverse_colon", ((-80.0, -23.1, -75.0), (0.0, -23.1, -75.0), (80.0, -23.1, -75.0))),
+    ("descending_colon", ((78.6, -23.1, -106.0), (78.6, -23.1, -167.9), (78.6, -23.1, -226.0))),
+)
+#: Spacing of the smoothed centreline's vertices [m].
+_GI_STEP_M = 2e-3
+
+
+def gi_tract() -> Centreline:
+    """The torso's GI tract centreline (module doc, "GI tract centreline"); independent of the
+    mesh resolution."""
+    return Centreline([(organ, smooth_polyline(_to_model_m(np.array(points)), _GI_STEP_M))
+                       for organ, points in _GI_CONTROL_MIRD])
+
 
 #: Depth of the (contact) sensor sites below the faceted outer skin surface [m]
 #: (the skin is 2 mm thick, so the sites sit mid-skin).
@@ -369,6 +408,7 @@ def build_torso(resolution: int = DEFAULT_RESOLUTION) -> Phantom:
         ),
     )
     phantom.metadata.update({"resolution": int(resolution), "frame": "x left, y posterior, z up, m"})
+    phantom.centrelines[GI_TRACT] = gi_tract()
     return phantom
 
 
