@@ -7,37 +7,21 @@ machine); here one compiled loop per pixel computes the Eq 3.5-3.9 interpolation
 weights as :func:`vision.interpolation.cubic_weights`; checked against it in
 tests/vision/test_vision_motion.py), quantises and counts. Several probes (a grid) go in one call.
 
-Threads: the kernel releases the GIL; a large call is cut into :data:`THREADS` parts (probes,
-or pixels of one probe), each counted into its own histogram by a worker of a small persistent
-pool, as the tracer does (no numba ``prange``: its OpenMP workers spin while they wait, which on
-a shared 2-core machine costs more than it gains).
+Threads: the kernel releases the GIL; a large call is cut into :data:`~vision.pool.THREADS`
+parts (probes, or pixels of one probe), each counted into its own histogram by a worker of
+:func:`vision.pool.pool`.
 """
 
 from __future__ import annotations
-
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
 
 from .interpolation import EDGE_SLACK_PX
+from .pool import THREADS, pool
 
-#: Worker threads for large calls (the machine's cores, at most 2, as the tracer).
-THREADS = min(2, os.cpu_count() or 1)
 #: Pixel samples per call below which one thread does it all (a thread hand-off costs ~50 us).
 PARALLEL_MIN_SAMPLES = 60_000
-_POOL: ThreadPoolExecutor | None = None
-_POOL_LOCK = threading.Lock()
-
-
-def _pool() -> ThreadPoolExecutor:
-    global _POOL
-    with _POOL_LOCK:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(max_workers=THREADS, thread_name_prefix="vision-mi")
-        return _POOL
 
 
 @njit(cache=True, inline="always", fastmath=True)
@@ -121,9 +105,9 @@ def warped_joint_histograms(rows: np.ndarray, cols: np.ndarray, ref_bins: np.nda
         return _histograms(rows, cols, ref_bins, padded, params, *args)
     if k >= THREADS:  # share the probes
         parts = np.array_split(np.arange(k), THREADS)
-        futures = [_pool().submit(_histograms, rows, cols, ref_bins, padded, params[p], *args) for p in parts]
+        futures = [pool().submit(_histograms, rows, cols, ref_bins, padded, params[p], *args) for p in parts]
         return np.concatenate([f.result() for f in futures])
     parts = np.array_split(np.arange(n), THREADS)  # one probe: share its pixels
-    futures = [_pool().submit(_histograms, rows[p[0]:p[-1] + 1], cols[p[0]:p[-1] + 1], ref_bins[p[0]:p[-1] + 1],
+    futures = [pool().submit(_histograms, rows[p[0]:p[-1] + 1], cols[p[0]:p[-1] + 1], ref_bins[p[0]:p[-1] + 1],
                               padded, params, *args) for p in parts]
     return sum(f.result() for f in futures)

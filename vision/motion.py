@@ -62,7 +62,7 @@ MIN_RADIUS_PX, CONTENT_RADIUS_PX = 7.0, 3.5
 #: thesis' synthetic scalings 0.2 to 3.0).
 SCALE_RANGE_BOTH, SCALE_RANGE_ALONE = (0.5, 2.0), (0.15, 5.0)
 #: Refinement bracket: +- this many grid steps of the next coarser level.
-BRACKET_STEPS = 1.0
+BRACKET_STEPS = 2.0
 #: At full resolution, rotation and scale searches alternate at most this many times.
 FINAL_CYCLES = 3
 
