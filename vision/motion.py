@@ -16,10 +16,11 @@ What the thesis leaves open, decided here (docs/vision.md, "The estimator"):
 * Bracketing. The MI is unimodal only near its peak; over the thesis' ranges (rotations to
   45 deg, scales 0.2 to 3.0) a bracketing search started on the whole range can converge to a
   side lobe. The search therefore runs coarse to fine on an image pyramid (2 x 2 block means,
-  down to ``coarse_size_px``): at the coarsest level a grid with a step of one pixel of arc at
-  the field-of-view edge finds the bracket; at every level the Fibonacci search shrinks a
-  bracket of +-2 steps of the coarser level, to a quarter of a step, and at full resolution to
-  the requested tolerances.
+  down to ``coarse_size_px``, or to the disc radius that still shows the zoomed-out frame's
+  content over 3.5 pixels at the extreme scales of the range): at the coarsest level a grid
+  with a step of one pixel of arc at the disc's edge finds the bracket; at every level the
+  search shrinks a bracket of +-2 grid steps of the coarser level (+-1 at full resolution) to
+  a quarter of this level's step, and at full resolution to the requested tolerances.
 * Field of view. Pixels are compared inside a disc (``radius_px``, default the inscribed disc
   less 2 pixels): rotations about the centre never move pixels in or out of it.
 * Overlap. The comparison runs over the frame that is zoomed IN (the reference disc for
@@ -28,13 +29,19 @@ What the thesis leaves open, decided here (docs/vision.md, "The estimator"):
   the same histogram bias. One search uses one side (the side of its bracket's middle).
 * Bins per level: ``min(bins, sqrt(N) / 2)`` (at least 8) for N disc pixels, so coarse levels
   are not dominated by the (B - 1)^2 / (2 N) bias; full resolution uses ``bins``.
+* Pixels per level: at most ``max_pixels`` (default 2^17) are compared, a regular diagonal
+  lattice of the disc beyond (a checkerboard for 512 px frames), as registration libraries
+  sample their metric: it halves the cost of the finest level of a 512 px pair; the bins and
+  grey ranges still come from every pixel of the disc.
 * Parameters: the rotation in degrees, the scale through its logarithm (a step in log scale is
   the same image displacement at every scale).
 
-Strategies: ``in_turn`` (the thesis' way: a rotation search, then a scale search, one pass per
-level; at the coarsest level rotation, scale and rotation again) or ``joint`` (a 2-D grid at
-the coarsest level, then at every level alternating searches until neither parameter moves by
-more than its tolerance: a cyclic coordinate ascent to the joint maximum).
+Strategies: ``in_turn`` (the thesis' way: a rotation search, then a scale search; on the
+coarsest grid rotation, scale and rotation again) or ``joint`` (default: a 2-D grid of rotation
+and scale at the coarsest level). Both then refine one rotation and one scale search per level;
+at full resolution the pair repeats in narrow brackets until neither moves (a cyclic coordinate
+ascent to the joint maximum). ``in_turn`` fails when both parameters are far from identity at
+once (a rotation grid at scale 1 sees nothing of a frame zoomed by 1.5); ``joint`` does not.
 """
 
 from __future__ import annotations
@@ -61,10 +68,13 @@ MIN_RADIUS_PX, CONTENT_RADIUS_PX = 7.0, 3.5
 #: Default scale ranges: estimating both (consecutive frames), estimating scale alone (the
 #: thesis' synthetic scalings 0.2 to 3.0).
 SCALE_RANGE_BOTH, SCALE_RANGE_ALONE = (0.5, 2.0), (0.15, 5.0)
-#: Refinement bracket: +- this many grid steps of the next coarser level.
-BRACKET_STEPS = 2.0
+#: Refinement bracket: +- this many grid steps of the next coarser level (+- FINE_BRACKET_STEPS
+#: at full resolution, where the coarser level has seen the frame's content).
+BRACKET_STEPS, FINE_BRACKET_STEPS = 2.0, 1.0
+#: Compared pixels per level at most (default of ``max_pixels``; a regular lattice beyond).
+MAX_PIXELS = 2**17
 #: At full resolution, rotation and scale searches alternate at most this many times.
-FINAL_CYCLES = 3
+FINAL_CYCLES = 2
 
 
 @dataclass(frozen=True)
@@ -95,13 +105,18 @@ class _Level:
     ranges: tuple[tuple[float, float], tuple[float, float]]
 
     @classmethod
-    def build(cls, ref: np.ndarray, mov: np.ndarray, center, radius_px: float, bins: int) -> "_Level":
-        rr, cc = np.indices(ref.shape, dtype=float)
-        disc = (rr - center[0]) ** 2 + (cc - center[1]) ** 2 <= radius_px**2
-        rows, cols = rr[disc], cc[disc]
-        bins = int(min(bins, max(8, math.isqrt(int(disc.sum())) // 2)))
+    def build(cls, ref: np.ndarray, mov: np.ndarray, center, radius_px: float, bins: int,
+              max_pixels: float = math.inf) -> "_Level":
+        r = np.arange(ref.shape[0])[:, None]
+        c = np.arange(ref.shape[1])[None, :]
+        disc = (r - center[0]) ** 2 + (c - center[1]) ** 2 <= radius_px**2
+        n = int(disc.sum())
+        bins = int(min(bins, max(8, math.isqrt(n) // 2)))
         ranges = (grey_range(ref[disc]), grey_range(mov[disc]))
-        pixels = tuple((rows, cols, quantize(img[disc], bins, *rng)) for img, rng in zip((ref, mov), ranges))
+        stride = max(1, math.ceil(n / max_pixels))
+        compared = disc & ((r + c) % stride == 0) if stride > 1 else disc  # a diagonal lattice (2: checkerboard)
+        rows, cols = (x.astype(float) for x in np.nonzero(compared))
+        pixels = tuple((rows, cols, quantize(img[compared], bins, *rng)) for img, rng in zip((ref, mov), ranges))
         return cls((pad_frame(ref), pad_frame(mov)), center, radius_px, bins, pixels, ranges)
 
     def mutual_information(self, rotation_deg: np.ndarray, log_scale: np.ndarray, side: int | None = None,
@@ -134,13 +149,14 @@ def _downsample(img: np.ndarray) -> np.ndarray:
     return 0.25 * (img[0:h:2, 0:w:2] + img[1:h:2, 0:w:2] + img[0:h:2, 1:w:2] + img[1:h:2, 1:w:2])
 
 
-def _pyramid(ref, mov, radius_px: float, bins: int, coarse_size_px: int, min_radius_px: float) -> list[_Level]:
+def _pyramid(ref, mov, radius_px: float, bins: int, coarse_size_px: int, min_radius_px: float,
+             max_pixels: float = math.inf) -> list[_Level]:
     """Levels finest first, down to frames of ``coarse_size_px`` pixels a side or a disc radius
     of ``min_radius_px``, whichever comes first; a coarse pixel k covers fine pixels 2k, 2k + 1,
     so the centre maps as c_coarse = (c_fine - 1/2) / 2 and the same rotation and scale hold at
     every level."""
     center = frame_center(ref.shape)
-    levels = [_Level.build(ref, mov, center, radius_px, bins)]
+    levels = [_Level.build(ref, mov, center, radius_px, bins, max_pixels)]
     while min(ref.shape) // 2 >= coarse_size_px and radius_px / 2.0 >= min_radius_px:
         ref, mov = _downsample(ref), _downsample(mov)
         center = ((center[0] - 0.5) / 2.0, (center[1] - 0.5) / 2.0)
@@ -242,7 +258,7 @@ class _Search:
         radii)."""
         level = self.levels[index]
         coarser = self.levels[min(index + 1, len(self.levels) - 1)]
-        span_ls = BRACKET_STEPS * self.step(coarser)
+        span_ls = (FINE_BRACKET_STEPS if index == 0 else BRACKET_STEPS) * self.step(coarser)
         span_rot = math.degrees(span_ls)
         finest = index == 0
         t_ls = tol_ls if finest else 0.25 * self.step(level)
@@ -267,7 +283,7 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
                     initial_rotation_deg: float = 0.0, initial_scale: float = 1.0,
                     bins: int = DEFAULT_BINS, cutoff: float | None = DEFAULT_CUTOFF, order: int = DEFAULT_ORDER,
                     kernel_a: float = THESIS_A, radius_px: float | None = None,
-                    coarse_size_px: int = 16) -> MotionEstimate:
+                    coarse_size_px: int = 16, max_pixels: int = MAX_PIXELS) -> MotionEstimate:
     """Rotation about the optical axis and scale of ``moving`` relative to ``reference`` (module
     doc: model, sign conventions, strategy), by maximum mutual information.
 
@@ -277,7 +293,9 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     bracket widths (rotation in degrees; scale relative, as a width in log scale). ``bins``:
     grey-level bins per frame at full resolution. ``cutoff`` / ``order``: the Butterworth
     pre-filter (``cutoff=None``: none). ``kernel_a``: -1 the thesis' Eq 3.9, -0.5 Keys'.
-    ``radius_px``: radius of the compared disc (default min(H, W) / 2 - 2).
+    ``radius_px``: radius of the compared disc (default min(H, W) / 2 - 2). ``coarse_size_px``:
+    the smallest pyramid level's side. ``max_pixels``: pixels compared per level at most (a
+    regular lattice of the disc beyond; default 2^17, a 408 px disc; module doc).
     """
     if estimate not in ESTIMATES:
         raise VisionInputError(f"must be one of {', '.join(ESTIMATES)}, got {estimate!r}", "estimate")
@@ -317,7 +335,9 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     # the bracketing level must show the zoomed-OUT frame's content over >= CONTENT_RADIUS_PX
     # pixels at the extreme scales of the range (a scale 0.2 squeezes a 16 px frame into 3 px)
     min_radius = max(MIN_RADIUS_PX, CONTENT_RADIUS_PX / min(s_lo, 1.0 / s_hi))
-    levels = _pyramid(ref, mov, radius, bins, coarse, min_radius)
+    if isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer)) or max_pixels < 1024:
+        raise VisionInputError(f"must be an integer >= 1024, got {max_pixels!r}", "max_pixels")
+    levels = _pyramid(ref, mov, radius, bins, coarse, min_radius, int(max_pixels))
     search_ = _Search(levels, a, search, estimate, (rot_lo, rot_hi), (math.log(s_lo), math.log(s_hi)))
     rot = min(max(rot0, rot_lo), rot_hi) if search_.do_rot else rot0
     ls = min(max(ls0, search_.ls_range[0]), search_.ls_range[1]) if search_.do_scale else ls0
@@ -329,7 +349,7 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     mi = float(finest.mutual_information(rot, ls, int(ls > 0.0), a)[0])
     search_.evaluations += 1
     settings = {"estimate": estimate, "strategy": strategy, "search": search, "bins": bins, "cutoff": cutoff,
-                "order": order, "kernel_a": a, "radius_px": radius}
+                "order": order, "kernel_a": a, "radius_px": radius, "max_pixels": int(max_pixels)}
     return MotionEstimate(rotation_deg=float(rot), scale=float(math.exp(ls)), mutual_information=mi,
                           iterations=search_.iterations, evaluations=search_.evaluations, levels=len(levels),
                           settings=settings)
