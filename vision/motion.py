@@ -65,12 +65,17 @@ MIN_SIZE_PX, MAX_SIZE_PX = 16, 2048
 #: The bracketing (coarsest) level keeps a disc radius of at least MIN_RADIUS_PX pixels, and
 #: of CONTENT_RADIUS_PX pixels for the content of the zoomed-out frame at the extreme scales.
 MIN_RADIUS_PX, CONTENT_RADIUS_PX = 7.0, 3.5
+#: ... but never finer than a 64 px level (a grid of 1 px steps on a finer one costs too much).
+MAX_BRACKET_RADIUS_PX = 31.0
 #: Default scale ranges: estimating both (consecutive frames), estimating scale alone (the
 #: thesis' synthetic scalings 0.2 to 3.0).
 SCALE_RANGE_BOTH, SCALE_RANGE_ALONE = (0.5, 2.0), (0.15, 5.0)
 #: Refinement bracket: +- this many grid steps of the next coarser level (+- FINE_BRACKET_STEPS
 #: at full resolution, where the coarser level has seen the frame's content).
 BRACKET_STEPS, FINE_BRACKET_STEPS = 2.0, 1.0
+#: Work bound of the bracketing grid: probes x compared pixels (~0.5 s); beyond, the grid
+#: step grows (and the first refinement bracket with it).
+MAX_GRID_SAMPLES = 2e7
 #: Compared pixels per level at most (default of ``max_pixels``; a regular lattice beyond).
 MAX_PIXELS = 2**17
 #: At full resolution, rotation and scale searches alternate at most this many times.
@@ -197,6 +202,7 @@ class _Search:
         self.rot_range, self.ls_range = rot_range, ls_range
         self.iterations = 0
         self.evaluations = 0
+        self.grid_factor = 1.0  # > 1 when the coarsest grid was coarsened (work bound)
 
     @staticmethod
     def step(level: _Level) -> float:
@@ -217,9 +223,17 @@ class _Search:
         rotation, scale and rotation again in turn."""
         level = self.levels[-1]
         step = self.step(level)
+        two_d = joint and self.do_rot and self.do_scale
+        spans = ((self.rot_range[1] - self.rot_range[0]) / math.degrees(step) if self.do_rot else 1.0) * (
+            (self.ls_range[1] - self.ls_range[0]) / step if self.do_scale else 1.0)
+        samples = (spans if two_d else 3.0 * spans ** (1.0 if not (self.do_rot and self.do_scale) else 0.5)) \
+            * len(level.pixels[0][0])
+        if samples > MAX_GRID_SAMPLES:  # work bound: a coarser grid, and wider refinement brackets
+            self.grid_factor = (samples / MAX_GRID_SAMPLES) ** (0.5 if two_d else 1.0)
+            step *= self.grid_factor
         g_rot = self._grid(*self.rot_range, math.degrees(step))
         g_ls = self._grid(*self.ls_range, step)
-        if joint and self.do_rot and self.do_scale:
+        if two_d:
             tt, gg = (x.ravel() for x in np.meshgrid(g_rot, g_ls, indexing="ij"))
             best = int(np.argmax(self._mi(level, tt, gg, None)))
             return float(tt[best]), float(gg[best])
@@ -259,6 +273,8 @@ class _Search:
         level = self.levels[index]
         coarser = self.levels[min(index + 1, len(self.levels) - 1)]
         span_ls = (FINE_BRACKET_STEPS if index == 0 else BRACKET_STEPS) * self.step(coarser)
+        if index == len(self.levels) - 1:
+            span_ls *= self.grid_factor
         span_rot = math.degrees(span_ls)
         finest = index == 0
         t_ls = tol_ls if finest else 0.25 * self.step(level)
@@ -309,6 +325,9 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     s_lo, s_hi = _range(scale_range, "scale_range", 0.05, 20.0)
     tol_rot = _positive(rotation_tolerance_deg, "rotation_tolerance_deg")
     tol_ls = _positive(scale_tolerance, "scale_tolerance")
+    for value, name in ((tol_rot, "rotation_tolerance_deg"), (tol_ls, "scale_tolerance")):
+        if not 1e-7 <= value <= 1.0:
+            raise VisionInputError(f"must be in [1e-7, 1], got {value!r}", name)
     rot0 = float(initial_rotation_deg)
     ls0 = math.log(_positive(initial_scale, "initial_scale"))
     if not math.isfinite(rot0):
@@ -334,7 +353,7 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
 
     # the bracketing level must show the zoomed-OUT frame's content over >= CONTENT_RADIUS_PX
     # pixels at the extreme scales of the range (a scale 0.2 squeezes a 16 px frame into 3 px)
-    min_radius = max(MIN_RADIUS_PX, CONTENT_RADIUS_PX / min(s_lo, 1.0 / s_hi))
+    min_radius = min(MAX_BRACKET_RADIUS_PX, max(MIN_RADIUS_PX, CONTENT_RADIUS_PX / min(s_lo, 1.0 / s_hi)))
     if isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer)) or max_pixels < 1024:
         raise VisionInputError(f"must be an integer >= 1024, got {max_pixels!r}", "max_pixels")
     levels = _pyramid(ref, mov, radius, bins, coarse, min_radius, int(max_pixels))
