@@ -101,6 +101,16 @@ def test_in_turn_when_the_scale_is_near_one() -> None:
     assert abs(est.rotation_deg - 12.0) <= ROTATION_TOL_DEG and abs(est.scale - 1.08) <= SCALE_TOL
 
 
+def test_a_very_wide_scale_range_stays_bounded_and_right() -> None:
+    """Scales 0.05 to 20 with rotations +-180 deg: the bracketing grid is capped (a 64 px level,
+    at most 2e7 samples) and still finds the motion."""
+    img = texture(160, 41)
+    est = estimate_motion(img, warp_similarity(img, -70.0, 1.4), scale_range=(0.05, 20.0),
+                          rotation_range_deg=(-180.0, 180.0))
+    assert abs(est.rotation_deg + 70.0) <= ROTATION_TOL_DEG and abs(est.scale - 1.4) <= SCALE_TOL
+    assert est.evaluations < 20_000
+
+
 def test_identity_is_found_and_its_mi_is_at_most_the_entropy(frame) -> None:
     """A frame against itself: rotation 0 and scale 1 (to the search tolerances), and an MI
     between 0.9 H and H, H the entropy of the filtered frame's grey levels over the disc (numpy's
@@ -166,6 +176,8 @@ def test_bad_inputs_name_their_field() -> None:
         (dict(reference=img, moving=img, rotation_range_deg=(10, -10)), "rotation_range_deg"),
         (dict(reference=img, moving=img, scale_range=(0.0, 2.0)), "scale_range"),
         (dict(reference=img, moving=img, rotation_tolerance_deg=0.0), "rotation_tolerance_deg"),
+        (dict(reference=img, moving=img, scale_tolerance=1e-9), "scale_tolerance"),
+        (dict(reference=img, moving=img, max_pixels=10), "max_pixels"),
         (dict(reference=img, moving=img, bins=1), "bins"),
         (dict(reference=img, moving=img, kernel_a=0.5), "kernel_a"),
         (dict(reference=img, moving=img, radius_px=40.0), "radius_px"),
