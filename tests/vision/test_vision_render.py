@@ -227,3 +227,19 @@ def test_the_sensor_vignetting_noise_and_salt_and_pepper() -> None:
     hit = img[..., 0] != 0.5
     assert set(np.unique(img[hit])) <= {0.0, 1.0}
     assert abs(hit.mean() - 0.05) < 5 * math.sqrt(0.05 * 0.95 / hit.size)
+
+
+def test_png_frames_read_back_with_an_independent_decoder(tmp_path) -> None:
+    """vision.png writes what ITK's PNG reader (libpng, through SimpleITK) reads back exactly,
+    RGB and grey."""
+    import SimpleITK as sitk
+
+    from vision.png import encode_png
+
+    rng = np.random.default_rng(5)
+    for image in (rng.integers(0, 256, (17, 23, 3), dtype=np.uint8), rng.integers(0, 256, (9, 31), dtype=np.uint8)):
+        path = tmp_path / "frame.png"
+        path.write_bytes(encode_png(image))
+        np.testing.assert_array_equal(sitk.GetArrayFromImage(sitk.ReadImage(str(path))), image)
+    with pytest.raises(VisionInputError):
+        encode_png(np.zeros((4, 4), np.float32))
