@@ -17,7 +17,10 @@ with one grid over 0.15-5 landed at the top of the range for true scales 0.6-1.4
 estimator does (vision.motion, "Overlap"), a scale range straddling 1 is therefore registered
 twice, each time with the zoomed-in frame as the fixed one and scales <= 1 -- the reference
 onto the moving frame for [low, 1], the moving onto the reference for [1 / high, 1] (then
-inverted: rotation -phi, scale 1 / s) -- and the run with the better metric value is kept.
+inverted: rotation -phi, scale 1 / s). The two runs' final metric values are not comparable
+(different fixed frames), so the candidate kept is the one with the better SYMMETRIC Mattes
+metric, ITK's metric of the reference onto the moving frame plus that of the moving frame onto
+the reference under the inverse transform, both at full resolution over the disc.
 """
 
 from __future__ import annotations
@@ -30,9 +33,7 @@ import SimpleITK as sitk
 GRID_ANGLES, GRID_SCALES = 45, 20
 
 
-def _register(fixed_a: np.ndarray, moving_a: np.ndarray, estimate: str, rotation_range_deg, scale_range,
-              bins: int) -> tuple[float, float, float]:
-    """One ITK registration: (ITK angle [rad], scale, final metric value)."""
+def _images(fixed_a: np.ndarray, moving_a: np.ndarray):
     fixed = sitk.GetImageFromArray(np.asarray(fixed_a, np.float32))
     mov = sitk.GetImageFromArray(np.asarray(moving_a, np.float32))
     h, w = fixed_a.shape
@@ -40,8 +41,31 @@ def _register(fixed_a: np.ndarray, moving_a: np.ndarray, estimate: str, rotation
     radius = min(h, w) / 2.0 - 2.0
     yy, xx = np.mgrid[0:h, 0:w]
     mask = sitk.GetImageFromArray((((xx - cx) ** 2 + (yy - cy) ** 2) <= radius**2).astype(np.uint8))
+    return fixed, mov, mask, (cx, cy)
+
+
+def _metric(fixed_a: np.ndarray, moving_a: np.ndarray, angle: float, scale: float, bins: int) -> float:
+    """ITK's Mattes metric (-MI) of ``moving_a`` under the similarity (angle [rad], scale) about
+    the centre, over the disc of ``fixed_a``, full resolution."""
+    fixed, mov, mask, center = _images(fixed_a, moving_a)
     transform = sitk.Similarity2DTransform()
-    transform.SetCenter((cx, cy))
+    transform.SetCenter(center)
+    transform.SetAngle(angle)
+    transform.SetScale(scale)
+    reg = sitk.ImageRegistrationMethod()
+    reg.SetMetricAsMattesMutualInformation(bins)
+    reg.SetMetricFixedMask(mask)
+    reg.SetInterpolator(sitk.sitkLinear)
+    reg.SetInitialTransform(transform)
+    return float(reg.MetricEvaluate(fixed, mov))
+
+
+def _register(fixed_a: np.ndarray, moving_a: np.ndarray, estimate: str, rotation_range_deg, scale_range,
+              bins: int) -> tuple[float, float]:
+    """One ITK registration: (ITK angle [rad], scale)."""
+    fixed, mov, mask, center = _images(fixed_a, moving_a)
+    transform = sitk.Similarity2DTransform()
+    transform.SetCenter(center)
     a_lo, a_hi = (math.radians(v) for v in rotation_range_deg)
     s_lo, s_hi = scale_range
     do_scale, do_angle = estimate != "rotation", estimate != "scale"
@@ -69,7 +93,7 @@ def _register(fixed_a: np.ndarray, moving_a: np.ndarray, estimate: str, rotation
     descent.SetOptimizerScalesFromPhysicalShift()
     descent.SetOptimizerWeights([float(do_scale), float(do_angle), 0.0, 0.0])
     descent.Execute(fixed, mov)
-    return transform.GetAngle(), float(transform.GetScale()), float(descent.GetMetricValue())
+    return transform.GetAngle(), float(transform.GetScale())
 
 
 def sitk_register(reference: np.ndarray, moving: np.ndarray, *, estimate: str = "both",
@@ -80,11 +104,18 @@ def sitk_register(reference: np.ndarray, moving: np.ndarray, *, estimate: str = 
     (scale frozen at 1) or "scale" (rotation frozen at 0)."""
     s_lo, s_hi = scale_range
     if estimate == "rotation" or s_hi <= 1.0:
-        angle, scale, _ = _register(reference, moving, estimate, rotation_range_deg, scale_range, bins)
+        angle, scale = _register(reference, moving, estimate, rotation_range_deg, scale_range, bins)
         return -math.degrees(angle), scale
-    runs = [(-1.0, *_register(moving, reference, estimate, (-rotation_range_deg[1], -rotation_range_deg[0]),
-                              (1.0 / s_hi, 1.0), bins))]
+    # ITK angle and scale of moving relative to reference, from each side
+    b_angle, b_scale = _register(moving, reference, estimate, (-rotation_range_deg[1], -rotation_range_deg[0]),
+                                 (1.0 / s_hi, 1.0), bins)
+    candidates = [(-b_angle, 1.0 / b_scale)]
     if s_lo < 1.0:
-        runs.append((1.0, *_register(reference, moving, estimate, rotation_range_deg, (s_lo, 1.0), bins)))
-    sign, angle, scale, _ = min(runs, key=lambda run: run[3])  # ITK's metric is -MI: lower is better
-    return -math.degrees(sign * angle), scale**sign
+        candidates.append(_register(reference, moving, estimate, rotation_range_deg, (s_lo, 1.0), bins))
+
+    def symmetric(candidate: tuple[float, float]) -> float:
+        angle, scale = candidate
+        return _metric(reference, moving, angle, scale, bins) + _metric(moving, reference, -angle, 1.0 / scale, bins)
+
+    angle, scale = min(candidates, key=symmetric)  # ITK's metric is -MI: lower is better
+    return -math.degrees(angle), scale
