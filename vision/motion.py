@@ -17,7 +17,8 @@ What the thesis leaves open, decided here (docs/vision.md, "The estimator"):
   45 deg, scales 0.2 to 3.0) a bracketing search started on the whole range can converge to a
   side lobe. The search therefore runs coarse to fine on an image pyramid (2 x 2 block means,
   down to ``coarse_size_px``, or to the disc radius that still shows the zoomed-out frame's
-  content over 3.5 pixels at the extreme scales of the range): at the coarsest level a grid
+  content over 3.5 pixels at the extreme scales of the range, never finer than 64 px; a grid
+  beyond MAX_GRID_SAMPLES gets a coarser step): at the coarsest level a grid
   with a step of one pixel of arc at the disc's edge finds the bracket; at every level the
   search shrinks a bracket of +-2 grid steps of the coarser level (+-1 at full resolution) to
   a quarter of this level's step, and at full resolution to the requested tolerances.
