@@ -3,6 +3,7 @@
     python -m bench            # full run (several minutes on 2 cores)
     python -m bench --quick    # small sizes: a smoke run of every benchmark
     python -m bench --skip-http
+    python -m bench --skip-vision   # without the visual motion evaluation (bench/vision.py)
 
 Every number that matters is printed as a ratio to a reference measured in the
 same run (the raw Embree ray rate on the same mesh) or as a growth exponent;
@@ -20,7 +21,7 @@ import time
 
 import numpy as np
 
-from bench import ceiling, completeness, estimators_bench, latency, localization, scenes
+from bench import ceiling, completeness, estimators_bench, latency, localization, scenes, vision
 from bench import sweeps as sweeps_bench
 from bench.common import ROOT, growth_exponent, run_point
 from raytrace.solver.tracer import warm_up
@@ -74,6 +75,7 @@ def main() -> None:
     ap.add_argument("--skip-http", action="store_true", help="skip the HTTP latency benchmark")
     ap.add_argument("--skip-scaling", action="store_true", help="skip the sub-process scaling sweep")
     ap.add_argument("--skip-sweeps", action="store_true", help="skip the sweep engines' throughput")
+    ap.add_argument("--skip-vision", action="store_true", help="skip the visual motion evaluation (minutes)")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "latest.json"))
     args = ap.parse_args()
     rays = 20_000 if args.quick else 100_000
@@ -103,6 +105,8 @@ def main() -> None:
     report["localization"] = localization.localization(5 if args.quick else 20)
     if not args.skip_sweeps:
         report["sweeps"] = sweeps_bench.run(args.quick)
+    if not args.skip_vision:
+        report["vision"] = vision.run(args.quick)
 
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as fh:
@@ -151,6 +155,11 @@ def main() -> None:
     localization.print_rows(report["localization"], _row)
     if "sweeps" in report:
         sweeps_bench.print_rows(report["sweeps"], _row)
+    if "vision" in report:
+        vs = report["vision"]["speed"]
+        _row("vision: 512 x 512 pair, rotation + scale, p50 [ms]", f"{vs['pair_512_both_s'] * 1e3:.0f}", "target < 100")
+        _row("vision: render one 256 x 256 frame, p50 [ms]", f"{vs['render_256_s'] * 1e3:.0f}", "target < 50")
+        print("  vision accuracy tables: python -m bench.vision (or 'vision' in the JSON)")
     print(f"wrote {os.path.relpath(args.out, ROOT)}")
 
 
