@@ -175,6 +175,10 @@ class ChannelRequest(Strict):
         description="Paths weaker than the strongest by more than this are dropped [dB] "
         f"(default {SPEC_DEFAULTS['dynamic_range_db']:g}).",
     )
+    near_field: bool | None = Field(
+        None, description="Give the refraction-only paths the dipole near-field terms (exact in one medium, "
+        f"approximate through interfaces; docs/validation.md) (default {SPEC_DEFAULTS['near_field']}).",
+    )
 
 
 class Interaction(Out):

@@ -244,7 +244,7 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
     fields = path_gains(
         rec.steps, media, tx, tx_medium, rx[seed_rx[conv]], rx_medium[seed_rx[conv]], refined.dirs[conv],
         refined.tube_m2_per_sr[conv], tx_pol, spec.transmitter.pattern, rx_pol[seed_rx[conv]],
-        rx_pattern[seed_rx[conv]],
+        rx_pattern[seed_rx[conv]], near_field=spec.near_field,
     )
     keep = rec.ok & np.isfinite(fields.gains).all(axis=1) & np.isfinite(fields.delay_s)
 
