@@ -69,15 +69,25 @@ class Path:
             return float(20.0 * np.log10(abs(self.gain)))
 
 
+#: Regimes where full-wave (FDTD) comparisons showed geometric optics to be off (docs/validation.md,
+#: "Validity per receiver"); a profile lists those its receiver is in.
+VALIDITY_FLAGS: tuple[str, ...] = ("near_field", "in_air_near_body", "grazing_exit", "near_critical_angle",
+                                   "no_direct_path")
+
+
 @dataclass(frozen=True)
 class ReceiverProfile:
-    """Every path found to one receiver, sorted by delay, with summary statistics."""
+    """Every path found to one receiver, sorted by delay, with summary statistics.
+
+    ``validity`` names the regimes of :data:`VALIDITY_FLAGS` the receiver is in (empty: none of
+    them; the FDTD error bands of each are in docs/validation.md)."""
 
     receiver: str
     position_m: np.ndarray
     medium: str
     geometric_distance_m: float
     paths: tuple[Path, ...]
+    validity: tuple[str, ...] = ()
 
     @property
     def first_path_delay_s(self) -> float | None:

@@ -109,6 +109,7 @@ def result_to_dict(result: ChannelResult, scenario: str | None = None) -> dict[s
                 "first_path_delay_s": None if first is None else _f(first),
                 "path_gain_db": _db(prof.path_gain_db),
                 "rms_delay_spread_s": _f(prof.rms_delay_spread_s),
+                "validity": list(prof.validity),
                 "reference_frequency_hz": _f(result.frequency_hz),
                 "gains_include_delay_phase": True,
             }

@@ -225,6 +225,11 @@ class ProfileOut(Out):
     first_path_delay_s: float | None = Field(description="Delay of the first path [s] (null: no path).")
     path_gain_db: float = Field(description=f"10 log10 sum |a_k|^2 [dB] (floor {GAIN_DB_FLOOR:g}).")
     rms_delay_spread_s: float = Field(description="Power-weighted RMS delay spread [s].")
+    validity: list[str] = Field(
+        default_factory=list,
+        description="Regimes where full-wave (FDTD) comparisons showed geometric optics to be off that this "
+        "receiver is in: near_field, in_air_near_body, grazing_exit, near_critical_angle, no_direct_path "
+        "(docs/validation.md, 'Validity per receiver').")
     reference_frequency_hz: float = Field(description="Frequency at which `paths[].gain` is evaluated (the carrier) [Hz].")
     gains_include_delay_phase: bool = Field(
         True,

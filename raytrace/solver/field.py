@@ -125,6 +125,8 @@ class PathFields:
     group_delay_s: np.ndarray  # (P,) group delay at the centre frequency, sum L n_g / c
     length_m: np.ndarray  # (P,)
     reflect_tir: list[np.ndarray]  # per step: (P,) True where a reflection is total (Snell has no real solution)
+    max_sin_t: np.ndarray | None = None  # (P,) largest sin(transmitted angle) of the path's refractions into tissue
+    exit_sin_t: np.ndarray | None = None  # (P,) the same for its refractions into air (0 where none)
 
 
 def path_gains(
@@ -157,6 +159,8 @@ def path_gains(
     inv_re = np.zeros((p, len(freqs)))  # sum L_i / Re n_i(f)
     direct = np.ones(p, bool)  # refraction-only so far
     straight = np.ones(p, bool)  # no interaction so far
+    max_sin_t = np.zeros(p)
+    exit_sin_t = np.zeros(p)
     delay_len = np.zeros(p)  # sum Re n_i(f0) L_i
     group_len = np.zeros(p)  # sum n_g,i(f0) L_i
     length = np.zeros(p)
@@ -189,6 +193,11 @@ def path_gains(
                 straight[i] = False
                 n1, n2 = n[:, mf_i + 1].T, n[:, mt_i + 1].T  # (I, F)
                 c1 = _incident_cosines(n1, n2, ci, basis, refl)
+                ct_g = np.abs(np.einsum("ij,ij->i", np.nan_to_num(basis.k_transmitted), basis.normal_forward))
+                sin_t = np.where(refl, 0.0, np.sqrt(np.clip(1.0 - ct_g * ct_g, 0.0, 1.0)))
+                into_air = mt_i < 0
+                max_sin_t[i] = np.maximum(max_sin_t[i], np.where(into_air, 0.0, sin_t))
+                exit_sin_t[i] = np.maximum(exit_sin_t[i], np.where(into_air, sin_t, 0.0))
                 fr = fresnel(n1, n2, c1)
                 es = np.einsum("ifj,ij->if", field[i], basis.s)
                 ep = np.einsum("ifj,ij->if", field[i], basis.p_in)
@@ -231,7 +240,7 @@ def path_gains(
     gains = ((lam0 / (4.0 * np.pi))[None, :] * response * spreading * np.exp(-1j * k0[None, :] * optical)
              / np.sqrt(tube)[:, None] / n_norm)
     return PathFields(gains=gains, delay_s=delay_len / C0, group_delay_s=group_len / C0, length_m=length,
-                      reflect_tir=tir_flags)
+                      reflect_tir=tir_flags, max_sin_t=max_sin_t, exit_sin_t=exit_sin_t)
 
 
 
