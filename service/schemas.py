@@ -300,6 +300,8 @@ class ProfileIn(Strict):
     first_path_delay_s: float | None = None
     path_gain_db: float | None = None
     rms_delay_spread_s: float | None = None
+    validity: list[Annotated[str, StringConstraints(max_length=64)]] | None = Field(
+        None, max_length=16, description="The channel response's validity flags (ignored by the estimators).")
     gains_include_delay_phase: bool = Field(
         False,
         description="false (default, a hand-made h(t) = sum a_k delta(t - delay_k)): gains exclude the propagation "
