@@ -139,7 +139,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
                           relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                           cell_size_m: float = DEFAULT_CELL_SIZE_M, rays: int = 100_000, max_interactions: int = 6,
                           waveform: Any = None, pdoa_band: dict | None = None, rss_model: Any = "cm2_deep_tissue",
-                          loss: str = "soft_l1", budget: Budget | None = None) -> LocalizationEvaluation:
+                          loss: str = "soft_l1", near_field: bool = True,
+                          budget: Budget | None = None) -> LocalizationEvaluation:
     """Run the pipeline of the module docstring.
 
     capsule: site name or position; sensors: site names and/or positions (>= 4; >= 5 for
@@ -148,6 +149,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     four) or ``linear``, ``nonlinear``, ``rss`` (RSS ranging, default ``rss``). waveform: TOA
     waveform (default: the 402 MHz 25 ns burst); pdoa_band: ``{start_hz, stop_hz, points}``;
     rss_model: CM2 name or a (fitted) model. ``loss``: robust loss of the model-based fix.
+    ``near_field``: the tracer's dipole near-field term on direct paths (ChannelSpec.near_field;
+    its phase biases carrier-phase TOA at a few wavelengths, a physical effect).
     Raises EstimatorInputError (``capsule``, ``sensors[i]``, ``ranging``, ``methods[i]``,
     ``trials``...) or the tracer's InputError; ``budget`` bounds the trace.
     """
@@ -176,7 +179,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     t0 = time.perf_counter()
     spec = rt.ChannelSpec(rt.Antenna(x_true, name="capsule"), tuple(rt.Antenna(p, name=n) for p, n in zip(sens, names)),
                           phantom=phantom.name, frequency_hz=frequency_hz, band=band, rays=rays,
-                          max_interactions=max_interactions)
+                          max_interactions=max_interactions, near_field=near_field)
     result = rt.trace_channel(spec, phantom, budget=budget)
     trace_s = time.perf_counter() - t0
     true_d = np.linalg.norm(sens - x_true, axis=1)

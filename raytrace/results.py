@@ -69,6 +69,12 @@ class Path:
             return float(20.0 * np.log10(abs(self.gain)))
 
 
+#: Regimes where full-wave (FDTD) comparisons showed geometric optics to be off (docs/validation.md,
+#: "Validity per receiver"); a profile lists those its receiver is in.
+VALIDITY_FLAGS: tuple[str, ...] = ("near_field", "in_air_near_body", "grazing_exit", "near_critical_angle",
+                                   "no_direct_path")
+
+
 @dataclass(frozen=True)
 class ReceiverProfile:
     """Every path found to one receiver, sorted by delay, with summary statistics.
@@ -78,6 +84,9 @@ class ReceiverProfile:
     carrier; ``warnings`` says when that is below one wavelength, where geometric optics
     stops (:mod:`raytrace.solver.validity`, docs/science.md section 8). None / () without
     a path through an organ.
+
+    ``validity`` names the regimes of :data:`VALIDITY_FLAGS` the receiver is in (empty: none of
+    them; the FDTD error bands of each are in docs/validation.md).
     """
 
     receiver: str
@@ -88,6 +97,7 @@ class ReceiverProfile:
     smallest_organ: str | None = None
     smallest_organ_size_wavelengths: float | None = None
     warnings: tuple[str, ...] = ()
+    validity: tuple[str, ...] = ()
 
     @property
     def first_path_delay_s(self) -> float | None:

@@ -262,7 +262,9 @@ class ChannelSpec:
     direct, refraction-only path is searched whatever its refractions); ``rays`` is
     the number launched from the transmitter; paths weaker than the strongest of a
     receiver by more than ``dynamic_range_db`` are dropped; ``homogeneous`` replaces
-    every organ's material by one medium (the thesis' homogeneous case).
+    every organ's material by one medium (the thesis' homogeneous case); ``near_field`` gives
+    the refraction-only paths the Hertzian dipole's near-field terms (exact on a straight path in
+    one medium, approximate through interfaces: ``raytrace/solver/field.py``, docs/validation.md).
     """
 
     transmitter: Antenna
@@ -274,6 +276,7 @@ class ChannelSpec:
     rays: int = 100_000
     dynamic_range_db: float = 80.0
     homogeneous: Material | None = None
+    near_field: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.phantom, str) or not self.phantom:
@@ -304,6 +307,9 @@ class ChannelSpec:
         object.__setattr__(self, "dynamic_range_db", dr)
         if self.homogeneous is not None:
             object.__setattr__(self, "homogeneous", _coerce(self.homogeneous, Material, "homogeneous"))
+        if not isinstance(self.near_field, (bool, np.bool_)):
+            raise InputError(f"must be true or false, got {self.near_field!r}", field="near_field")
+        object.__setattr__(self, "near_field", bool(self.near_field))
 
     # ------------------------------------------------------------ JSON form
     def to_dict(self) -> dict[str, Any]:
@@ -318,6 +324,7 @@ class ChannelSpec:
             "rays": self.rays,
             "dynamic_range_db": self.dynamic_range_db,
             "homogeneous": None,
+            "near_field": self.near_field,
         }
         if self.homogeneous is not None:
             h = self.homogeneous

@@ -7,6 +7,7 @@
     capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
     capsule-rt sweep SPEC --out DIR [--cluster ADDRESS] [--resume]   (service.sweep_cli)
     capsule-rt experiment NAME --out DIR                             (service.sweep_cli)
+    capsule-rt fullwave REQUEST.json --out DIR [--cell-mm 2] [--coarse-factor 1.5] [--margin-mm 20]
 """
 
 from __future__ import annotations
@@ -190,6 +191,36 @@ def export_outputs(response: dict[str, Any], path: Path) -> None:
                         for r in rows)
     else:
         raise ValueError(f"unknown export format {path.suffix!r}: use .npz or .csv")
+def _cmd_fullwave(args: argparse.Namespace) -> int:
+    """Export a channel request to gprMax, run it at two cell sizes and compare with the tracer
+    (fullwave.run; docs/validation.md)."""
+    import raytrace as rt
+    from fullwave.model import FdtdOptions
+    from fullwave.run import compare, gprmax_available
+    from raytrace.errors import CapsuleRTError
+
+    try:
+        payload = json.loads(Path(args.file).read_text())
+        scenario = payload.pop("scenario", None)
+        base = rt.get_scenario(scenario).spec if scenario else None
+        spec = rt.ChannelSpec.from_dict(payload, base)
+        phantom = rt.get_phantom(spec.phantom)
+        options = FdtdOptions(cell_m=args.cell_mm * 1e-3, margin_m=args.margin_mm * 1e-3, pml_cells=args.pml_cells)
+    except (OSError, json.JSONDecodeError, CapsuleRTError, ValueError) as exc:
+        detail = _error_json(exc) if isinstance(exc, CapsuleRTError) else {"detail": str(exc)}
+        print(json.dumps(detail), file=sys.stderr)
+        return 2
+    run = not args.export_only
+    if run and not gprmax_available():
+        print("gprMax is not installed (pip install 'capsule-rt[fullwave]'); writing the inputs only", file=sys.stderr)
+        run = False
+    report = compare(spec, phantom, options, Path(args.out), coarse_factor=args.coarse_factor or None, run=run,
+                     threads=args.threads)
+    for r in report["runs"]:
+        if r.get("ran"):
+            print(f"{r['cell_m'] * 1e3:g} mm cells: gprMax {r['wall_s']:.0f} s", file=sys.stderr)
+    sys.stdout.write((Path(args.out) / "report.md").read_text())
+    return 0
 
 
 def _table(rows: Sequence[Sequence[Any]], header: Sequence[str]) -> str:
@@ -297,6 +328,17 @@ def build_parser() -> argparse.ArgumentParser:
     from service import sweep_cli
 
     sweep_cli.add_parsers(sub)
+    f = sub.add_parser("fullwave", help="export a channel request to gprMax, run it and compare with the tracer")
+    f.add_argument("file", help="JSON file with a POST /v1/channel body (ChannelSpec)")
+    f.add_argument("--out", required=True, help="directory for the gprMax inputs, outputs and report.{json,md}")
+    f.add_argument("--cell-mm", type=float, default=2.0, help="FDTD cell edge [mm] (default 2)")
+    f.add_argument("--coarse-factor", type=float, default=1.5,
+                   help="second run's cells are this much larger, for the discretisation estimate (0: no second run)")
+    f.add_argument("--margin-mm", type=float, default=20.0, help="margin around the antennas' box [mm] (default 20)")
+    f.add_argument("--pml-cells", type=int, default=10, help="absorbing-layer thickness [cells] (default 10)")
+    f.add_argument("--threads", type=int, default=2, help="OpenMP threads for gprMax (default 2)")
+    f.add_argument("--export-only", action="store_true", help="write the gprMax inputs, do not run them")
+    f.set_defaults(func=_cmd_fullwave)
     return p
 
 

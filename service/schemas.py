@@ -214,6 +214,10 @@ class ChannelRequest(Strict):
     outputs: ChannelOutputs | None = Field(
         None, description="Also return each receiver's frequency response, impulse response and/or taps "
         "(requires `band`).")
+    near_field: bool | None = Field(
+        None, description="Give the refraction-only paths the dipole near-field terms (exact in one medium, "
+        f"approximate through interfaces; docs/validation.md) (default {SPEC_DEFAULTS['near_field']}).",
+    )
 
 
 class Interaction(Out):
@@ -283,6 +287,11 @@ class ProfileOut(Out):
     first_path_delay_s: float | None = Field(description="Delay of the first path [s] (null: no path).")
     path_gain_db: float = Field(description=f"10 log10 sum |a_k|^2 [dB] (floor {GAIN_DB_FLOOR:g}).")
     rms_delay_spread_s: float = Field(description="Power-weighted RMS delay spread [s].")
+    validity: list[str] = Field(
+        default_factory=list,
+        description="Regimes where full-wave (FDTD) comparisons showed geometric optics to be off that this "
+        "receiver is in: near_field, in_air_near_body, grazing_exit, near_critical_angle, no_direct_path "
+        "(docs/validation.md, 'Validity per receiver').")
     reference_frequency_hz: float = Field(description="Frequency at which `paths[].gain` is evaluated (the carrier) [Hz].")
     gains_include_delay_phase: bool = Field(
         True,
@@ -367,6 +376,8 @@ class ProfileIn(Strict):
     cfr: CfrOut | None = None
     cir: CirOut | None = None
     taps: TapsOut | None = None
+    validity: list[Annotated[str, StringConstraints(max_length=64)]] | None = Field(
+        None, max_length=16, description="The channel response's validity flags (ignored by the estimators).")
     gains_include_delay_phase: bool = Field(
         False,
         description="false (default, a hand-made h(t) = sum a_k delta(t - delay_k)): gains exclude the propagation "

@@ -27,7 +27,6 @@ Spec form::
 
 from __future__ import annotations
 
-import importlib.util
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
@@ -95,10 +94,7 @@ def _load_builtins() -> None:
     global _builtins_loaded
     if not _builtins_loaded:
         _builtins_loaded = True
-        # the position estimators are a separate package of this project (estimators.localization):
-        # the built-in localizers exist exactly when it does
-        if importlib.util.find_spec("estimators.localization") is not None:
-            importlib.import_module("sweeps.localizers")
+        import sweeps.localizers  # noqa: F401 (registers the built-ins; imported here: it imports this module)
 
 
 def _fail(reason: str, where: str) -> InputError:

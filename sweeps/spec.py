@@ -87,8 +87,10 @@ LIMITS = Limits()
 
 _TOP = {"name", "description", "phantom", "capsule_positions", "receivers", "frequencies_hz", "channel",
         "ranging", "localization", "trials", "seed", "chunk_positions"}
-_CHANNEL = {"max_interactions", "rays", "dynamic_range_db", "band", "homogeneous", "capsule_polarization",
-            "capsule_pattern"}
+#: The ChannelSpec fields a sweep's ``channel`` sets for every trace (the rest vary per trace).
+_SPEC_KNOBS = ("max_interactions", "rays", "dynamic_range_db", "homogeneous", "near_field")
+_CHANNEL = {"max_interactions", "rays", "dynamic_range_db", "band", "homogeneous", "near_field",
+            "capsule_polarization", "capsule_pattern"}
 
 
 def _fail(reason: str, field: str) -> SweepSpecError:
@@ -403,7 +405,7 @@ class SweepSpec:
         knobs = {k: v for k, v in channel.items() if v is not None}
         rename = {"frequency_hz": "frequencies_hz", "band": "channel.band", "rays": "channel.rays",
                   "max_interactions": "channel.max_interactions", "dynamic_range_db": "channel.dynamic_range_db",
-                  "homogeneous": "channel.homogeneous"}
+                  "homogeneous": "channel.homogeneous", "near_field": "channel.near_field"}
         probe_rx = tuple(Antenna(site="_rx") for _ in range(1)) if out["receivers"] == "sensors" else \
             tuple(Antenna.from_dict(r) for r in out["receivers"])
         for i, f in enumerate(freqs):  # one ChannelSpec per carrier: ChannelSpec's own rules
@@ -427,8 +429,7 @@ class SweepSpec:
         if spec.band is not None and len(spec.band.frequencies_hz) > limits.max_band_points:
             raise _fail(f"{len(spec.band.frequencies_hz)} band points exceed the limit of {limits.max_band_points}",
                         "channel.band")
-        ch = {k: v for k, v in spec.to_dict().items()
-              if k in ("max_interactions", "rays", "dynamic_range_db", "homogeneous")}
+        ch = {k: v for k, v in spec.to_dict().items() if k in _SPEC_KNOBS}
         ch.update(band=band, capsule_polarization=polarization, capsule_pattern=pattern)
         out["channel"] = ch
 
@@ -466,9 +467,9 @@ class SweepSpec:
                      phantom_id: str) -> ChannelSpec:
         """The ChannelSpec of one trace of this sweep."""
         ch = self.data["channel"]
+        knobs = {k: ch[k] for k in _SPEC_KNOBS if k in ch}  # specs stored before a knob existed lack it
         return ChannelSpec(transmitter, receivers, phantom=phantom_id, frequency_hz=frequency_hz,
-                           band=carrier_band(ch["band"], frequency_hz), max_interactions=ch["max_interactions"],
-                           rays=ch["rays"], dynamic_range_db=ch["dynamic_range_db"], homogeneous=ch["homogeneous"])
+                           band=carrier_band(ch["band"], frequency_hz), **knobs)
 
 
 def load_spec(source: str | Path | Mapping, limits: Limits = LIMITS) -> SweepSpec:

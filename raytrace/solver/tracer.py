@@ -68,6 +68,7 @@ from raytrace.body.library import get_phantom
 from raytrace.body.phantom import Phantom
 from raytrace.engine import kernels
 from raytrace.engine.scene import TracerScene, scene_for
+from raytrace.physics.em import C0
 from raytrace.results import (
     ChannelResult,
     Interaction,
@@ -92,7 +93,7 @@ from raytrace.solver.refine import (
     refine_by_continuation,
 )
 from raytrace.solver.sbr import shoot
-from raytrace.solver.validity import smallest_organ
+from raytrace.solver.validity import receiver_flags, smallest_organ
 from raytrace.spec import Antenna, ChannelSpec
 
 #: Worker threads of one request: the direct-path search and the shooting's launch batches,
@@ -245,7 +246,7 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
     fields = path_gains(
         rec.steps, media, tx, tx_medium, rx[seed_rx[conv]], rx_medium[seed_rx[conv]], refined.dirs[conv],
         refined.tube_m2_per_sr[conv], tx_pol, spec.transmitter.pattern, rx_pol[seed_rx[conv]],
-        rx_pattern[seed_rx[conv]],
+        rx_pattern[seed_rx[conv]], near_field=spec.near_field,
     )
     keep = rec.ok & np.isfinite(fields.gains).all(axis=1) & np.isfinite(fields.delay_s)
 
@@ -264,6 +265,20 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
     tir = np.array(fields.reflect_tir, bool).reshape(rec.steps.valid.shape)  # (S, P)
     made = _make_paths(phantom, rec.steps, tir, fields, all_rows, tx, rx[seed_rx[conv][all_rows]], int(tx_medium),
                        band is not None)
+    strongest_direct = []
+    for r in range(len(receivers)):  # the strongest refraction-only path's geometry, for the validity flags
+        rows = [j for j in per_rx[r] if not any(rec.steps.valid[s, j] and rec.steps.kind[s, j] == KIND_REFLECTION
+                                                for s in range(rec.steps.valid.shape[0]))]
+        if not rows:
+            strongest_direct.append(None)
+            continue
+        j = max(rows, key=lambda j: abs(fields.gains[j, 0]))
+        straight = not any(rec.steps.valid[s, j] and rec.steps.kind[s, j] != KIND_PASS
+                           for s in range(rec.steps.valid.shape[0]))
+        strongest_direct.append((straight, float(fields.max_sin_t[j]), float(fields.exit_sin_t[j])))
+    lam_tx = C0 / frequency_hz / float(media.n_real[tx_medium + 1])
+    flags = receiver_flags(phantom, rx, rx_medium, np.linalg.norm(rx - tx, axis=1), lam_tx, spec.near_field,
+                           strongest_direct)
     profiles = []
     start = 0
     widths: dict[int, float] = {}
@@ -281,6 +296,7 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
                 smallest_organ=organ,
                 smallest_organ_size_wavelengths=size,
                 warnings=() if warning is None else (warning,),
+                validity=flags[r],
             )
         )
     n_paths = len(made)

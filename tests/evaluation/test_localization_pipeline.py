@@ -35,8 +35,10 @@ def box():
 
 @pytest.fixture(scope="module")
 def homogeneous_run(box):
+    # far field: the dipole's near-field phase (kr ~ 4.5 here) biases carrier-phase TOA by ~4 mm, a
+    # physical effect of its own (tests/raytrace); this test is about the estimators on exact ranges
     return evaluate_localization(box, CAPSULE, SENSORS, trials=4, seed=3, cell_size_m=CELL, rays=20_000,
-                                 relative_permittivity=N_PHASE**2)
+                                 relative_permittivity=N_PHASE**2, near_field=False)
 
 
 def test_every_method_finds_the_capsule_in_a_homogeneous_phantom(homogeneous_run):
@@ -57,7 +59,7 @@ def test_every_method_finds_the_capsule_in_a_homogeneous_phantom(homogeneous_run
 
 def test_same_seed_same_answer(box, homogeneous_run):
     again = evaluate_localization(box, CAPSULE, SENSORS, trials=4, seed=3, cell_size_m=CELL, rays=20_000,
-                                  methods=("nonlinear",), relative_permittivity=N_PHASE**2)
+                                  methods=("nonlinear",), relative_permittivity=N_PHASE**2, near_field=False)
     np.testing.assert_array_equal(again.methods["nonlinear"].estimates_m,
                                   homogeneous_run.methods["nonlinear"].estimates_m)
 

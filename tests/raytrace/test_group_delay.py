@@ -52,7 +52,8 @@ def test_a_single_dispersive_path_has_the_group_delay_of_its_band_phase_slope():
     # difference over +-100 kHz errs by ~(1e5/4e8)^2 relative of the second derivative's
     # share: far below the 0.1 ps tolerance (1e-4 of the 1.2 ns delay).
     base = rt.get_scenario("homogeneous-sphere").spec
-    spec = dataclasses.replace(base, band=rt.Band(frequencies_hz=[401.9e6, 402.0e6, 402.1e6]))
+    # near field off: its factor 1 + u + u^2 has a phase slope of its own (docs/validation.md)
+    spec = dataclasses.replace(base, band=rt.Band(frequencies_hz=[401.9e6, 402.0e6, 402.1e6]), near_field=False)
     path = rt.trace_channel(spec).profiles[0].paths[0]
     assert path.interactions == ()
     phase = np.unwrap(np.angle(path.band_gains))

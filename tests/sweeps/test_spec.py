@@ -74,6 +74,7 @@ def test_defaults_are_explicit_and_the_normal_form_round_trips():
     d = s.to_dict()
     assert d["phantom"] == "torso" and d["frequencies_hz"] == [402e6] and d["trials"] == 100 and d["seed"] == 0
     assert d["channel"] == {"max_interactions": 6, "rays": 100_000, "dynamic_range_db": 80.0, "homogeneous": None,
+                            "near_field": True,
                             "band": None, "capsule_polarization": [0.0, 0.0, 1.0], "capsule_pattern": "isotropic"}
     again = SweepSpec.from_dict(json.loads(json.dumps(d)))
     assert again.to_dict() == d and again.sha256 == s.sha256
