@@ -33,11 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from raytrace.engine import kernels
+from raytrace.engine.records import WalkOutput, WalkRays, WalkTargets, build
+from raytrace.engine.scene import TracerScene
 from raytrace.solver.budget import Budget
 from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.solver.media import MediaTable
 from raytrace.solver.refine import tangent_basis
-from raytrace.engine.scene import TracerScene
 
 #: Refraction events followed at most.
 MAX_EVENTS = 24
@@ -91,35 +92,30 @@ def refraction_walk(
     p = len(dirs)
     own = ray_rx is not None
     cols = 1 if own else len(rx_m)
-    parent, cls, _transparent, n_re = media.kernel_tables
-    rx_cls = np.ascontiguousarray(cls[np.asarray(rx_medium, np.int64) + 1])
-    rx_m = np.ascontiguousarray(rx_m, dtype=float)
-    ray_rx = np.ascontiguousarray(ray_rx, np.int64) if own else np.zeros(0, np.int64)
-    codes = np.full((p, MAX_EVENTS), -1, np.int64)
-    miss = np.full((p, cols), np.inf)
-    nmiss = np.zeros((p, cols), np.int64)
+    media_tables = media.kernel_tables
+    rx_cls = media_tables.material_class[np.asarray(rx_medium, np.int64) + 1]
+    targets = build(WalkTargets, position_m=np.ascontiguousarray(rx_m, dtype=float),
+                    material_class=np.ascontiguousarray(rx_cls),
+                    ray_rx=np.ascontiguousarray(ray_rx, np.int64) if own else np.zeros(0, np.int64))
+    out = build(WalkOutput, miss=np.full((p, cols), np.inf), nmiss=np.zeros((p, cols), np.int64),
+                codes=np.full((p, MAX_EVENTS), -1, np.int64))
     tables = scene.kernel_tables
-    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.corner_table64,
-               scene.face_organ, parent, cls, n_re, scene.offset_m, scene.center, MAX_EVENTS)
     # state of the rays still alive only, compacted after every event (row ``r`` is walked ray
     # ``ids[r]``): no gathers and scatters of the whole launch per event
-    ids = np.arange(p)
     o = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
     d = np.array(dirs, float)
-    med = np.full(p, tx_medium, np.int64)
-    nint = np.zeros(p, np.int64)
-    q = (o - scene.center).astype(np.float32)
-    dq = d.astype(np.float32)
+    rays = build(WalkRays, ids=np.arange(p), o=o, d=d, med=np.full(p, tx_medium, np.int64), nint=np.zeros(p, np.int64),
+                 q=(o - scene.center).astype(np.float32), dq=d.astype(np.float32))
     segments = 0
     # the seed walk casts into the shooting's fast scene (raytrace.engine.scene: seeds only)
     embree = scene.embree if exact else scene.embree_shooting
     for _ in range(MAX_EVENTS + 1):
-        if len(ids) == 0:
+        if len(rays.ids) == 0:
             break
-        prim, tfar, bu, bv = embree.intersect(q, dq)
-        segments += len(ids)
-        ids, o, d, med, nint, q, dq = kernels.walk_step(
-            ids, o, d, med, nint, q, prim, tfar, bu, bv, exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes, *statics)
+        hits = embree.intersect(rays.q, rays.dq)
+        segments += len(rays.ids)
+        rays = kernels.walk_step(rays, hits, targets, out, tables, media_tables, exact, MAX_EVENTS)
+    miss, codes, nmiss = out.miss, out.codes, out.nmiss
     return Walk(miss_m=miss, events=codes, nint=nmiss, segments=segments)
 
 
@@ -307,10 +303,10 @@ def reverse_seeds(
     Near a critical angle the launch-to-landing map from the high-index side is badly
     conditioned (a launch sliver fans out over centimetres of skin), while from the other
     end the same path can be a broad, well-conditioned bundle. For each receiver the walk
-    and Newton refinement (no zoom: this is the well-conditioned side) run with the roles swapped (source at the receiver, target
-    the transmitter); each converged reverse path gives the forward launch direction (towards
-    its last vertex) and the reversed signature, which the caller refines forward so the
-    field is computed along the forward path as usual. A loop over receivers (at most a
+    and Newton refinement (no zoom: this is the well-conditioned side) run with the roles swapped
+    (source at the receiver, target the transmitter); each converged reverse path gives the
+    forward launch direction (towards its last vertex) and the reversed signature, which the
+    caller refines forward so the field is computed along the forward path as usual. A loop over receivers (at most a
     dozen), vectorised inside."""
     from raytrace.solver.refine import follow, refine
 

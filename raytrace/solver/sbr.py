@@ -48,11 +48,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from raytrace.engine import kernels
+from raytrace.engine.records import ShotMedia, ShotRays, ShotReceivers, ShotScene, ShotSettings, WalkRecords, build
+from raytrace.engine.scene import TracerScene
+from raytrace.physics.em import C0
 from raytrace.solver.budget import Budget
 from raytrace.solver.direct import MAX_EVENTS, Seeds, closest_launches, pick_seeds
 from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.solver.media import MediaTable
-from raytrace.engine.scene import TracerScene
 
 #: Launch directions traced together (their whole bounce tree at once). Batches are handed to
 #: the threads as they free up, so small ones balance the two cores and keep each generation's
@@ -101,51 +103,33 @@ class Candidates:
 CHUNK_RAYS = 1 << 18
 
 
-#: The walk's records when there is no walk: (0, R)-shaped arrays and a launch offset.
-_NO_WALK = (np.zeros((0, 0)), np.zeros((0, 0), np.int32), np.zeros((0, 0), np.int32), 0)
+#: The walk's records when there is no walk: (0, 0) arrays and a launch offset.
+_NO_WALK = build(WalkRecords, miss=np.zeros((0, 0)), events=np.zeros((0, 0), np.int32),
+                 hist=np.zeros((0, 0), np.int32), src_base=0)
 
 
 @dataclass
 class _Context:
-    scene: TracerScene
-    tables: tuple  # per-face and per-medium tables, receivers: the arguments of kernels.bounce
-    threshold: float
-    kmax: int
-    no_passes: bool  # no transparent surface in the scene (a ray with kmax events has no children)
+    """The shooting's constant inputs: the records :func:`raytrace.engine.kernels.bounce` takes."""
+
+    scene: ShotScene
+    media: ShotMedia
+    receivers: ShotReceivers
+    settings: ShotSettings
     walk: bool  # the refraction-only walk rides on the shooting's rays
 
 
-@dataclass
-class _State:
-    """Live rays: origin (already pushed off the surface), direction, medium, power factor,
-    tube radius and angle, reduced length sum L_i / Re n_i, events so far, event-log pointer,
-    launch index."""
-
-    o: np.ndarray
-    d: np.ndarray
-    med: np.ndarray
-    w: np.ndarray
-    rad: np.ndarray
-    ang: np.ndarray
-    length: np.ndarray
-    nint: np.ndarray
-    hist: np.ndarray
-    src: np.ndarray
-    mode: np.ndarray  # 0 shot, 1 shot and walked (no reflection so far), 2 walked only (raytrace.engine.kernels.bounce)
-
-    def take(self, index) -> "_State":
-        return _State(*(getattr(self, f)[index] for f in _STATE_FIELDS))
-
-    @staticmethod
-    def concat(parts: list["_State"]) -> "_State | None":
-        if not parts:
-            return None
-        if len(parts) == 1:
-            return parts[0]
-        return _State(*(np.concatenate([getattr(p, f) for p in parts]) for f in _STATE_FIELDS))
+def _take(rays: ShotRays, index) -> ShotRays:
+    """The rays ``index`` (a slice or indices) of ``rays``, C-contiguous as the kernel needs."""
+    return ShotRays(*(a[index] for a in rays))
 
 
-_STATE_FIELDS = ("o", "d", "med", "w", "rad", "ang", "length", "nint", "hist", "src", "mode")
+def _concat(parts: list[ShotRays]) -> ShotRays | None:
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    return ShotRays(*(np.concatenate(arrays) for arrays in zip(*parts)))
 
 
 @dataclass
@@ -175,45 +159,43 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
     geometry in float32 in the scene's centred frame, the power attenuation constant
     ``alpha = k0 |Im n|`` [Np/m] of every medium at the centre frequency."""
     rx_medium = np.asarray(rx_medium, np.int64)
-    parent, cls, transparent, _n = media.kernel_tables
-    alpha = (2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -media.n[0].imag
+    tables = media.kernel_tables
+    alpha = (2.0 * np.pi * media.frequencies_hz[0] / C0) * -media.n[0].imag
+    shot = scene.shot_tables
+    no_passes = not bool(tables.transparent[shot.face_map].any())
     return _Context(
-        scene=scene,
-        tables=(
-            scene.kernel_tables.face_map, scene.face_normals32, scene.face_organ, parent, cls, transparent,
-            media.n_real.astype(np.float32), alpha.astype(np.float32), scene.corner_table32,
-            scene.face_curvature32, _interactions_needed(media, rx_medium),
-            np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
-            np.ascontiguousarray(cls[rx_medium + 1]),
-        ),
-        threshold=10.0 ** (-dynamic_range_db / 10.0),
-        kmax=int(kmax),
-        no_passes=not bool(transparent[scene.kernel_tables.face_map].any()),
+        scene=shot,
+        media=build(ShotMedia, parent=tables.parent, material_class=tables.material_class,
+                    transparent=tables.transparent, n_real=media.n_real.astype(np.float32),
+                    alpha=alpha.astype(np.float32), need=_interactions_needed(media, rx_medium)),
+        receivers=build(ShotReceivers,
+                        position_m=np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
+                        material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1])),
+        settings=build(ShotSettings, threshold=10.0 ** (-dynamic_range_db / 10.0), kmax=int(kmax),
+                       reception_factor=RECEPTION_FACTOR, curvature_margin=CURVATURE_MARGIN, no_passes=no_passes,
+                       walk_events=MAX_EVENTS),
         walk=bool(walk),
     )
 
 
-def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found, walk: tuple = _NO_WALK) -> "tuple[int, _State | None]":
+def _bounce(ctx: _Context, rays: ShotRays, log: _Log, found: _Found, walk: WalkRecords = _NO_WALK
+            ) -> "tuple[int, ShotRays | None]":
     """Cast one chunk of live rays, record receptions, and spawn the next generation
     (the per-ray work is :func:`raytrace.engine.kernels.bounce`); returns the rays cast and the
     children."""
-    scene = ctx.scene
-    cast, children, entries, got = kernels.bounce(
-        s.o, s.d, s.med, s.w, s.rad, s.ang, s.length, s.nint, s.hist, s.src, s.mode, scene.embree_shooting.handle,
-        *ctx.tables, ctx.threshold, ctx.kmax, scene.offset_m, RECEPTION_FACTOR, CURVATURE_MARGIN, log.size,
-        ctx.no_passes, *walk, MAX_EVENTS,
-    )
-    if len(got[0]):
+    cast, children, entries, got = kernels.bounce(rays, ctx.scene, ctx.media, ctx.receivers, ctx.settings, walk,
+                                                  log.size)
+    if len(got.rx):
         for name, value in zip(("rx", "hist", "n", "src", "close"), got):
             getattr(found, name).append(value)
-    if len(entries[0]):
-        log.parent.append(entries[0])
-        log.code.append(entries[1])
-        log.face.append(entries[2])
-        log.size += len(entries[0])
-    if len(children[0]) == 0:
+    if len(entries.parent):
+        log.parent.append(entries.parent)
+        log.code.append(entries.code)
+        log.face.append(entries.face)
+        log.size += len(entries.parent)
+    if len(children.o) == 0:
         return cast, None
-    return cast, _State(*children)
+    return cast, children
 
 
 def shoot(
@@ -242,7 +224,7 @@ def shoot(
     kmax = int(max_interactions)
     width = max(kmax, 1)
     ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db, walk)
-    if ctx.walk and not ctx.no_passes:
+    if ctx.walk and not ctx.settings.no_passes:
         raise ValueError("the walk needs a scene without transparent surfaces (raytrace.engine.scene.scene_for)")
     n_rx = len(rx_m)
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
@@ -257,7 +239,8 @@ def shoot(
         count = min(LAUNCH_BATCH, rays - first)
         launch = fibonacci_sphere(rays, np.arange(first, first + count))
         log, found, segments = _Log(), _Found(), 0
-        state = _State(
+        state = build(
+            ShotRays,
             o=np.broadcast_to(tx_c, (count, 3)).copy(),
             d=launch.astype(np.float32),
             med=np.full(count, tx_medium, np.int64),
@@ -272,21 +255,21 @@ def shoot(
         )
         records = _NO_WALK
         if ctx.walk:  # closest approach per launch and receiver, its events and last log entry
-            records = (np.full((count, n_rx), np.inf), np.zeros((count, n_rx), np.int32),
-                       np.full((count, n_rx), -1, np.int32), first)
+            records = build(WalkRecords, miss=np.full((count, n_rx), np.inf), events=np.zeros((count, n_rx), np.int32),
+                            hist=np.full((count, n_rx), -1, np.int32), src_base=first)
         for _ in range(max_steps):
             n_live = len(state.o)
             if n_live == 0:
                 break
             bounced = [
-                _bounce(ctx, state.take(slice(a, a + CHUNK_RAYS)), log, found, records)
+                _bounce(ctx, _take(state, slice(a, a + CHUNK_RAYS)), log, found, records)
                 for a in range(0, n_live, CHUNK_RAYS)
             ]
             cast = sum(n for n, _c in bounced)
             segments += cast
             if budget is not None:
                 budget.charge(cast)
-            state = _State.concat([c for _n, c in bounced if c is not None])
+            state = _concat([c for _n, c in bounced if c is not None])
             if state is None:
                 break
             if len(state.o) > MAX_LIVE_RAYS:
@@ -295,11 +278,11 @@ def shoot(
                 priority = state.w / np.maximum(state.length, 1e-4) ** 2
                 priority[state.mode > 0] = np.inf  # the walk's rays (no reflection yet): one per launch at most
                 keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
-                state = state.take(keep)
+                state = _take(state, keep)
         offers = None
         entries = _log_arrays(log)
         if ctx.walk:
-            miss, n_ev, last, _first = records
+            miss, n_ev, last = records.miss, records.events, records.hist
             offers = closest_launches(miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c],
                                                                               MAX_EVENTS)[0],
                                       launch)

@@ -61,18 +61,13 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from typing import Sequence
 
 import numpy as np
 
-from raytrace.engine import kernels
-from raytrace.solver.budget import Budget
-from raytrace.solver.direct import Seeds, reverse_seeds, zoom_seeds
-from raytrace.solver.field import path_gains
-from raytrace.solver.launch import angular_spacing_rad
-from raytrace.solver.media import MediaTable
 from raytrace.body.library import get_phantom
-from raytrace.spec import Antenna, ChannelSpec
+from raytrace.body.phantom import Phantom
+from raytrace.engine import kernels
+from raytrace.engine.scene import TracerScene, scene_for
 from raytrace.results import (
     ChannelResult,
     Interaction,
@@ -81,10 +76,23 @@ from raytrace.results import (
     Segment,
     TraceStats,
 )
-from raytrace.body.phantom import Phantom
-from raytrace.solver.refine import KIND_PASS, KIND_REFLECTION, Refined, Steps, encode, follow, refine, refine_by_continuation
+from raytrace.solver.budget import Budget
+from raytrace.solver.direct import Seeds, reverse_seeds, zoom_seeds
+from raytrace.solver.field import path_gains
+from raytrace.solver.launch import angular_spacing_rad
+from raytrace.solver.media import MediaTable
+from raytrace.solver.refine import (
+    KIND_PASS,
+    KIND_REFLECTION,
+    Refined,
+    Steps,
+    encode,
+    follow,
+    refine,
+    refine_by_continuation,
+)
 from raytrace.solver.sbr import shoot
-from raytrace.engine.scene import TracerScene, scene_for
+from raytrace.spec import Antenna, ChannelSpec
 
 #: Worker threads of one request: the direct-path search and the shooting's launch batches,
 #: then the Newton refinement of the shooting's seeds (Embree and the kernels run without the GIL).
@@ -472,9 +480,8 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
             media.append(mf)
             med = mf if kind == KIND_REFLECTION else mt
         media.append(med)
-        segments = tuple(
-            Segment(names[m + 1], lengths[e + j + i], start_m=points[i], end_m=points[i + 1]) for i, m in enumerate(media)
-        )
+        segments = tuple(Segment(names[m + 1], lengths[e + j + i], start_m=points[i], end_m=points[i + 1])
+                         for i, m in enumerate(media))
         out.append(Path(delay_s=delay_s[j], gain=gain[j], length_m=length_m[j], interactions=tuple(interactions),
                         segments=segments, band_gains=fields.gains[rows[j], 1:].copy() if band else None))
     return out
