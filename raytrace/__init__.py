@@ -24,12 +24,14 @@ The package is layered; each layer imports only the ones above it in this list
 
 and beside them the request and the answer: :mod:`raytrace.spec`
 (:class:`ChannelSpec`, :class:`Antenna`), :mod:`raytrace.results`
-(:class:`ChannelResult`) and :mod:`raytrace.scenarios` (ready-made specs).
+(:class:`ChannelResult`), :mod:`raytrace.scenarios` (ready-made specs) and
+:mod:`raytrace.config` (:class:`TracerConfig`, how the search is tuned).
 """
 
 from raytrace.body.library import builtin_phantoms, get_phantom
 from raytrace.body.phantom import Organ, Phantom, Site
 from raytrace.body.torso import default_torso
+from raytrace.config import TracerConfig
 from raytrace.errors import (
     AmbiguousPositionError,
     BudgetExceededError,
@@ -73,6 +75,7 @@ __all__ = [
     "Segment",
     "Site",
     "TraceStats",
+    "TracerConfig",
     "UnknownTissueError",
     "builtin_phantoms",
     "default_torso",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from raytrace.config import TracerConfig
 from raytrace.physics.em import C0
 from raytrace.spec import Antenna
 from tests.helpers import trace
@@ -150,8 +151,8 @@ def test_direct_paths_on_the_torso_are_exact(contact_torso, direct_traces):
     Newton stopping miss of 1e-9 m allows on the adjacent legs), the delay equals sum L_i Re n_i / c from its
     segments (1e-15 s), segments' media match the phantom's lookup at their midpoints,
     delays sorted, gains finite and non-zero."""
-    from raytrace.solver.media import MediaTable
     from raytrace.engine.scene import scene_for
+    from raytrace.solver.media import MediaTable
 
     ph = contact_torso
     media = MediaTable.build(ph, np.array([402e6]))
@@ -198,7 +199,8 @@ def test_torso_trace_is_deterministic(contact_torso, direct_traces):
                           max_interactions=6)
     first = direct_traces[cap]
     for p1, p2 in zip(first.profiles, again.profiles):
-        assert [(p.delay_s, p.gain, p.length_m) for p in p1.paths] == [(p.delay_s, p.gain, p.length_m) for p in p2.paths]
+        key = [(p.delay_s, p.gain, p.length_m) for p in p1.paths]
+        assert key == [(p.delay_s, p.gain, p.length_m) for p in p2.paths]
 
 
 def test_reverse_search_gives_the_forward_direct_path(contact_torso, direct_traces):
@@ -206,10 +208,10 @@ def test_reverse_search_gives_the_forward_direct_path(contact_torso, direct_trac
     (signature reversed, each surface from the other side) and refined forward, is the path
     the forward search found (same launch direction to 1e-6 rad: both are Newton solutions
     to 1e-9 m over ~0.1 m), for a pair whose forward search is well conditioned."""
+    from raytrace.engine.scene import scene_for
     from raytrace.solver.direct import reverse_seeds, reverse_signature
     from raytrace.solver.media import MediaTable
     from raytrace.solver.refine import refine
-    from raytrace.engine.scene import scene_for
 
     codes = np.array([[10, 6, 33, -1]])
     assert reverse_signature(reverse_signature(codes, np.array([3])), np.array([3])).tolist() == codes.tolist()
@@ -228,7 +230,7 @@ def test_reverse_search_gives_the_forward_direct_path(contact_torso, direct_trac
     assert fwd.converged.any()
     prof = next(p for p in direct_traces[cap].profiles if p.receiver == sensor)
     launch = [(p.segments[0].end_m - tx) / p.segments[0].length_m for p in prof.paths if _is_direct(p)]
-    angles = [np.arccos(np.clip(d @ l, -1, 1)) for d in fwd.dirs[fwd.converged] for l in launch]
+    angles = [np.arccos(np.clip(d @ u, -1, 1)) for d in fwd.dirs[fwd.converged] for u in launch]
     assert min(angles) < 1e-6
 
 
@@ -281,10 +283,10 @@ def test_seed_walk_in_float32_follows_the_same_surfaces_as_the_exact_walk(phanto
     next ray started on the surface it had just crossed and re-hit it at ~1e-9 m, cutting 1.7-5 %
     of the walks short. Tolerance 0.1 % of launches (a ray grazing an edge may legitimately
     split differently in float32)."""
+    from raytrace.engine.scene import scene_for
     from raytrace.solver import direct
     from raytrace.solver.launch import fibonacci_sphere
     from raytrace.solver.media import MediaTable
-    from raytrace.engine.scene import scene_for
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -308,10 +310,9 @@ def test_walk_on_the_shooting_rays_gives_the_seed_walks_seeds(phantom):
     launch directions, signatures and event counts for every receiver, closest approaches
     within 1e-3 relative (float32 positions over a few events; measured 4e-4). Its rays never
     make reception candidates: the shooting's candidates are identical with and without it."""
-    from raytrace.solver import direct
-    from raytrace.solver import sbr
-    from raytrace.solver.media import MediaTable
     from raytrace.engine.scene import scene_for
+    from raytrace.solver import direct, sbr
+    from raytrace.solver.media import MediaTable
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -329,7 +330,7 @@ def test_walk_on_the_shooting_rays_gives_the_seed_walks_seeds(phantom):
     assert walked.segments > plain.segments  # the walk's own continuations
     alone = direct.direct_seeds(scene, media, tx, tx_medium, rx, rx_medium, rays, receivers)
     riding = walked.direct_seeds(receivers)
-    assert len(alone.receiver) == len(rx) * direct.SEEDS_PER_RECEIVER
+    assert len(alone.receiver) == len(rx) * TracerConfig().seeds_per_receiver
     np.testing.assert_array_equal(riding.receiver, alone.receiver)
     np.testing.assert_allclose(riding.launch_dir, alone.launch_dir, atol=1e-12)
     np.testing.assert_array_equal(riding.codes, alone.codes)
@@ -337,14 +338,14 @@ def test_walk_on_the_shooting_rays_gives_the_seed_walks_seeds(phantom):
     np.testing.assert_allclose(riding.miss_m, alone.miss_m, rtol=1e-3)
 
 
-def test_the_live_ray_cap_never_drops_the_walks_rays(phantom, monkeypatch):
+def test_the_live_ray_cap_never_drops_the_walks_rays(phantom):
     """Under the shooting's safety cap on live rays (forced low: 22000 for a 20000-ray launch,
     which cuts the shot segments by more than 20 %), the walk riding on the shooting keeps
     every one of its rays (one per launch) and gives the same seeds as without the cap
     (ranking them by power over squared length like the others changes the seeds)."""
+    from raytrace.engine.scene import scene_for
     from raytrace.solver import sbr
     from raytrace.solver.media import MediaTable
-    from raytrace.engine.scene import scene_for
 
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -353,8 +354,8 @@ def test_the_live_ray_cap_never_drops_the_walks_rays(phantom, monkeypatch):
     tx = np.asarray(next(s for s in phantom.sites.values() if s.kind == "capsule").position_m, float)
     tx_medium = int(phantom.medium_index(tx[None])[0])
     free = sbr.shoot(scene, media, tx, tx_medium, rx, rx_medium, 20_000, 6, 80.0, walk=True)
-    monkeypatch.setattr(sbr, "MAX_LIVE_RAYS", 22000)
-    capped = sbr.shoot(scene, media, tx, tx_medium, rx, rx_medium, 20_000, 6, 80.0, walk=True)
+    capped = sbr.shoot(scene, media, tx, tx_medium, rx, rx_medium, 20_000, 6, 80.0, walk=True,
+                       config=TracerConfig(max_live_rays=22000))
     assert capped.segments < 0.8 * free.segments  # the cap did cut
     a, b = free.direct_seeds(np.arange(len(rx))), capped.direct_seeds(np.arange(len(rx)))
     np.testing.assert_array_equal(a.codes, b.codes)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from raytrace.config import TracerConfig
 from raytrace.engine import kernels
 from raytrace.engine.kernels import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION  # noqa: F401 (re-exported)
 from raytrace.engine.records import (
@@ -47,43 +48,13 @@ from raytrace.engine.scene import TracerScene
 from raytrace.solver.budget import Budget
 from raytrace.solver.media import MediaTable
 
-#: Newton stops when the last leg misses the receiver by less than this [m].
-MISS_TOLERANCE_M = 1e-9
-#: Largest Newton step on the launch angles [rad].
-MAX_STEP_RAD = 0.25
-MAX_ITERATIONS = 40
-#: A seed whose miss is not below STALL_FACTOR times its miss STALL_WINDOW iterations earlier
-#: (less than 0.3 % progress per iteration) is given up. Newton in its basin shrinks the miss
-#: quadratically; flat seeds otherwise keep every iteration's vectorised pass going for a
-#: handful of seeds up to MAX_ITERATIONS. Slow but steady seeds do converge late (one at
-#: iteration 35 after 24 iterations of ~1 % progress), so the rule only drops flat ones.
-#: Measured on the default torso, 6 capsules x (the 12 sensor sites + the 12 uniform-belt
-#: positions of tests/test_tracer_torso.py), 2200 paths: none lost; window 10 with factor 0.9
-#: lost one (-37.5 dB under its receiver's strongest), window 6 / 0.9 two, a cap of 12
-#: iterations eleven (one 0.7 dB under the strongest).
-STALL_WINDOW = 10
-STALL_FACTOR = 0.97
-LINE_SEARCH_HALVINGS = 10
-#: A seed's line search starts this many halvings above its last accepted fraction (a step
-#: may double per iteration), not at the full step: a seed pushed against the edge of its
-#: signature's launch region accepts ever smaller fractions (1, 1/2, 1/8, 1/32, ... then
-#: none), and retrying the large ones first cost 4 of every 5 Newton rays on the default
-#: torso, almost all on seeds that fail. Seeds in their basin accept the full step and are
-#: unaffected.
-LINE_SEARCH_GROWTH = 1
-#: Seeds per call of the Newton kernel: the work budget is charged between calls.
-NEWTON_CHUNK = 128
-#: Step fractions of the backtracking line search, tried in this order per seed (in the compiled
-#: trace, one seed at a time, stopping at the first that reduces the miss: only the rays needed
-#: are cast; batches of fractions traced together cast 0.62e6 segments on 2225 torso seeds where
-#: this casts 0.2e6, same result).
-_LINE_SEARCH_FRACTIONS = 0.5 ** np.arange(LINE_SEARCH_HALVINGS)
 
-
-def _newton_settings() -> NewtonSettings:
-    return build(NewtonSettings, fractions=_LINE_SEARCH_FRACTIONS, max_iterations=MAX_ITERATIONS,
-                 tolerance_m=MISS_TOLERANCE_M, max_step_rad=MAX_STEP_RAD, stall_window=STALL_WINDOW,
-                 stall_factor=STALL_FACTOR, growth=LINE_SEARCH_GROWTH)
+def _newton_settings(config: TracerConfig) -> NewtonSettings:
+    """Newton's settings from ``config``; the line search's step fractions 1, 1/2, 1/4, ..."""
+    return build(NewtonSettings, fractions=0.5 ** np.arange(config.line_search_halvings),
+                 max_iterations=config.max_iterations, tolerance_m=config.miss_tolerance_m,
+                 max_step_rad=config.max_step_rad, stall_window=config.stall_window,
+                 stall_factor=config.stall_factor, growth=config.line_search_growth)
 
 
 def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.ndarray:
@@ -234,19 +205,21 @@ def refine_by_continuation(
     codes: np.ndarray,
     nint: np.ndarray,
     *,
-    stages: int = 8,
     budget: Budget | None = None,
+    config: TracerConfig | None = None,
 ) -> Refined:
     """Refraction-only paths by homotopy on the refractive indices.
 
     With every index set to 1 the straight transmitter->receiver line is the
     exact path; the indices are raised as ``n_i^s`` for s from 0 to 1 in
-    ``stages`` steps, each stage's Newton starting from the previous stage's
+    ``config.continuation_stages`` steps, each stage's Newton starting from the previous stage's
     solution. This finds direct paths whose straight launch direction would
     be totally reflected (a capsule deep in muscle, a sensor in air).
     """
     import dataclasses
 
+    config = config or TracerConfig()
+    stages = config.continuation_stages
     dirs = (rx_m - tx_m) / np.linalg.norm(rx_m - tx_m, axis=1, keepdims=True)
     alive = np.ones(len(dirs), bool)
     segments = 0
@@ -257,7 +230,8 @@ def refine_by_continuation(
         if len(idx) == 0:
             break
         staged = dataclasses.replace(media, n=np.exp(s * log_n)[None, :] + 0j)
-        res = refine(scene, staged, tx_m, tx_medium, rx_m[idx], dirs[idx], codes[idx], nint[idx], budget=budget)
+        res = refine(scene, staged, tx_m, tx_medium, rx_m[idx], dirs[idx], codes[idx], nint[idx], budget=budget,
+                     config=config)
         segments += res.segments
         dirs[idx[res.converged]] = res.dirs[res.converged]
         alive[idx[~res.converged]] = False
@@ -279,6 +253,7 @@ def refine(
     nint: np.ndarray,
     *,
     budget: Budget | None = None,
+    config: TracerConfig | None = None,
 ) -> Refined:
     """Newton on the two launch angles until each path's last leg hits its receiver.
 
@@ -287,12 +262,14 @@ def refine(
     offset's derivatives with respect to tilting the launch along two
     orthonormal tangents, from the ray differentials the trace carries
     (as :func:`follow` with ``tangents``), so the Jacobian determinant is the
-    ray-tube area per steradian. Steps are limited to :data:`MAX_STEP_RAD` and
-    backtracked (halved, :data:`LINE_SEARCH_GROWTH`) until the miss decreases;
-    seeds that stall (:data:`STALL_WINDOW`) are given up. Each seed is iterated
-    to its end in :func:`raytrace.engine.kernels.newton`, :data:`NEWTON_CHUNK` seeds per
-    call (the budget is charged between calls).
+    ray-tube area per steradian. Steps are limited to ``config.max_step_rad`` and
+    backtracked (halved, ``line_search_growth``) until the miss decreases; seeds that
+    stall (``stall_window``, ``stall_factor``) are given up
+    (:class:`~raytrace.config.TracerConfig`). Each seed is iterated to its end in
+    :func:`raytrace.engine.kernels.newton`, ``newton_chunk`` seeds per call (the budget is
+    charged between calls).
     """
+    config = config or TracerConfig()
     p = len(dirs0)
     dirs = _normalize(np.asarray(dirs0, float).copy())
     converged = np.zeros(p, bool)
@@ -304,11 +281,11 @@ def refine(
     nint = np.ascontiguousarray(nint, dtype=np.int64)
     rx_m = np.ascontiguousarray(rx_m, dtype=float)
     max_steps = _max_steps(media, nint)
-    settings = _newton_settings()
+    settings = _newton_settings(config)
     tables, media_tables, no_steps = scene.kernel_tables, media.kernel_tables, step_records(0, 0)
     tx = np.ascontiguousarray(tx_m, dtype=float)
-    for a in range(0, p, NEWTON_CHUNK):  # the budget is charged (and checked) between chunks
-        part = slice(a, a + NEWTON_CHUNK)
+    for a in range(0, p, config.newton_chunk):  # the budget is charged (and checked) between chunks
+        part = slice(a, a + config.newton_chunk)
         seeds = build(NewtonSeeds, tx=tx, tx_medium=int(tx_medium), dirs=dirs[part], codes=codes[part],
                       nint=nint[part], rx=rx_m[part], converged=converged[part], tube=tube[part])
         cast = kernels.newton(tables, media_tables, seeds, no_steps, max_steps, settings)

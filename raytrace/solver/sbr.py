@@ -1,10 +1,10 @@
 """Shooting and bouncing rays: candidate interaction signatures for every receiver.
 
 One launch (a Fibonacci sphere of directions at the transmitter) serves all
-receivers; it is processed in batches of :data:`LAUNCH_BATCH` directions,
+receivers; it is processed in batches of ``launch_batch`` directions,
 each batch's whole bounce tree at once, so memory stays bounded without
 culling branches. Per bounce, every live ray of the batch is cast together
-(Embree batches of :data:`CHUNK_RAYS`); at each hit it splits into a
+(Embree batches of ``chunk_rays``); at each hit it splits into a
 reflected ray and, unless Snell has no real solution (total internal
 reflection), a transmitted ray, up to ``max_interactions`` events. The scene
 given holds only the surfaces between different materials (see
@@ -22,7 +22,7 @@ spacing sqrt(4 pi / N), multiplied at each refraction by the tube's angular
 magnification ``max(n1 cos_i / (n2 cos_t), n1 / n2, 1)``, and widened at every
 curved surface by what a thin mirror / lens of the surface's curvature ``k``
 does to the tube's edge ray at half-width ``h``: ``2 k h`` on reflection,
-``k h |1 - n1 / n2|`` on refraction (times :data:`CURVATURE_MARGIN`; ``k``
+``k h |1 - n1 / n2|`` on refraction (times ``curvature_margin``; ``k``
 from :attr:`raytrace.engine.scene.TracerScene.face_curvature32`). Without that term
 curved organs (colon, kidneys, spine, the skin's own curvature) spread the rays
 of a reflected tube far beyond its modelled width, and receivers between them
@@ -41,41 +41,20 @@ default request this adds 14e3 casts to the shooting's 1.63e6 where the stand-al
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from raytrace.config import TracerConfig
 from raytrace.engine import kernels
 from raytrace.engine.records import ShotMedia, ShotRays, ShotReceivers, ShotScene, ShotSettings, WalkRecords, build
 from raytrace.engine.scene import TracerScene
 from raytrace.physics.em import C0
 from raytrace.solver.budget import Budget
-from raytrace.solver.direct import MAX_EVENTS, Seeds, closest_launches, pick_seeds
+from raytrace.solver.direct import Seeds, closest_launches, pick_seeds
 from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.solver.media import MediaTable
-
-#: Launch directions traced together (their whole bounce tree at once). Batches are handed to
-#: the threads as they free up, so small ones balance the two cores and keep each generation's
-#: arrays in cache: on the default torso (1e5 rays, 2 threads) the shooting took 0.225-0.239 s
-#: wall (0.44-0.47 CPU-s) with 12 500, 0.253-0.263 s (0.48-0.50) with 50 000, and 0.237-0.251 s
-#: with 6 250 (more per-generation overhead); the paths are the same.
-LAUNCH_BATCH = 12_500
-#: Safety cap on the live rays of one launch batch (highest priority kept; the walk's rays,
-#: at most one per launch, always: so it must stay above LAUNCH_BATCH).
-MAX_LIVE_RAYS = 2_000_000
-#: Launch batches shot concurrently (threads; Embree releases the GIL). Peak memory grows
-#: with it: each batch holds its own bounce tree.
-SHOOT_THREADS = min(2, os.cpu_count() or 1)
-#: Reception radius in units of the local ray-tube half-width.
-RECEPTION_FACTOR = 1.0
-#: Safety factor on the curvature widening of the tubes (module doc). Measured on the default
-#: torso (3 capsules x 12 sensors, 1e5 rays; reference: the union of 1e6-ray traces): paths
-#: within 20 dB of a receiver's strongest that were missed, of 267: 84 without the term, 42
-#: with margin 1, 25 with margin 2; receivers missing their strongest path: 6, 1, 0 of 36.
-#: Request time grows with the candidates (about +50 % at margin 2).
-CURVATURE_MARGIN = 2.0
 
 
 @dataclass
@@ -92,15 +71,12 @@ class Candidates:
     #: every batch (:func:`raytrace.solver.direct.closest_launches`), in batch order; None if not walked
     walk: list[list[tuple]] | None = None
 
-    def direct_seeds(self, receivers: np.ndarray) -> Seeds:
+    def direct_seeds(self, receivers: np.ndarray, config: TracerConfig | None = None) -> Seeds:
         """:func:`raytrace.solver.direct.direct_seeds` of ``receivers`` from the shooting's own walk
         (its rays were cast and counted by the shooting)."""
         receivers = np.asarray(receivers, np.int64)
-        return pick_seeds([self.walk[int(r)] for r in receivers], receivers, self.rays_launched, 0)
-
-
-#: Rays processed per Embree batch inside one bounce (bounds the temporaries' memory).
-CHUNK_RAYS = 1 << 18
+        return pick_seeds([self.walk[int(r)] for r in receivers], receivers, self.rays_launched, 0,
+                          config or TracerConfig())
 
 
 #: The walk's records when there is no walk: (0, 0) arrays and a launch offset.
@@ -154,10 +130,11 @@ class _Found:
 
 
 def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium: np.ndarray, kmax: int,
-             dynamic_range_db: float, walk: bool = False) -> _Context:
+             dynamic_range_db: float, walk: bool = False, config: TracerConfig | None = None) -> _Context:
     """The shooting's constant inputs, in the dtypes :func:`raytrace.engine.kernels.bounce` is compiled for:
     geometry in float32 in the scene's centred frame, the power attenuation constant
     ``alpha = k0 |Im n|`` [Np/m] of every medium at the centre frequency."""
+    config = config or TracerConfig()
     rx_medium = np.asarray(rx_medium, np.int64)
     tables = media.kernel_tables
     alpha = (2.0 * np.pi * media.frequencies_hz[0] / C0) * -media.n[0].imag
@@ -172,8 +149,8 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
                         position_m=np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
                         material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1])),
         settings=build(ShotSettings, threshold=10.0 ** (-dynamic_range_db / 10.0), kmax=int(kmax),
-                       reception_factor=RECEPTION_FACTOR, curvature_margin=CURVATURE_MARGIN, no_passes=no_passes,
-                       walk_events=MAX_EVENTS),
+                       reception_factor=config.reception_factor, curvature_margin=config.curvature_margin,
+                       no_passes=no_passes, walk_events=config.walk_max_events),
         walk=bool(walk),
     )
 
@@ -211,6 +188,7 @@ def shoot(
     budget: Budget | None = None,
     walk: bool = False,
     pool: Executor | None = None,
+    config: TracerConfig | None = None,
 ) -> Candidates:
     """Launch ``rays`` directions, bounce them, return reception candidates (vectorised per bounce).
     ``walk``: also the refraction-only walk of :func:`raytrace.solver.direct.direct_seeds` on the same
@@ -219,24 +197,29 @@ def shoot(
     Per ray the state is position, direction, medium, power factor, tube
     radius/angle, event count, launch index and a pointer into an event log
     (parent event, code, face) from which candidate signatures are rebuilt;
-    the spawned origin is offset off the surface just left (float32 safety).
+    the spawned origin is offset off the surface just left (float32 safety). Launch batches,
+    live-ray cap, threads, chunks and reception: ``config``
+    (:class:`~raytrace.config.TracerConfig`); ``pool``: the caller's workers instead of
+    ``config.threads`` of its own.
     """
+    config = config or TracerConfig()
+    max_events = config.walk_max_events
     kmax = int(max_interactions)
     width = max(kmax, 1)
-    ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db, walk)
+    ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db, walk, config)
     if ctx.walk and not ctx.settings.no_passes:
         raise ValueError("the walk needs a scene without transparent surfaces (raytrace.engine.scene.scene_for)")
     n_rx = len(rx_m)
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
     if ctx.walk:
-        max_steps = max(max_steps, MAX_EVENTS + 1)  # a walked ray's generations: one per event
+        max_steps = max(max_steps, max_events + 1)  # a walked ray's generations: one per event
     spacing = angular_spacing_rad(rays)
     tx_c = (np.asarray(tx_m, float) - scene.center).astype(np.float32)
 
     def launch_batch(first: int) -> tuple[_Found, int, list | None]:
         # the whole bounce tree of one batch of launch directions: bounds memory without
         # culling branches; batches are independent (own event log and candidates)
-        count = min(LAUNCH_BATCH, rays - first)
+        count = min(config.launch_batch, rays - first)
         launch = fibonacci_sphere(rays, np.arange(first, first + count))
         log, found, segments = _Log(), _Found(), 0
         state = build(
@@ -262,8 +245,8 @@ def shoot(
             if n_live == 0:
                 break
             bounced = [
-                _bounce(ctx, _take(state, slice(a, a + CHUNK_RAYS)), log, found, records)
-                for a in range(0, n_live, CHUNK_RAYS)
+                _bounce(ctx, _take(state, slice(a, a + config.chunk_rays)), log, found, records)
+                for a in range(0, n_live, config.chunk_rays)
             ]
             cast = sum(n for n, _c in bounced)
             segments += cast
@@ -272,25 +255,26 @@ def shoot(
             state = _concat([c for _n, c in bounced if c is not None])
             if state is None:
                 break
-            if len(state.o) > MAX_LIVE_RAYS:
+            if len(state.o) > config.max_live_rays:
                 # safety cap: keep the rays most likely to matter, power factor over the squared
                 # reduced length sum L_i / n_i (the paraxial ray-tube spreading of layered media)
                 priority = state.w / np.maximum(state.length, 1e-4) ** 2
                 priority[state.mode > 0] = np.inf  # the walk's rays (no reflection yet): one per launch at most
-                keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
+                cap = config.max_live_rays
+                keep = np.sort(np.argpartition(-priority, cap - 1)[:cap])
                 state = _take(state, keep)
         offers = None
         entries = _log_arrays(log)
         if ctx.walk:
             miss, n_ev, last = records.miss, records.events, records.hist
-            offers = closest_launches(miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c],
-                                                                              MAX_EVENTS)[0],
-                                      launch)
+            offers = closest_launches(
+                miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c], max_events)[0], launch,
+                config.seeds_per_receiver)
         _resolve(found, log, entries, width)  # signatures of this batch's candidates; the log is freed
         return found, segments, offers
 
-    firsts = list(range(0, rays, LAUNCH_BATCH))
-    workers = min(SHOOT_THREADS, len(firsts))
+    firsts = list(range(0, rays, config.launch_batch))
+    workers = min(config.threads, len(firsts))
     if pool is not None:  # the caller's workers (raytrace.solver.tracer queues other work beside)
         batches = list(pool.map(launch_batch, firsts))
     elif workers > 1:
