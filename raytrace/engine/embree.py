@@ -21,7 +21,12 @@ Layout of ``RTCRayHit`` (Embree 4 ``rtcore_ray.h``, 16-byte aligned): the ray
 ``org_x org_y org_z tnear dir_x dir_y dir_z time tfar mask id flags`` (float32 /
 uint32 words 0-11), then the hit ``Ng_x Ng_y Ng_z u v primID geomID instID``
 (words 12-19); the buffer here has 24 words, room for the optional
-``instPrimID`` of builds with instance arrays.
+``instPrimID`` of builds with instance arrays. That layout is Embree 4's: the
+library's version is read from a device when it loads (:func:`check_version`),
+and any other major version is refused with an ImportError. The library is
+looked up in the embreex wheel's layout of the platform, then on the system
+(:func:`library_path`). Under ``NUMBA_DISABLE_JIT=1`` the kernels run as Python
+and call ``rtcIntersect1`` through ctypes (:mod:`raytrace.engine.jit`).
 """
 
 from __future__ import annotations
