@@ -10,6 +10,7 @@ workers with the specs).
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import dataclass, field, fields
@@ -28,6 +29,12 @@ def available_cpus() -> int:
 _LEAST_INT = {"zoom_grid": 2, "zoom_levels": 0, "line_search_growth": 0}
 #: Float settings that may be 0 (no curvature widening).
 _MAY_BE_ZERO = {"curvature_margin"}
+
+
+@functools.cache
+def _kinds() -> tuple[tuple[str, bool], ...]:
+    """Each field of :class:`TracerConfig` and whether it is an int (else a float)."""
+    return tuple((f.name, f.type == "int") for f in fields(TracerConfig))
 
 
 @dataclass(frozen=True)
@@ -123,16 +130,16 @@ class TracerConfig:
     newton_chunk: int = 128
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.type == "int":
-                least = _LEAST_INT.get(f.name, 1)
+        for name, is_int in _kinds():
+            value = getattr(self, name)
+            if is_int:
+                least = _LEAST_INT.get(name, 1)
                 if isinstance(value, bool) or not isinstance(value, int) or value < least:
-                    raise ValueError(f"TracerConfig.{f.name}: expected an int >= {least}, got {value!r}")
+                    raise ValueError(f"TracerConfig.{name}: expected an int >= {least}, got {value!r}")
             elif (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-                  or value < 0 or (value == 0 and f.name not in _MAY_BE_ZERO)):
-                bound = ">= 0" if f.name in _MAY_BE_ZERO else "> 0"
-                raise ValueError(f"TracerConfig.{f.name}: expected a finite number {bound}, got {value!r}")
+                  or value < 0 or (value == 0 and name not in _MAY_BE_ZERO)):
+                bound = ">= 0" if name in _MAY_BE_ZERO else "> 0"
+                raise ValueError(f"TracerConfig.{name}: expected a finite number {bound}, got {value!r}")
         if self.max_live_rays <= self.launch_batch:
             raise ValueError(f"TracerConfig.max_live_rays: must exceed launch_batch ({self.launch_batch}): the walk "
                              f"keeps one ray per launch, got {self.max_live_rays}")

@@ -319,64 +319,82 @@ class Hits(NamedTuple):
 
 
 # ------------------------------------------------------------------ the checker
+def _token(token) -> tuple:
+    """A shape token as ``(name or None, offset or size)``: ``3`` -> ``(None, 3)``,
+    ``"M+1"`` -> ``("M", 1)``."""
+    if isinstance(token, int):
+        return None, token
+    for sign in "+-":
+        if sign in token:
+            name, k = token.split(sign)
+            return name, int(k) if sign == "+" else -int(k)
+    return token, 0
+
+
 @functools.cache
 def _fields(cls) -> tuple:
+    """Per field of ``cls``: ``(name, declaration, dtype, parsed shape)``, computed once."""
     hints = typing.get_type_hints(cls, include_extras=True)
     out = []
     for name in cls._fields:
         meta = getattr(hints[name], "__metadata__", ())
         if len(meta) != 1 or not isinstance(meta[0], (Array, Scalar)):
             raise TypeError(f"{cls.__name__}.{name} declares no Array or Scalar")
-        out.append((name, meta[0]))
+        spec = meta[0]
+        if isinstance(spec, Array):
+            out.append((name, spec, np.dtype(spec.dtype), tuple(_token(t) for t in spec.shape)))
+        else:
+            out.append((name, spec, None, None))
     return tuple(out)
 
 
-def _dim(token, bound: dict, size: int | None = None):
-    """The value of a shape token; binds a free name to ``size`` (less its offset) when given."""
-    if isinstance(token, int):
-        return token
-    name, offset = token, 0
-    for sign in "+-":
-        if sign in token:
-            name, k = token.split(sign)
-            offset = int(k) if sign == "+" else -int(k)
-    if name not in bound:
-        if size is None:
-            return None
-        bound[name] = size - offset
-    return bound[name] + offset
+def _value(token, bound: dict):
+    """A shape token's value under the dimensions bound so far (None if its name is free)."""
+    name, k = _token(token)
+    if name is None:
+        return k
+    return bound[name] + k if name in bound else None
 
 
 def _describe(spec: Array, bound: dict) -> str:
     dims = []
     for token in spec.shape:
-        value = _dim(token, bound)
-        dims.append(str(token) if value is None else f"{token}={value}" if isinstance(token, str) else str(token))
+        value = _value(token, bound)
+        dims.append(f"{token}={value}" if isinstance(token, str) and value is not None else str(token))
     return f"{spec.dtype} ({', '.join(dims)}{',' if len(dims) == 1 else ''})"
 
 
-def _check_array(where: str, value, spec: Array, bound: dict) -> np.ndarray:
+def _check_array(where: str, value, spec: Array, dtype: np.dtype, shape: tuple, bound: dict) -> np.ndarray:
     if not isinstance(value, np.ndarray):
         raise RecordError(f"{where}: expected a numpy array, {_describe(spec, bound)}; got {type(value).__name__}")
-    if value.dtype != np.dtype(spec.dtype):
+    if value.dtype != dtype:
         raise RecordError(f"{where}: expected dtype {spec.dtype}, got {value.dtype} "
                           f"({_describe(spec, bound)} expected)")
-    if value.ndim != len(spec.shape):
-        raise RecordError(f"{where}: expected {_describe(spec, bound)}, got shape {value.shape}")
-    trial = dict(bound)
-    for axis, token in enumerate(spec.shape):
-        if _dim(token, trial, value.shape[axis]) != value.shape[axis] or _dim(token, trial) < 0:
-            raise RecordError(f"{where}: expected {_describe(spec, bound)}, got shape {value.shape}")
-    bound.update(trial)
-    if not value.flags.c_contiguous:
+    sizes = value.shape
+    if len(sizes) != len(shape):
+        raise RecordError(f"{where}: expected {_describe(spec, bound)}, got shape {sizes}")
+    for size, (name, k) in zip(sizes, shape):
+        if name is None:
+            if size == k:
+                continue
+        else:
+            have = bound.get(name)
+            if have is None and size - k >= 0:
+                bound[name] = size - k
+                continue
+            if have is not None and have + k == size:
+                continue
+        raise RecordError(f"{where}: expected {_describe(spec, bound)}, got shape {sizes}")
+    flags = value.flags
+    if not flags.c_contiguous:
         raise RecordError(f"{where}: must be C-contiguous (np.ascontiguousarray), got strides {value.strides}")
-    if spec.out and not value.flags.writeable:
+    if spec.out and not flags.writeable:
         raise RecordError(f"{where}: the kernel writes into it, but the array is read-only")
     return value
 
 
 def _check_range(where: str, value: np.ndarray, spec: Array, bound: dict) -> None:
-    lo, hi = (_dim(t, bound) for t in spec.within)
+    lo, hi = (_value(t, bound) for t in spec.within)
     if value.size and (lo is None or hi is None or value.min() < lo or value.max() >= hi):
         raise RecordError(f"{where}: values must lie in [{spec.within[0]}={lo}, {spec.within[1]}={hi}), "
                           f"got [{value.min()}, {value.max()}]")
@@ -407,24 +425,24 @@ def build(cls, /, *, dims: dict | None = None, **values):
     """The record ``cls`` of ``values``, every field checked against its declaration (module
     doc); ``dims`` binds dimension names beforehand (e.g. ``{"P": rays}``). Raises
     :class:`RecordError` naming the record and the field."""
-    missing = [name for name in cls._fields if name not in values]
-    extra = [name for name in values if name not in cls._fields]
-    if missing or extra:
+    if len(values) != len(cls._fields) or not all(name in values for name in cls._fields):
+        missing = [name for name in cls._fields if name not in values]
+        extra = [name for name in values if name not in cls._fields]
         raise RecordError(f"{cls.__name__}: missing fields {missing}, unknown fields {extra}")
-    bound = dict(dims or {})
-    out = {}
+    bound = dict(dims) if dims else {}
+    out = []
     ranges = []
-    for name, spec in _fields(cls):
-        where = f"{cls.__name__}.{name}"
-        if isinstance(spec, Array):
-            out[name] = _check_array(where, values[name], spec, bound)
+    for name, spec, dtype, shape in _fields(cls):
+        value = values[name]
+        if dtype is not None:
+            out.append(_check_array(f"{cls.__name__}.{name}", value, spec, dtype, shape, bound))
             if spec.within is not None:
-                ranges.append((where, out[name], spec))
+                ranges.append((f"{cls.__name__}.{name}", value, spec))
         else:
-            out[name] = _check_scalar(where, values[name], spec)
+            out.append(_check_scalar(f"{cls.__name__}.{name}", value, spec))
     for where, value, spec in ranges:  # after every dimension is bound
         _check_range(where, value, spec, bound)
-    record = cls(**out)
+    record = cls(*out)
     invariant = _INVARIANTS.get(cls)
     if invariant is not None:
         invariant(record)

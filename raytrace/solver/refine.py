@@ -27,6 +27,7 @@ one ray or seed at a time to its end; Newton's iterations run in the kernel too
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,7 @@ from raytrace.solver.budget import Budget
 from raytrace.solver.media import MediaTable
 
 
+@functools.lru_cache(maxsize=16)
 def _newton_settings(config: TracerConfig) -> NewtonSettings:
     """Newton's settings from ``config``; the line search's step fractions 1, 1/2, 1/4, ..."""
     return build(NewtonSettings, fractions=0.5 ** np.arange(config.line_search_halvings),
@@ -124,7 +126,7 @@ def follow(
                      record=record)
 
     tables, media_tables = scene.kernel_tables, media.kernel_tables
-    out = step_records(0, 0)
+    out = _NO_STEPS
     counted = 0
     if record:
         # a counting pass first, so the step records are allocated for the steps taken (about a
@@ -168,6 +170,7 @@ def _max_steps(media: MediaTable, nint: np.ndarray) -> int:
     return 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
 
 
+_NO_STEPS = step_records(0, 0)
 _NO_DIFFERENTIALS = build(Differentials, launch=np.zeros((0, 2, 3)), point=np.zeros((0, 2, 3)),
                           direction=np.zeros((0, 2, 3)))
 _NO_LINE_SEARCH = build(LineSearch, fractions=np.zeros(0), base_dir=np.zeros((0, 3)), step=np.zeros((0, 2)),
@@ -282,13 +285,13 @@ def refine(
     rx_m = np.ascontiguousarray(rx_m, dtype=float)
     max_steps = _max_steps(media, nint)
     settings = _newton_settings(config)
-    tables, media_tables, no_steps = scene.kernel_tables, media.kernel_tables, step_records(0, 0)
+    tables, media_tables = scene.kernel_tables, media.kernel_tables
     tx = np.ascontiguousarray(tx_m, dtype=float)
     for a in range(0, p, config.newton_chunk):  # the budget is charged (and checked) between chunks
         part = slice(a, a + config.newton_chunk)
         seeds = build(NewtonSeeds, tx=tx, tx_medium=int(tx_medium), dirs=dirs[part], codes=codes[part],
                       nint=nint[part], rx=rx_m[part], converged=converged[part], tube=tube[part])
-        cast = kernels.newton(tables, media_tables, seeds, no_steps, max_steps, settings)
+        cast = kernels.newton(tables, media_tables, seeds, _NO_STEPS, max_steps, settings)
         segments += cast
         if budget is not None:
             budget.charge(cast)
