@@ -31,5 +31,11 @@ bench: $(STAMP)
 openapi: $(STAMP)
 	$(BIN)/capsule-rt openapi
 
+# Also numba's on-disk kernel cache (raytrace/engine/__pycache__/*.nbi, *.nbc; keyed on the engine's
+# sources, so a stale one is never loaded: this only reclaims the space) and, when NUMBA_CACHE_DIR is
+# set, the engine's entries there.
 clean:
 	rm -rf $(VENV) .pytest_cache bench/results
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+	if [ -n "$$NUMBA_CACHE_DIR" ] && [ -d "$$NUMBA_CACHE_DIR" ]; then \
+		find "$$NUMBA_CACHE_DIR" -path '*/engine_*' \( -name '*.nbi' -o -name '*.nbc' \) -delete; fi

@@ -10,7 +10,7 @@ default traversal, the faster one): ``rays_per_s``, the reference of the
 ratio. For context, the same rays through the tracer's robust scene
 (``robust_rays_per_s``) and through embreex's ``EmbreeScene.run``
 (``embreex_rays_per_s``). The rays are cast from as many threads as the tracer
-shoots with (``raytrace.solver.sbr.SHOOT_THREADS``; Embree runs without the GIL), so
+shoots with (``raytrace.solver.config.TracerConfig().threads``; Embree runs without the GIL), so
 the ratio tracer / ceiling compares like with like.
 """
 
@@ -24,6 +24,7 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from raytrace.engine.embree import EmbreeScene
+from raytrace.solver.config import TracerConfig
 
 
 def fibonacci_directions(n: int) -> np.ndarray:
@@ -36,7 +37,7 @@ def fibonacci_directions(n: int) -> np.ndarray:
 
 def embree_ceiling(phantom, origin_m: np.ndarray, rays: int, repeat: int = 3, threads: int | None = None) -> dict:
     if threads is None:
-        from raytrace.solver.sbr import SHOOT_THREADS as threads
+        threads = TracerConfig().threads
     vertices = np.asarray(phantom.vertices, float)
     center = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     scene = rtcore_scene.EmbreeScene()

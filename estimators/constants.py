@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import math
 
+import scipy.constants
+
 from ._checks import relative_permittivity as _check_eps
 
-SPEED_OF_LIGHT_M_PER_S = 299_792_458.0
+SPEED_OF_LIGHT_M_PER_S: float = scipy.constants.c
 """c, exact (SI)."""
 
 DEFAULT_RELATIVE_PERMITTIVITY = 27.9

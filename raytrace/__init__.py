@@ -24,7 +24,8 @@ The package is layered; each layer imports only the ones above it in this list
 
 and beside them the request and the answer: :mod:`raytrace.spec`
 (:class:`ChannelSpec`, :class:`Antenna`), :mod:`raytrace.results`
-(:class:`ChannelResult`) and :mod:`raytrace.scenarios` (ready-made specs).
+(:class:`ChannelResult`), :mod:`raytrace.scenarios` (ready-made specs) and
+:mod:`raytrace.solver.config` (:class:`TracerConfig`, how the search is tuned).
 """
 
 from raytrace.body.library import builtin_phantoms, get_phantom
@@ -45,6 +46,7 @@ from raytrace.physics.materials import Material
 from raytrace.results import ChannelResult, Interaction, Path, ReceiverProfile, Segment, TraceStats
 from raytrace.scenarios import SCENARIOS, Scenario, get_scenario
 from raytrace.solver.budget import Budget
+from raytrace.solver.config import TracerConfig
 from raytrace.solver.tracer import trace_channel, warm_up
 from raytrace.spec import Antenna, Band, ChannelSpec
 
@@ -73,6 +75,7 @@ __all__ = [
     "Segment",
     "Site",
     "TraceStats",
+    "TracerConfig",
     "UnknownTissueError",
     "builtin_phantoms",
     "default_torso",

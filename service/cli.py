@@ -107,7 +107,8 @@ def run_channel_request(payload: dict) -> dict[str, Any]:
     req = ChannelRequest.model_validate(payload)
     spec, phantom = ops.to_spec(req, registry, settings)
     budget = Budget(deadline_s=settings.request_deadline_s, max_ray_segments=settings.max_ray_segments)
-    out = ops.result_to_dict(trace_channel(spec, phantom, budget=budget), req.scenario, req.outputs)
+    result = trace_channel(spec, phantom, budget=budget, config=settings.tracer_config())
+    out = ops.result_to_dict(result, req.scenario, req.outputs)
     return json.loads(ChannelResponse.model_validate(out).model_dump_json())
 
 
@@ -242,12 +243,14 @@ def _demo_case(title: str, payload: dict) -> None:
 
     print(f"\n=== {title} ===")
     out = run_channel_request(payload)
+    stats = out["stats"]
     print(f"phantom {out['phantom']}, {out['frequency_hz'] / 1e6:g} MHz, transmitter in {out['transmitter']['medium']} "
           f"at {[round(x, 4) for x in out['transmitter']['position_m']]} m; "
-          f"{out['stats']['rays_launched']} rays, {out['stats']['paths_found']} paths, {out['stats']['elapsed_s']:.2f} s")
+          f"{stats['rays_launched']} rays, {stats['paths_found']} paths, {stats['elapsed_s']:.2f} s")
     settings = Settings()
     for prof in out["profiles"]:
-        print(f"\nreceiver {prof['receiver']} ({prof['medium']}), geometric distance {prof['geometric_distance_m'] * 1e3:.2f} mm, "
+        print(f"\nreceiver {prof['receiver']} ({prof['medium']}), "
+              f"geometric distance {prof['geometric_distance_m'] * 1e3:.2f} mm, "
               f"path gain {prof['path_gain_db']:.1f} dB, rms delay spread {prof['rms_delay_spread_s'] * 1e12:.1f} ps")
         rows = []
         for k, p in enumerate(prof["paths"]):
@@ -269,8 +272,8 @@ def _demo_case(title: str, payload: dict) -> None:
             print(f"  PDOA unavailable: {exc}")
             results = toa["results"]
         rows = [
-            (r["method"], f"{r['distance_m'] * 1e3:.2f}", f"{(r['error_m'] or 0) * 1e3:+.2f}", f"{r['std_m'] * 1e3:.3f}",
-             "-" if r["crlb_m"] is None else f"{r['crlb_m'] * 1e3:.4f}")
+            (r["method"], f"{r['distance_m'] * 1e3:.2f}", f"{(r['error_m'] or 0) * 1e3:+.2f}",
+             f"{r['std_m'] * 1e3:.3f}", "-" if r["crlb_m"] is None else f"{r['crlb_m'] * 1e3:.4f}")
             for r in results
         ]
         print(_table(rows, ["method", "distance [mm]", "error [mm]", "std [mm]", "CRLB [mm]"]))

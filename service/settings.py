@@ -13,6 +13,8 @@ from pathlib import Path
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from raytrace.solver.config import TracerConfig
+
 # Hard ceilings, also used as the schema's ``le`` bounds (see service.schemas).
 MAX_RAYS = 1_000_000
 MAX_INTERACTIONS = 10
@@ -48,7 +50,9 @@ class Settings(BaseSettings):
     max_band_points: int = Field(
         MAX_BAND_POINTS, ge=2, le=MAX_BAND_POINTS, description="Max `band.points` (channel and PDOA)."
     )
-    max_trials: int = Field(MAX_TRIALS, ge=1, le=MAX_TRIALS, description="Max Monte Carlo `trials` per ranging request.")
+    max_trials: int = Field(
+        MAX_TRIALS, ge=1, le=MAX_TRIALS, description="Max Monte Carlo `trials` per ranging request."
+    )
     max_ray_segments: int = Field(
         50_000_000,
         ge=1,
@@ -69,6 +73,20 @@ class Settings(BaseSettings):
         description="Heavy requests allowed to wait for a slot; beyond it the server answers 503 + Retry-After.",
     )
     retry_after_s: int = Field(2, ge=1, le=3600, description="Retry-After sent with 503 responses [s].")
+
+    # The tracer's CPU and memory per computation (raytrace.solver.config.TracerConfig).
+    tracer_threads: int | None = Field(
+        None, ge=1, le=256,
+        description="Threads of one channel computation; unset: the CPUs this process may use (its affinity).",
+    )
+    tracer_launch_batch: int = Field(
+        TracerConfig.launch_batch, ge=1_000, le=1_000_000,
+        description="Launch directions shot together per thread (each holds its bounce tree in memory).",
+    )
+    tracer_max_live_rays: int = Field(
+        TracerConfig.max_live_rays, ge=10_000, le=100_000_000,
+        description="Cap on the live rays of one launch batch (memory bound; must exceed the launch batch).",
+    )
 
     # Uploads.
     max_upload_bytes: int = Field(
@@ -98,7 +116,13 @@ class Settings(BaseSettings):
     @model_validator(mode="after")
     def _resolve(self) -> "Settings":
         self.data_dir = Path(self.data_dir).expanduser()
+        self.tracer_config()  # refuse an inconsistent tracer setting at start, not at the first request
         return self
+
+    def tracer_config(self) -> TracerConfig:
+        """The :class:`~raytrace.solver.config.TracerConfig` of every trace this service runs."""
+        threads = {} if self.tracer_threads is None else {"threads": self.tracer_threads}
+        return TracerConfig(launch_batch=self.tracer_launch_batch, max_live_rays=self.tracer_max_live_rays, **threads)
 
 
 def settings_table_markdown() -> str:

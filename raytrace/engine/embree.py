@@ -21,20 +21,30 @@ Layout of ``RTCRayHit`` (Embree 4 ``rtcore_ray.h``, 16-byte aligned): the ray
 ``org_x org_y org_z tnear dir_x dir_y dir_z time tfar mask id flags`` (float32 /
 uint32 words 0-11), then the hit ``Ng_x Ng_y Ng_z u v primID geomID instID``
 (words 12-19); the buffer here has 24 words, room for the optional
-``instPrimID`` of builds with instance arrays.
+``instPrimID`` of builds with instance arrays. That layout is Embree 4's: the
+library's version is read from a device when it loads (:func:`check_version`),
+and any other major version is refused with an ImportError. The library is
+looked up in the embreex wheel's layout of the platform, then on the system
+(:func:`library_path`). Under ``NUMBA_DISABLE_JIT=1`` the kernels run as Python
+and call ``rtcIntersect1`` through ctypes (:mod:`raytrace.engine.jit`).
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import glob
 import os
+import sys
 import weakref
+from pathlib import Path
+from typing import NamedTuple
 
 import llvmlite.binding
 import numpy as np
-from numba import njit, types
+from numba import types
+
+from raytrace.engine.jit import JIT_DISABLED, kernel
+from raytrace.engine.records import Hits
 
 _RTC_GEOMETRY_TYPE_TRIANGLE = 0
 _RTC_BUFFER_TYPE_INDEX = 0
@@ -43,34 +53,89 @@ _RTC_FORMAT_UINT3 = 0x5003
 _RTC_FORMAT_FLOAT3 = 0x9003
 _RTC_SCENE_FLAG_ROBUST = 1 << 2
 _RTC_INVALID_ID = 0xFFFFFFFF
+#: ``RTCDeviceProperty`` values of the version queries (Embree 3 and 4 ``rtcore_device.h``).
+_RTC_DEVICE_PROPERTY_VERSION = 0
+_RTC_DEVICE_PROPERTY_VERSION_MAJOR = 1
+_RTC_DEVICE_PROPERTY_VERSION_MINOR = 2
+_RTC_DEVICE_PROPERTY_VERSION_PATCH = 3
+#: The Embree major version whose ``RTCRayHit`` layout this module writes by hand.
+EMBREE_MAJOR = 4
 #: float32 words of one ray-hit buffer (RTCRayHit is 80 bytes, 96 with instPrimID).
 RAYHIT_WORDS = 24
 
+#: Where the embreex wheels put the Embree library, relative to the directory holding the
+#: ``embreex`` package (site-packages), per platform: auditwheel's ``embreex.libs/`` (Linux,
+#: a hash in the name), delocate's ``embreex/.dylibs/`` (macOS) and delvewheel's
+#: ``embreex.libs/`` (Windows, the name kept); the package directory itself last.
+WHEEL_LAYOUTS: dict[str, tuple[str, ...]] = {
+    "linux": ("embreex.libs/libembree4*.so*", "embreex/libembree4*.so*"),
+    "darwin": ("embreex/.dylibs/libembree4*.dylib", "embreex.libs/libembree4*.dylib", "embreex/libembree4*.dylib"),
+    "win32": ("embreex.libs/embree4*.dll", "embreex/embree4*.dll"),
+}
 
-def _library_path() -> str:
-    """The libembree4 shipped in the embreex wheel (the one embreex itself links), else the
-    system's."""
-    import embreex
 
-    root = os.path.dirname(os.path.dirname(os.path.abspath(embreex.__file__)))
-    found = sorted(glob.glob(os.path.join(root, "embreex.libs", "libembree4*")))
-    if found:
-        return found[0]
+def _platform(name: str) -> str:
+    return "linux" if name.startswith("linux") else name
+
+
+def library_path(site_dir: str | os.PathLike | None = None, platform: str = sys.platform) -> str:
+    """The Embree 4 library the embreex wheel ships (the one embreex itself links), found in the
+    wheel layout of ``platform`` (:data:`WHEEL_LAYOUTS`) under ``site_dir`` (by default the
+    directory holding the installed ``embreex``); else the system's ``embree4``. Raises
+    ImportError naming the places searched."""
+    if site_dir is None:
+        import embreex
+
+        site_dir = Path(embreex.__file__).resolve().parent.parent
+    site_dir = Path(site_dir)
+    patterns = WHEEL_LAYOUTS.get(_platform(platform), ())
+    for pattern in patterns:
+        found = sorted(p for p in site_dir.glob(pattern) if p.is_file())
+        if found:
+            return str(found[0])
     system = ctypes.util.find_library("embree4")
     if system is None:
-        raise ImportError("libembree4 not found (neither in the embreex wheel nor on the system)")
+        searched = ", ".join(str(site_dir / p) for p in patterns) or f"no wheel layout known for {platform!r}"
+        raise ImportError(f"the Embree 4 library was not found: not in the embreex wheel ({searched}) "
+                          "nor on the system (ctypes.util.find_library('embree4'))")
     return system
 
 
-def _load() -> ctypes.CDLL:
-    path = _library_path()
-    llvmlite.binding.load_library_permanently(path)  # so compiled code resolves rtcIntersect1
+def check_version(lib, path: str) -> tuple[int, int, int]:
+    """The version ``(major, minor, patch)`` of the Embree library ``lib`` (a ctypes library
+    loaded from ``path``), read from a device (``rtcGetDeviceProperty``). Raises ImportError
+    naming the version found and the one expected unless it is Embree :data:`EMBREE_MAJOR`:
+    the ``RTCRayHit`` layout this module writes (module doc) is that of Embree 4."""
+    lib.rtcNewDevice.restype, lib.rtcNewDevice.argtypes = ctypes.c_void_p, [ctypes.c_char_p]
+    lib.rtcGetDeviceProperty.restype = ctypes.c_ssize_t
+    lib.rtcGetDeviceProperty.argtypes = [ctypes.c_void_p, ctypes.c_int]
+    lib.rtcReleaseDevice.restype, lib.rtcReleaseDevice.argtypes = None, [ctypes.c_void_p]
+    device = lib.rtcNewDevice(None)
+    if not device:
+        raise ImportError(f"Embree at {path} could not create a device to report its version")
+    try:
+        combined = int(lib.rtcGetDeviceProperty(device, _RTC_DEVICE_PROPERTY_VERSION))
+        major, minor, patch = (int(lib.rtcGetDeviceProperty(device, p)) for p in (
+            _RTC_DEVICE_PROPERTY_VERSION_MAJOR, _RTC_DEVICE_PROPERTY_VERSION_MINOR, _RTC_DEVICE_PROPERTY_VERSION_PATCH))
+    finally:
+        lib.rtcReleaseDevice(device)
+    found = f"{major}.{minor}.{patch}"
+    if major != EMBREE_MAJOR or combined != major * 10_000 + minor * 100 + patch:
+        raise ImportError(f"Embree {EMBREE_MAJOR}.x expected (raytrace.engine.embree writes the Embree "
+                          f"{EMBREE_MAJOR} RTCRayHit layout), found Embree {found} (version number {combined}) "
+                          f"at {path}; install embreex>=4.4,<5 (pyproject.toml)")
+    return major, minor, patch
+
+
+def _load() -> tuple[ctypes.CDLL, str, tuple[int, int, int]]:
+    path = library_path()
     lib = ctypes.CDLL(path)
+    version = check_version(lib, path)  # before any compiled code can call into it
+    if not JIT_DISABLED:
+        llvmlite.binding.load_library_permanently(path)  # so compiled code resolves rtcIntersect1
     vp, c_int, c_uint, c_size = ctypes.c_void_p, ctypes.c_int, ctypes.c_uint, ctypes.c_size_t
     for name, res, args in (
-        ("rtcNewDevice", vp, [ctypes.c_char_p]),
         ("rtcGetDeviceError", c_int, [vp]),
-        ("rtcReleaseDevice", None, [vp]),
         ("rtcNewScene", vp, [vp]),
         ("rtcSetSceneFlags", None, [vp, c_int]),
         ("rtcCommitScene", None, [vp]),
@@ -80,17 +145,31 @@ def _load() -> ctypes.CDLL:
         ("rtcCommitGeometry", None, [vp]),
         ("rtcAttachGeometry", c_uint, [vp, vp]),
         ("rtcReleaseGeometry", None, [vp]),
+        ("rtcIntersect1", None, [vp, vp, vp]),
     ):
         fn = getattr(lib, name)
         fn.restype, fn.argtypes = res, args
-    return lib
+    return lib, path, version
 
 
-_LIB = _load()
+_LIB, LIBRARY_PATH, VERSION = _load()
 
-#: ``void rtcIntersect1(RTCScene scene, RTCRayHit* rayhit, RTCIntersectArguments* args)``,
-#: pointers passed as integers (same registers on every 64-bit ABI numba targets).
-rtc_intersect1 = types.ExternalFunction("rtcIntersect1", types.void(types.uintp, types.uintp, types.uintp))
+if JIT_DISABLED:
+    #: ``NUMBA_DISABLE_JIT=1``: the kernels run as Python and call Embree through ctypes.
+    rtc_intersect1 = _LIB.rtcIntersect1
+else:
+    #: ``void rtcIntersect1(RTCScene scene, RTCRayHit* rayhit, RTCIntersectArguments* args)``,
+    #: pointers passed as integers (same registers on every 64-bit ABI numba targets).
+    rtc_intersect1 = types.ExternalFunction("rtcIntersect1", types.void(types.uintp, types.uintp, types.uintp))
+
+
+class RayHit(NamedTuple):
+    """One 16-byte aligned ``RTCRayHit`` buffer as the kernels hold it: the float32 words,
+    the same memory as uint32 words, and its address (made once per kernel call, not per ray)."""
+
+    buf: np.ndarray  # (RAYHIT_WORDS,) float32
+    words: np.ndarray  # (RAYHIT_WORDS,) uint32 view of buf
+    ptr: int  # buf's address
 
 
 class EmbreeScene:
@@ -130,16 +209,18 @@ class EmbreeScene:
         if error:
             raise RuntimeError(f"Embree failed to build the scene (error {error})")
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> tuple:
-        """First hits of a batch of float32 rays: ``(primID, tfar, u, v)``; ``primID = -1`` and
-        ``tfar = inf`` on a miss; the hit point is ``(1 - u - v) v0 + u v1 + v v2``."""
+    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """First hits of a batch of float32 rays (:class:`~raytrace.engine.records.Hits`:
+        ``prim, tfar, u, v``); ``prim = -1`` and ``tfar = inf`` on a miss; the hit point is
+        ``(1 - u - v) v0 + u v1 + v v2``."""
         o = np.ascontiguousarray(origins, np.float32)
         d = np.ascontiguousarray(directions, np.float32)
+        if o.ndim != 2 or o.shape[1] != 3 or o.shape != d.shape:
+            raise ValueError(f"origins and directions must be (N, 3) arrays of one shape, got {o.shape} and {d.shape}")
         n = len(o)
-        prim, tfar = np.empty(n, np.int32), np.empty(n, np.float32)
-        u, v = np.empty(n, np.float32), np.empty(n, np.float32)
-        intersect_batch(self.handle, o, d, prim, tfar, u, v)
-        return prim, tfar, u, v
+        hits = Hits(np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32))
+        intersect_batch(self.handle, o, d, *hits)
+        return hits
 
 
 def _release(scene, device) -> None:
@@ -147,37 +228,36 @@ def _release(scene, device) -> None:
     _LIB.rtcReleaseDevice(device)
 
 
-_kernel = njit(cache=True, nogil=True, error_model="numpy")
-
-
-@_kernel
-def ray_buffer() -> np.ndarray:
-    """A 16-byte aligned float32 RTCRayHit buffer (a view into a slightly larger array)."""
+@kernel
+def ray_hit() -> RayHit:
+    """A fresh :class:`RayHit`: a 16-byte aligned float32 buffer (a view into a slightly
+    larger array), its uint32 view and its address."""
     raw = np.empty(RAYHIT_WORDS + 4, np.float32)
     skip = ((16 - raw.ctypes.data % 16) % 16) // 4
-    return raw[skip:skip + RAYHIT_WORDS]
+    buf = raw[skip:skip + RAYHIT_WORDS]
+    return RayHit(buf, buf.view(np.uint32), buf.ctypes.data)
 
 
-@_kernel
-def intersect(handle, buf, words, ptr, ox, oy, oz, dx, dy, dz):
-    """First hit of one ray (float32 origin and direction, from distance 0): returns
-    ``(primID or -1, tfar, u, v)``; ``buf`` is a :func:`ray_buffer`, ``words`` its uint32 view
-    and ``ptr`` its address (made once per kernel call, not per ray)."""
+@kernel
+def intersect(handle, hit, ox, oy, oz, dx, dy, dz):
+    """First hit of one ray (float32 origin and direction, from distance 0) in the scene
+    ``handle``, through the buffer ``hit`` (:func:`ray_hit`): returns ``(primID or -1, tfar,
+    u, v)``."""
+    buf, words = hit.buf, hit.words
     buf[0], buf[1], buf[2], buf[3] = ox, oy, oz, 0.0
     buf[4], buf[5], buf[6], buf[7] = dx, dy, dz, 0.0
     buf[8] = 1e37
     words[9], words[10], words[11] = _RTC_INVALID_ID, 0, 0  # mask (all), id, flags
     words[17], words[18] = _RTC_INVALID_ID, _RTC_INVALID_ID  # primID, geomID
-    rtc_intersect1(handle, ptr, 0)
+    rtc_intersect1(handle, hit.ptr, 0)
     if words[18] == _RTC_INVALID_ID:
         return -1, np.float32(np.inf), np.float32(0.0), np.float32(0.0)
     return np.int64(words[17]), buf[8], buf[15], buf[16]
 
 
-@_kernel
+@kernel
 def intersect_batch(handle, o, d, prim, tfar, u, v):
     """:func:`intersect` over a batch of rays, results written into ``prim, tfar, u, v``."""
-    buf = ray_buffer()
-    words, ptr = buf.view(np.uint32), buf.ctypes.data
+    hit = ray_hit()
     for i in range(len(o)):
-        prim[i], tfar[i], u[i], v[i] = intersect(handle, buf, words, ptr, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2])
+        prim[i], tfar[i], u[i], v[i] = intersect(handle, hit, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2])

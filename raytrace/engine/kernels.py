@@ -23,40 +23,53 @@ checks. They are tested against the independent closed forms of
 :mod:`raytrace.physics.em` in tests/raytrace/test_kernels.py and, through the tracer, against
 every oracle of docs/tracer.md.
 
-``cache=True``: the machine code is cached on disk (beside this file, or in
-``NUMBA_CACHE_DIR`` / the user's cache directory when this one is read-only),
-so only the first process after an install compiles (~17 s);
-:func:`raytrace.solver.tracer.warm_up` does it ahead of the first request. Embree is
-called by symbol name, so the cached code stays valid in a new process.
+The kernels take named records (:mod:`raytrace.engine.records`: the scene's face tables, the
+media table, the per-ray state, the step records, ...) built and checked once in Python;
+the small per-step helpers take only the arrays they read. Compiled by
+:mod:`raytrace.engine.jit` (cached on disk, keyed on the engine's sources, so only the first
+process after an install or an edit compiles: ~20 s; :func:`raytrace.solver.tracer.warm_up`
+does it ahead of the first request). Embree is called by symbol name, so the cached code
+stays valid in a new process.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from raytrace.engine import embree
-
-#: Every kernel: compiled once and cached on disk, without the GIL, and with numpy's float
-#: semantics (a division by zero gives inf / nan, as in the numpy reference, never an exception).
-_kernel = njit(cache=True, nogil=True, error_model="numpy")
-#: Every per-ray helper the kernels call: the same, without numba's reference counting
-#: (``_nrt=False``, as numba's own hot helpers in numba/cpython/unicode.py). A helper only
-#: borrows the arrays its caller holds and allocates none; with the runtime on, each call
-#: did an atomic incref and decref of every array argument on entry and exit, which the
-#: optimiser cannot remove across a call that is not inlined: ~40 % of Newton's time
-#: (``_trace_ray`` and ``_line_search`` take ~35 arrays each).
-_helper = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+from raytrace.engine.jit import helper, kernel
+from raytrace.engine.records import LogEntries, Receptions, ShotRays, TraceState, WalkRays
 
 KIND_REFRACTION = 0
-_ZERO_GRADIENT = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 KIND_REFLECTION = 1
 KIND_PASS = 2
+_ZERO_GRADIENT = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@_helper
+class _Trial(NamedTuple):
+    """Where one Newton line search of a ray starts from (point, medium), along which base
+    launch and full step, towards which receiver, and the miss it must beat (scalars, made in
+    the kernel)."""
+
+    sx: float
+    sy: float
+    sz: float
+    medium: int
+    bx: float
+    by: float
+    bz: float
+    s0: float
+    s1: float
+    rx: float
+    ry: float
+    rz: float
+    old_miss: float
+
+
+@helper
 def _smooth_normal(frame, face_normals, f, x, y, z):
     """Smooth unit normal at point (x, y, z) of face f: barycentrics from the face's frame row,
     clipped to [0, 1], corner normals interpolated; the facet normal if the result degenerates
@@ -85,7 +98,7 @@ def _smooth_normal(frame, face_normals, f, x, y, z):
     return nx, ny, nz
 
 
-@_helper
+@helper
 def _smooth_normal_gradient(frame, face_normals, f, x, y, z):
     """What the differential of :func:`_smooth_normal` at point (x, y, z) of face f needs:
     the barycentrics are affine in the point, ``dv = gv.dP``, ``dw = gw.dP``, so the
@@ -112,7 +125,7 @@ def _smooth_normal_gradient(frame, face_normals, f, x, y, z):
             1.0 / norm)
 
 
-@_helper
+@helper
 def _smooth_normal_uv(corner, face_normals, f, bu, bv):
     """Smooth unit normal of face f from Embree's barycentrics ``(u, v)``:
     ``n0 + u (n1 - n0) + v (n2 - n0)`` over the face's corner-table row, normalised; the facet
@@ -129,7 +142,7 @@ def _smooth_normal_uv(corner, face_normals, f, bu, bv):
     return nx, ny, nz
 
 
-@_helper
+@helper
 def _sides(face_organ, parent, f, d_dot_n):
     """Which side of face f a ray with ``d . n_facet = d_dot_n`` crosses: ``(leaving, organ,
     m_from, m_to)``; leaving its organ into the parent when the direction is along the outward
@@ -140,7 +153,7 @@ def _sides(face_organ, parent, f, d_dot_n):
     return leaving, organ, (organ if leaving else par), (par if leaving else organ)
 
 
-@_helper
+@helper
 def _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32):
     """Float64 distance along the unit direction from the true origin to face f's plane
     (``(n.v0 - n.o) / (n.d)``, clamped at 0), Embree's float32 ``t32`` if the ray is parallel."""
@@ -153,7 +166,7 @@ def _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32):
     return np.float64(t32)
 
 
-@_helper
+@helper
 def _refract(dx, dy, dz, nx, ny, nz, eta):
     """Vector Snell law (Born & Wolf 1.5): ``t = eta (d - ci nf) + ct nf`` with ``nf`` the normal
     oriented along ``d``, ``eta = Re n1 / Re n2``. Returns ``(tir, tx, ty, tz, ci, ct)``;
@@ -170,14 +183,14 @@ def _refract(dx, dy, dz, nx, ny, nz, eta):
     return sin2 > 1.0, tx / tn, ty / tn, tz / tn, ci, ct
 
 
-@_kernel
+@kernel
 def _grow(a, size):
     out = np.empty(size, a.dtype)
     out[:len(a)] = a
     return out
 
 
-@_helper
+@helper
 def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
     """Whether ray i's segment (length ``reach``) passes receiver r within the ray tube's
     half-width ``reception_factor * (rad + s * ang)`` at the closest point, ``s`` along the ray;
@@ -192,7 +205,7 @@ def _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor):
     return perp <= radius, perp, radius
 
 
-@_helper
+@helper
 def _segment_miss(vx, vy, vz, dx, dy, dz, reach):
     """Distance from a receiver at offset (vx, vy, vz) from a leg's start to the leg (unit
     direction d, length ``reach``): the closest point clamped to the leg (the walks' miss)."""
@@ -201,7 +214,7 @@ def _segment_miss(vx, vy, vz, dx, dy, dz, reach):
     return math.sqrt(ex * ex + ey * ey + ez * ez)
 
 
-@_helper
+@helper
 def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
     """Whether :func:`_tube_miss` could receive ray i at some receiver of its material class
     for any segment length (the test with an unbounded segment)."""
@@ -211,15 +224,21 @@ def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
     return False
 
 
-@_helper
-def _trace_ray(
-    i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
-    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
-    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, differentials, dp, dd,
-):
-    """Ray ``i`` of :func:`follow` traced on from its current state to its end (the per-ray
-    arrays updated in place; with ``differentials``, ``dp`` / ``dd`` carried along). Returns
-    the rays cast."""
+@helper
+def _trace_ray(i, hit, scene, media, state, steps, max_steps, differentials, dp, dd):
+    """Ray ``i`` of :func:`follow` traced on from its current ``state`` (a
+    :class:`~raytrace.engine.records.TraceState`, updated in place) to its end, at most
+    ``max_steps`` casts through ``hit`` into ``scene`` (:class:`~raytrace.engine.records.SceneTables`,
+    ``media`` :class:`~raytrace.engine.records.MediaTables`); in record mode each step is written
+    into ``steps`` (:class:`~raytrace.engine.records.StepRecords`); with ``differentials``,
+    ``dp`` / ``dd`` are carried along. Returns the rays cast."""
+    o, d, med, push, k, nint, ok, done = state.o, state.d, state.med, state.push, state.k, state.nint, state.ok, \
+        state.done
+    codes, targets, record = state.codes, state.targets, state.record
+    handle, center, offset_m = scene.handle, scene.center, scene.offset_m
+    face_map, face_normals, plane_d, frame, face_organ = scene.face_map, scene.face_normals, scene.plane_d, \
+        scene.frame, scene.face_organ
+    parent, cls, transparent, n_re = media.parent, media.material_class, media.transparent, media.n_real
     n_codes = codes.shape[1]
     s = 0
     while ok[i] and not done[i] and s < max_steps:
@@ -231,7 +250,7 @@ def _trace_ray(
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
         g, t32, _u, _v = embree.intersect(
-            handle, buf, words, ptr, np.float32(ox - center[0] + push[i, 0]),
+            handle, hit, np.float32(ox - center[0] + push[i, 0]),
             np.float32(oy - center[1] + push[i, 1]), np.float32(oz - center[2] + push[i, 2]),
             np.float32(dx), np.float32(dy), np.float32(dz))
         s += 1
@@ -299,20 +318,20 @@ def _trace_ray(
             k[i] += 1
         if not record:
             done[i] = k[i] >= nint[i]
-        elif s <= rec_valid.shape[0]:  # record mode (a counting pass has no rows)
+        elif s <= steps.valid.shape[0]:  # record mode (a counting pass has no rows)
             r = s - 1
-            rec_valid[r, i] = True
-            rec_point[r, i, 0], rec_point[r, i, 1], rec_point[r, i, 2] = px, py, pz
-            rec_face[r, i] = f
-            rec_kind[r, i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
-            rec_from[r, i] = m_from
-            rec_to[r, i] = m_to
-            rec_normal[r, i, 0], rec_normal[r, i, 1], rec_normal[r, i, 2] = nx, ny, nz
-            rec_dir[r, i, 0], rec_dir[r, i, 1], rec_dir[r, i, 2] = dx, dy, dz
+            steps.valid[r, i] = True
+            steps.point[r, i, 0], steps.point[r, i, 1], steps.point[r, i, 2] = px, py, pz
+            steps.face[r, i] = f
+            steps.kind[r, i] = KIND_PASS if is_transparent else (KIND_REFLECTION if reflect else KIND_REFRACTION)
+            steps.med_from[r, i] = m_from
+            steps.med_to[r, i] = m_to
+            steps.normal[r, i, 0], steps.normal[r, i, 1], steps.normal[r, i, 2] = nx, ny, nz
+            steps.dir_in[r, i, 0], steps.dir_in[r, i, 1], steps.dir_in[r, i, 2] = dx, dy, dz
     return s
 
 
-@_helper
+@helper
 def _trial_launch(out, i, lam, bx, by, bz, s0, s1):
     """A line-search trial launch into ``out[i]``: ``normalize(b + lam (s0 u + s1 v))`` with
     ``u, v`` the :func:`_tangents` of ``b``."""
@@ -323,15 +342,16 @@ def _trial_launch(out, i, lam, bx, by, bz, s0, s1):
     out[i, 0], out[i, 1], out[i, 2] = lx / nrm, ly / nrm, lz / nrm
 
 
-@_helper
-def _restart(i, sx, sy, sz, s_med, o, d, med, push, k, nint, ok, done, dp, dd):
-    """Ray ``i`` back at its start point along ``d[i]``, with the launch differentials along
-    the :func:`_tangents` of ``d[i]`` and none of the point."""
-    o[i, 0], o[i, 1], o[i, 2], med[i] = sx, sy, sz, s_med
+@helper
+def _restart(i, sx, sy, sz, s_med, state, dp, dd):
+    """Ray ``i`` of ``state`` back at its start point along ``state.d[i]``, with the launch
+    differentials along the :func:`_tangents` of ``d[i]`` and none of the point."""
+    o, push, d = state.o, state.push, state.d
+    o[i, 0], o[i, 1], o[i, 2], state.med[i] = sx, sy, sz, s_med
     push[i, 0] = push[i, 1] = push[i, 2] = 0.0
-    k[i] = 0
-    ok[i] = True
-    done[i] = nint[i] == 0
+    state.k[i] = 0
+    state.ok[i] = True
+    state.done[i] = state.nint[i] == 0
     ux, uy, uz, vx, vy, vz = _tangents(d[i, 0], d[i, 1], d[i, 2])
     dd[0, 0], dd[0, 1], dd[0, 2], dd[1, 0], dd[1, 1], dd[1, 2] = ux, uy, uz, vx, vy, vz
     for c in range(2):
@@ -339,159 +359,136 @@ def _restart(i, sx, sy, sz, s_med, o, d, med, push, k, nint, ok, done, dp, dd):
             dp[c, q] = 0.0
 
 
-@_helper
-def _line_search(
-    i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets, record,
-    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
-    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, differentials, dp, dd,
-    sx, sy, sz, s_med, fractions, first, bx, by, bz, s0, s1, rx, ry, rz, old_miss,
-):
-    """Newton's backtracking for ray ``i`` from the start point ``(sx, sy, sz)`` in medium
-    ``s_med``: the trial launches (:func:`_trial_launch`) of ``fractions[first:]`` in turn, each
-    traced with its differentials, until one's last leg passes the receiver closer than
-    ``old_miss`` (:func:`_miss`). Returns (that fraction's index or -1, rays cast, most steps
-    of a trial); the ray's state and ``dp`` / ``dd`` are the last trial's trace."""
+@helper
+def _line_search(i, hit, scene, media, state, steps, max_steps, dp, dd, fractions, first, trial):
+    """Newton's backtracking for ray ``i`` of ``state`` from the start of ``trial`` (a
+    :class:`_Trial`): the trial launches (:func:`_trial_launch`) of ``fractions[first:]`` in
+    turn, each traced with its differentials (:func:`_trace_ray`), until one's last leg passes
+    the receiver closer than ``trial.old_miss`` (:func:`_miss`). Returns (that fraction's index
+    or -1, rays cast, most steps of a trial); the ray's state and ``dp`` / ``dd`` are the last
+    trial's trace."""
+    o, d, ok, done = state.o, state.d, state.ok, state.done
     cast = 0
-    steps = 0
-    for trial in range(first, len(fractions)):
-        _trial_launch(d, i, fractions[trial], bx, by, bz, s0, s1)
-        _restart(i, sx, sy, sz, s_med, o, d, med, push, k, nint, ok, done, dp, dd)
-        s = _trace_ray(
-            i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes,
-            targets, record, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent,
-            n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,
-            differentials, dp, dd)
+    most = 0
+    for j in range(first, len(fractions)):
+        _trial_launch(d, i, fractions[j], trial.bx, trial.by, trial.bz, trial.s0, trial.s1)
+        _restart(i, trial.sx, trial.sy, trial.sz, trial.medium, state, dp, dd)
+        s = _trace_ray(i, hit, scene, media, state, steps, max_steps, True, dp, dd)
         cast += s
-        steps = max(steps, s)
-        if ok[i] and done[i] and _miss(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], rx, ry, rz) < old_miss:
-            return trial, cast, steps
-    return -1, cast, steps
+        most = max(most, s)
+        if ok[i] and done[i] and _miss(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                                       trial.rx, trial.ry, trial.rz) < trial.old_miss:
+            return j, cast, most
+    return -1, cast, most
 
 
-@_kernel
-def follow(
-    handle, center, max_steps,  # Embree scene, its centring offset, the step cap per ray
-    o, d, med, push, k, nint, ok, done, codes, targets, record,  # per-ray state, updated in place
-    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
-    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # (S, P) record mode
-    launch_d, d_point, d_dir,  # ray differentials: (P, 2, 3) launch tangents in; (P, 2, 3) out, or (0, 2, 3)
-    fractions, base_dir, step, rx, old_miss, won, trial_dir,  # line-search mode, or empty arrays
-):
-    """:func:`raytrace.solver.refine.follow`, every ray traced to its end: per step, Embree's float32
-    first hit from the centred origin plus the spawn push (in record mode a ray past its last
-    event is first aimed at its target), then the float64 hit point on the hit triangle's plane,
-    side and media from the facet normal, the signature's expected event checked, then
-    reflection (``d - 2 (d.n) n``) or refraction (vector Snell law with the real parts of the
-    indices) about the smooth normal. A ray that leaves its signature is marked ``ok = False``.
-    Returns ``(segments, steps)``: rays cast, and the largest number of steps a ray took (the
-    record rows used).
+@kernel
+def follow(scene, media, state, steps, max_steps, differentials, search):
+    """:func:`raytrace.solver.refine.follow`: every ray of ``state`` (a
+    :class:`~raytrace.engine.records.TraceState`, updated in place) traced to its end in
+    ``scene`` (:class:`~raytrace.engine.records.SceneTables`) through ``media``
+    (:class:`~raytrace.engine.records.MediaTables`), at most ``max_steps`` casts per ray: per
+    step, Embree's float32 first hit from the centred origin plus the spawn push (in record mode
+    a ray past its last event is first aimed at its target), then the float64 hit point on the
+    hit triangle's plane, side and media from the facet normal, the signature's expected event
+    checked, then reflection (``d - 2 (d.n) n``) or refraction (vector Snell law with the real
+    parts of the indices) about the smooth normal. A ray that leaves its signature is marked
+    ``ok = False``. In record mode every step goes into ``steps``
+    (:class:`~raytrace.engine.records.StepRecords`). Returns ``(segments, steps)``: rays cast,
+    and the largest number of steps a ray took (the record rows used).
 
-    Ray differentials (Igehy, "Tracing ray differentials", SIGGRAPH 1999), when ``launch_d``
-    has a row per ray: the derivatives of the point and the direction with respect to two
-    launch angles, whose direction derivatives are ``launch_d[i]``, carried through every
-    step and left in ``d_point`` / ``d_dir`` (of the last event point and direction).
+    Ray differentials (Igehy, "Tracing ray differentials", SIGGRAPH 1999), when
+    ``differentials`` (:class:`~raytrace.engine.records.Differentials`) has a row per ray: the
+    derivatives of the point and the direction with respect to two launch angles, whose
+    direction derivatives are ``differentials.launch[i]``, carried through every step and left
+    in ``differentials.point`` / ``.direction`` (of the last event point and direction).
     Transfer to the facet plane ``n.p = c``: ``dt = -n.(dP + t dD) / n.D``,
     ``dP' = dP + t dD + dt D``; reflection ``dD' = dD - 2 ((dD.N + D.dN) N + (D.N) dN)``;
     refraction (``T = eta D + (s cos_t - eta D.N) N``) ``dT = eta dD + (s dcos_t - eta
     d(D.N)) N + (s cos_t - eta D.N) dN`` with ``dcos_t = eta^2 (D.N) d(D.N) / cos_t``; ``dN``
     from :func:`_smooth_normal_gradient`.
 
-    Line-search mode (``fractions`` not empty; one step of :func:`newton`'s backtracking,
-    the same :func:`_line_search`): ray i is launched from its start along
-    ``normalize(base_dir + f (step_0 u + step_1 v))`` (``u, v`` the tangents of ``base_dir``)
-    for each fraction f in turn from index ``won[i]`` on (in: where to start), with
-    differentials along the trial's own tangents, until its last leg passes the receiver
-    ``rx[i]`` closer than ``old_miss[i]``: ``won[i]`` is then that fraction's index (-1 if
-    none), ``trial_dir[i]`` its launch, and the ray's state its trace."""
-    differentials = len(launch_d) > 0 or len(fractions) > 0
+    Line-search mode (``search``, a :class:`~raytrace.engine.records.LineSearch`, has
+    fractions; one step of :func:`newton`'s backtracking, the same :func:`_line_search`): ray i
+    is launched from its start along ``normalize(base_dir + f (step_0 u + step_1 v))`` (``u, v``
+    the tangents of ``base_dir``) for each fraction f in turn from index ``won[i]`` on (in: where
+    to start), with differentials along the trial's own tangents, until its last leg passes the
+    receiver ``rx[i]`` closer than ``old_miss[i]``: ``won[i]`` is then that fraction's index (-1
+    if none), ``trial_dir[i]`` its launch, and the ray's state its trace."""
+    o, med, ok = state.o, state.med, state.ok
+    fractions = search.fractions
+    with_differentials = len(differentials.launch) > 0 or len(fractions) > 0
     line_search = len(fractions) > 0
     dp = np.zeros((2, 3))
     dd = np.zeros((2, 3))
-    buf = embree.ray_buffer()
-    words, ptr = buf.view(np.uint32), buf.ctypes.data
+    hit = embree.ray_hit()
     segments = 0
-    steps = 0
+    most = 0
     for i in range(len(ok)):
         if line_search:
-            first = won[i]
-            won[i], cast, s = _line_search(
-                i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes,
-                targets, record, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent,
-                n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,
-                differentials, dp, dd, o[i, 0], o[i, 1], o[i, 2], med[i],
-                fractions, first, base_dir[i, 0], base_dir[i, 1], base_dir[i, 2], step[i, 0], step[i, 1],
-                rx[i, 0], rx[i, 1], rx[i, 2], old_miss[i])
-            last = won[i] if won[i] >= 0 else len(fractions) - 1  # the accepted, else the last, trial
+            first = search.won[i]
+            base, step, rx = search.base_dir, search.step, search.rx
+            trial = _Trial(o[i, 0], o[i, 1], o[i, 2], med[i], base[i, 0], base[i, 1], base[i, 2], step[i, 0],
+                           step[i, 1], rx[i, 0], rx[i, 1], rx[i, 2], search.old_miss[i])
+            search.won[i], cast, s = _line_search(i, hit, scene, media, state, steps, max_steps, dp, dd, fractions,
+                                                  first, trial)
+            last = search.won[i] if search.won[i] >= 0 else len(fractions) - 1  # the accepted, else the last, trial
             if first < len(fractions):
-                _trial_launch(trial_dir, i, fractions[last], base_dir[i, 0], base_dir[i, 1], base_dir[i, 2],
-                              step[i, 0], step[i, 1])
+                _trial_launch(search.trial_dir, i, fractions[last], trial.bx, trial.by, trial.bz, trial.s0,
+                              trial.s1)
         else:
-            if differentials:
+            if with_differentials:
                 for c in range(2):
                     for q in range(3):
-                        dd[c, q] = launch_d[i, c, q]
+                        dd[c, q] = differentials.launch[i, c, q]
                         dp[c, q] = 0.0
-            cast = s = _trace_ray(
-                i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes,
-                targets, record, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent,
-                n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,
-                differentials, dp, dd)
+            cast = s = _trace_ray(i, hit, scene, media, state, steps, max_steps, with_differentials, dp, dd)
         segments += cast
-        steps = max(steps, s)
-        if differentials:
+        most = max(most, s)
+        if with_differentials:
             for c in range(2):
                 for q in range(3):
-                    d_point[i, c, q] = dp[c, q]
-                    d_dir[i, c, q] = dd[c, q]
-    return segments, steps
+                    differentials.point[i, c, q] = dp[c, q]
+                    differentials.direction[i, c, q] = dd[c, q]
+    return segments, most
 
 
-@_kernel
-def newton(
-    handle, center, max_steps, tx, tx_med,  # Embree scene, its centring offset, the step cap; the transmitter
-    dirs, codes, nint, rx, converged, tube,  # per seed: launch (in: start, out: last accepted), signature, receiver
-    face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
-    rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir,  # (0, 0) record arrays
-    fractions, max_iterations, tolerance_m, max_step_rad, stall_window, stall_factor, growth,
-):
-    """:func:`raytrace.solver.refine.refine`'s Newton iteration, one seed at a time to its end: trace
-    the launch with its ray differentials (:func:`follow`); the residual is where the last leg
-    crosses the plane through the receiver normal to it, in that plane's :func:`_tangents`
-    basis, and the Jacobian the same offset's derivatives by the two launch angles
-    (``x = L + tau D - rx``, ``tau = (rx - L).D``: ``dx = dL - (dL.D) D + tau dD``); converged
-    when the miss is below ``tolerance_m`` (``tube`` = ``|det J|``, the ray-tube area per
-    steradian); otherwise the step ``-J^-1 r``, at most ``max_step_rad``, backtracked over
-    ``fractions`` from ``growth`` halvings above the last accepted one (:func:`_line_search`).
-    A seed fails when its trace leaves the signature, its Jacobian is singular, no trial
-    reduces the miss, or the miss is not below ``stall_factor`` times its value
-    ``stall_window`` iterations earlier. Returns the rays cast."""
+@kernel
+def newton(scene, media, seeds, steps, max_steps, settings):
+    """:func:`raytrace.solver.refine.refine`'s Newton iteration, one seed of ``seeds`` (a
+    :class:`~raytrace.engine.records.NewtonSeeds`) at a time to its end, with ``settings``
+    (:class:`~raytrace.engine.records.NewtonSettings`): trace the launch with its ray
+    differentials (:func:`follow`); the residual is where the last leg crosses the plane through
+    the receiver normal to it, in that plane's :func:`_tangents` basis, and the Jacobian the same
+    offset's derivatives by the two launch angles (``x = L + tau D - rx``, ``tau = (rx - L).D``:
+    ``dx = dL - (dL.D) D + tau dD``); converged when the miss is below ``tolerance_m``
+    (``tube`` = ``|det J|``, the ray-tube area per steradian); otherwise the step ``-J^-1 r``,
+    at most ``max_step_rad``, backtracked over ``fractions`` from ``growth`` halvings above the
+    last accepted one (:func:`_line_search`). A seed fails when its trace leaves the signature,
+    its Jacobian is singular, no trial reduces the miss, or the miss is not below
+    ``stall_factor`` times its value ``stall_window`` iterations earlier. ``steps``: empty
+    :class:`~raytrace.engine.records.StepRecords`. Returns the rays cast."""
+    dirs, rx, converged, tube, tx = seeds.dirs, seeds.rx, seeds.converged, seeds.tube, seeds.tx
+    fractions = settings.fractions
     p = len(dirs)
-    o = np.empty((p, 3))
-    d = np.empty((p, 3))
-    med = np.empty(p, np.int64)
-    push = np.empty((p, 3))
-    k = np.empty(p, np.int64)
-    ok = np.empty(p, np.bool_)
-    done = np.empty(p, np.bool_)
-    targets = np.empty((0, 3))
+    state = TraceState(np.empty((p, 3)), np.empty((p, 3)), np.empty(p, np.int64), np.empty((p, 3)),
+                       np.empty(p, np.int64), seeds.nint, np.empty(p, np.bool_), np.empty(p, np.bool_), seeds.codes,
+                       np.empty((0, 3)), False)
+    o, d, ok, done = state.o, state.d, state.ok, state.done
     dp = np.zeros((2, 3))
     dd = np.zeros((2, 3))
-    history = np.empty(max_iterations)
+    history = np.empty(settings.max_iterations)
     jac = np.empty((2, 2))
-    buf = embree.ray_buffer()
-    words, ptr = buf.view(np.uint32), buf.ctypes.data
+    hit = embree.ray_hit()
     segments = 0
     for i in range(p):
         converged[i] = False
         tube[i] = np.nan
         d[i, 0], d[i, 1], d[i, 2] = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        _restart(i, tx[0], tx[1], tx[2], tx_med, o, d, med, push, k, nint, ok, done, dp, dd)
-        segments += _trace_ray(i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done,
-                               codes, targets, False, face_map, face_normals, plane_d, frame, face_organ, parent,
-                               cls, transparent, n_re, offset_m, rec_valid, rec_point, rec_face, rec_kind, rec_from,
-                               rec_to, rec_normal, rec_dir, True, dp, dd)
+        _restart(i, tx[0], tx[1], tx[2], seeds.tx_medium, state, dp, dd)
+        segments += _trace_ray(i, hit, scene, media, state, steps, max_steps, True, dp, dd)
         accepted = 0
-        for it in range(max_iterations):
+        for it in range(settings.max_iterations):
             if not (ok[i] and done[i]):
                 break  # the trace left its signature
             lx, ly, lz, dx, dy, dz = o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2]
@@ -516,26 +513,24 @@ def newton(
             if not (math.isfinite(det) and abs(det) > 0.0):
                 break
             miss = math.sqrt(r0 * r0 + r1 * r1)
-            if miss < tolerance_m:
+            if miss < settings.tolerance_m:
                 converged[i] = True
                 tube[i] = abs(det)
                 break
             history[it] = miss
-            if it >= stall_window and not miss < stall_factor * history[it - stall_window]:
+            if it >= settings.stall_window and not miss < settings.stall_factor * history[it - settings.stall_window]:
                 break
             i00, i01, i10, i11 = jac[1, 1] / det, -jac[0, 1] / det, -jac[1, 0] / det, jac[0, 0] / det
             s0 = -(i00 * r0 + i01 * r1)
             s1 = -(i10 * r0 + i11 * r1)
             norm = math.sqrt(s0 * s0 + s1 * s1)
-            scale = min(1.0, max_step_rad / max(norm, 1e-300))
+            scale = min(1.0, settings.max_step_rad / max(norm, 1e-300))
             s0, s1 = s0 * scale, s1 * scale
             bx, by, bz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-            won, cast, _steps = _line_search(
-                i, handle, buf, words, ptr, center, max_steps, o, d, med, push, k, nint, ok, done, codes, targets,
-                False, face_map, face_normals, plane_d, frame, face_organ, parent, cls, transparent, n_re, offset_m,
-                rec_valid, rec_point, rec_face, rec_kind, rec_from, rec_to, rec_normal, rec_dir, True, dp, dd,
-                tx[0], tx[1], tx[2], tx_med,
-                fractions, max(accepted - growth, 0), bx, by, bz, s0, s1, rx[i, 0], rx[i, 1], rx[i, 2], miss)
+            trial = _Trial(tx[0], tx[1], tx[2], seeds.tx_medium, bx, by, bz, s0, s1, rx[i, 0], rx[i, 1], rx[i, 2],
+                           miss)
+            won, cast, _steps = _line_search(i, hit, scene, media, state, steps, max_steps, dp, dd, fractions,
+                                             max(accepted - settings.growth, 0), trial)
             segments += cast
             if won < 0:
                 break
@@ -544,7 +539,7 @@ def newton(
     return segments
 
 
-@_helper
+@helper
 def _tangents(dx, dy, dz):
     """:func:`raytrace.solver.refine.tangent_basis` of one unit direction: ``u = d x r / |d x r|``
     with ``r`` the x axis (the y axis when ``|d_x| >= 0.9``), ``v = d x u``."""
@@ -555,7 +550,7 @@ def _tangents(dx, dy, dz):
     return ux, uy, uz, dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
 
 
-@_helper
+@helper
 def _miss(px, py, pz, dx, dy, dz, rx, ry, rz):
     """Distance from the receiver to a last leg (point, unit direction) if it lies ahead of it
     (the Newton residual's offset, in the plane normal to the leg), else inf."""
@@ -567,7 +562,7 @@ def _miss(px, py, pz, dx, dy, dz, rx, ry, rz):
     return math.sqrt(ex * ex + ey * ey + ez * ez)
 
 
-@_helper
+@helper
 def _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, tx, ty, tz, event, reflect, eta, grad):
     """Carry both ray differentials (rows of ``dp``, ``dd``) across one step of :func:`follow`:
     transfer to the hit facet's plane, then the event's law about the smooth normal (formulas
@@ -607,15 +602,16 @@ def _carry_differentials(dp, dd, t, dx, dy, dz, fx, fy, fz, nx, ny, nz, tx, ty, 
             dd[c, 0], dd[c, 1], dd[c, 2] = ux - proj * tx, uy - proj * ty, uz - proj * tz
 
 
-@_kernel
-def bounce(
-    o, d, med, w, rad, ang, length, nint, hist, src, mode,  # live rays (float32 geometry in the centred frame)
-    handle,  # the Embree scene they are cast into
-    face_map, face_normals32, face_organ, parent, cls, transparent, n_re, alpha, corner32, curvature32,
-    need, rx_m, rx_cls, threshold, kmax, offset_m, reception_factor, curvature_margin, log_base, no_passes,
-    walk_miss, walk_n, walk_hist, src_base, walk_events,  # the refraction-only walk's records, or (0, R) arrays
-):
-    """One bounce of :func:`raytrace.solver.sbr.shoot` for a chunk of live rays.
+@kernel
+def bounce(rays, scene, media, receivers, settings, walk, log_base):
+    """One bounce of :func:`raytrace.solver.sbr.shoot` for a chunk of live ``rays``
+    (:class:`~raytrace.engine.records.ShotRays`) cast into ``scene``
+    (:class:`~raytrace.engine.records.ShotScene`) through ``media``
+    (:class:`~raytrace.engine.records.ShotMedia`) towards ``receivers``
+    (:class:`~raytrace.engine.records.ShotReceivers`) with the constants ``settings``
+    (:class:`~raytrace.engine.records.ShotSettings`: ``threshold``, ``kmax``, ``offset_m``,
+    ``reception_factor``, ``curvature_margin``, ``no_passes``, ``walk_events`` below); the
+    event-log entries made are numbered from ``log_base`` on.
 
     Reception: a ray of the receiver's material class whose segment passes the receiver
     within ``reception_factor * (rad + t_along * ang)`` (the ray tube's half-width) makes a
@@ -634,9 +630,10 @@ def bounce(
     receptions are unchanged).
 
     The refraction-only walk (:func:`raytrace.solver.direct.refraction_walk`'s seed search) rides on
-    the same rays when ``walk_miss`` has a row per launch direction of the batch (row
-    ``src - src_base``): ``mode`` 1 marks a ray with no reflection so far, 2 a ray that only
-    the walk still follows. Every leg of a mode 1 or 2 ray in a receiver's material class
+    the same rays when ``walk`` (:class:`~raytrace.engine.records.WalkRecords`: ``walk_miss``,
+    ``walk_n``, ``walk_hist``) has a row per launch direction of the batch (row
+    ``src - src_base``): ``mode`` 1 marks a ray with no reflection so far, 2 a ray that only the
+    walk still follows. Every leg of a mode 1 or 2 ray in a receiver's material class
     updates that launch's closest approach to the receiver (``walk_miss``, the segment
     clamped to its hit, at most 1 km) with the events so far (``walk_n``) and the ray's last
     log entry (``walk_hist``), as the walk does; a mode 1 ray's transmitted child is mode 1,
@@ -644,26 +641,37 @@ def bounce(
     as mode 2: refracted only, unpruned, up to ``walk_events`` events, never received or
     split. Mode 0: not walked (or no walk).
 
-    Returns the number of rays cast, the children (reflected, then transmitted, then passed, each in ray order, as
-    the numpy reference did), the event-log entries of the reflected and transmitted
-    children (parent entry, code, face), and the receptions (receiver, log entry, events,
-    launch index, miss over radius), receiver-major.
+    Returns the number of rays cast, the children (:class:`~raytrace.engine.records.ShotRays`:
+    reflected, then transmitted, then passed, each in ray order, as the numpy reference did), the
+    event-log entries of the reflected and transmitted children
+    (:class:`~raytrace.engine.records.LogEntries`: parent entry, code, face), and the receptions
+    (:class:`~raytrace.engine.records.Receptions`: receiver, log entry, events, launch index,
+    miss over radius), receiver-major.
     """
+    o, d, med, w, rad, ang, length = rays.o, rays.d, rays.med, rays.w, rays.rad, rays.ang, rays.length
+    nint, hist, src, mode = rays.nint, rays.hist, rays.src, rays.mode
+    handle, face_map, face_normals32, face_organ = scene.handle, scene.face_map, scene.face_normals, scene.face_organ
+    corner32, curvature32, offset_m = scene.corner, scene.curvature, scene.offset_m
+    parent, cls, transparent, n_re, alpha, need = media.parent, media.material_class, media.transparent, \
+        media.n_real, media.alpha, media.need
+    rx_m, rx_cls = receivers.position_m, receivers.material_class
+    threshold, kmax, reception_factor = settings.threshold, settings.kmax, settings.reception_factor
+    curvature_margin, no_passes, walk_events = settings.curvature_margin, settings.no_passes, settings.walk_events
+    walk_miss, walk_n, walk_hist, src_base = walk.miss, walk.events, walk.hist, walk.src_base
     n = len(o)
     n_rx = len(rx_m)
     prim = np.empty(n, np.int64)
     tfar = np.empty(n, np.float32)
     bu = np.empty(n, np.float32)
     bv = np.empty(n, np.float32)
-    buf = embree.ray_buffer()
-    words, ptr = buf.view(np.uint32), buf.ctypes.data
+    hit = embree.ray_hit()
     cast = 0
     for i in range(n):
         if nint[i] >= kmax and no_passes and mode[i] == 0 and not _may_receive(rx_m, rx_cls, cls[med[i] + 1], o, d,
                                                                                i, rad, ang, reception_factor):
             prim[i], tfar[i] = -1, np.inf  # no children possible, and no receiver on its line: not cast
             continue
-        prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, buf, words, ptr, o[i, 0], o[i, 1], o[i, 2],
+        prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, hit, o[i, 0], o[i, 1], o[i, 2],
                                                           d[i, 0], d[i, 1], d[i, 2])
         cast += 1
     # receptions, receiver-major (ray order within a receiver), into arrays grown by doubling
@@ -848,19 +856,19 @@ def bounce(
                 c_nint[a] = nint[i]
                 c_hist_next[a] = hist[i]
             a += 1
-    return (cast, (c_o, c_d, c_med, c_w, c_rad, c_ang, c_len, c_nint, c_hist_next, c_src_next, c_mode),
-            (log_parent, log_code, log_face),
-            (c_rx, c_hist, c_n, c_src, c_close))
+    return (cast, ShotRays(c_o, c_d, c_med, c_w, c_rad, c_ang, c_len, c_nint, c_hist_next, c_src_next, c_mode),
+            LogEntries(log_parent, log_code, log_face), Receptions(c_rx, c_hist, c_n, c_src, c_close))
 
 
-@_kernel
-def walk_step(
-    ids, o, d, med, nint, q, prim, tfar, bu, bv,  # live walked rays (row r is ray ids[r]), their query, Embree's hits
-    exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes,  # receivers; per-ray outputs updated in place
-    face_map, face_normals, plane_d, frame, corner64, face_organ, parent, cls, n_re, offset_m, center,
-    max_events,
-):
-    """One event of :func:`raytrace.solver.direct.refraction_walk` for every live ray.
+@kernel
+def walk_step(rays, hits, targets, out, scene, media, exact, max_events):
+    """One event of :func:`raytrace.solver.direct.refraction_walk` for every live ray of
+    ``rays`` (:class:`~raytrace.engine.records.WalkRays`, row r is walked ray ``ids[r]``), from
+    Embree's ``hits`` (:class:`~raytrace.engine.records.Hits`) of their query, towards
+    ``targets`` (:class:`~raytrace.engine.records.WalkTargets`), recording into ``out``
+    (:class:`~raytrace.engine.records.WalkOutput`, per walked ray: ``miss``, ``nmiss``,
+    ``codes``), in ``scene`` (:class:`~raytrace.engine.records.SceneTables`) through ``media``
+    (:class:`~raytrace.engine.records.MediaTables`).
 
     Each leg in a receiver's material class updates the ray's closest approach to that
     receiver (``ray_rx[i] >= 0``: only to its own receiver, column 0; else to every receiver,
@@ -869,8 +877,16 @@ def walk_step(
     internal reflection, at a surface it is not in front of, or after ``max_events``.
     ``exact``: float64 re-intersection and float64 smooth normal (else Embree's float32
     distance, from the query origin ``q`` (centred, pushed off the surface), and barycentric
-    normal, ~1e-8 m, enough for seeds). Returns the surviving rays, compacted, and their next
-    float32 Embree query (centred origin + spawn push)."""
+    normal, ~1e-8 m, enough for seeds). Returns the surviving rays, compacted, with their next
+    float32 Embree query (centred origin + spawn push): a :class:`~raytrace.engine.records.WalkRays`."""
+    ids, o, d, med, nint, q = rays.ids, rays.o, rays.d, rays.med, rays.nint, rays.q
+    prim, tfar, bu, bv = hits.prim, hits.tfar, hits.u, hits.v
+    rx_m, rx_cls, ray_rx = targets.position_m, targets.material_class, targets.ray_rx
+    miss, nmiss, codes = out.miss, out.nmiss, out.codes
+    face_map, face_normals, plane_d, frame, corner64 = scene.face_map, scene.face_normals, scene.plane_d, \
+        scene.frame, scene.corner
+    face_organ, offset_m, center = scene.face_organ, scene.offset_m, scene.center
+    parent, cls, n_re = media.parent, media.material_class, media.n_real
     n = len(ids)
     n_rx = len(rx_m)
     own = len(ray_rx) > 0
@@ -932,8 +948,8 @@ def walk_step(
     out_d = np.empty((survivors, 3))
     out_med = np.empty(survivors, np.int64)
     out_n = np.empty(survivors, np.int64)
-    q = np.empty((survivors, 3), np.float32)
-    dq = np.empty((survivors, 3), np.float32)
+    out_q = np.empty((survivors, 3), np.float32)
+    out_dq = np.empty((survivors, 3), np.float32)
     a = 0
     for r in range(n):
         if not keep[r]:
@@ -942,13 +958,13 @@ def walk_step(
         for c in range(3):
             out_o[a, c] = new_o[r, c]
             out_d[a, c] = new_d[r, c]
-            q[a, c] = new_o[r, c] - center[c] + new_push[r, c]
-            dq[a, c] = new_d[r, c]
+            out_q[a, c] = new_o[r, c] - center[c] + new_push[r, c]
+            out_dq[a, c] = new_d[r, c]
         a += 1
-    return out_ids, out_o, out_d, out_med, out_n, q, dq
+    return WalkRays(out_ids, out_o, out_d, out_med, out_n, out_q, out_dq)
 
 
-@_kernel
+@kernel
 def spread_picks(order, starts, dirs, min_cos, per_group):
     """Greedy thinning of candidate launches: group g is ``order[starts[g]:starts[g + 1]]``,
     best first; a candidate is kept if the cosine between its launch direction and every
@@ -965,7 +981,8 @@ def spread_picks(order, starts, dirs, min_cos, per_group):
             spread = True
             for q in range(nk):
                 other = kept[q]
-                if dirs[idx, 0] * dirs[other, 0] + dirs[idx, 1] * dirs[other, 1] + dirs[idx, 2] * dirs[other, 2] >= min_cos:
+                cos = dirs[idx, 0] * dirs[other, 0] + dirs[idx, 1] * dirs[other, 1] + dirs[idx, 2] * dirs[other, 2]
+                if cos >= min_cos:
                     spread = False
                     break
             if spread:
@@ -975,7 +992,7 @@ def spread_picks(order, starts, dirs, min_cos, per_group):
     return keep
 
 
-@_kernel
+@kernel
 def first_of_duplicates(group, dirs, max_angle):
     """Mask of the rows kept, in order: a row is dropped when a row kept before it in the
     same ``group`` has a launch direction within ``max_angle`` (Euclidean distance of the

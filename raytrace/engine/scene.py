@@ -40,6 +40,7 @@ import numpy as np
 
 from raytrace.body.phantom import Phantom
 from raytrace.engine.embree import EmbreeScene
+from raytrace.engine.records import SceneTables, ShotScene, build
 
 #: Corners whose vertex normal deviates more than this from the facet normal are creases.
 CREASE_ANGLE_RAD = np.deg2rad(35.0)
@@ -124,7 +125,7 @@ class TracerScene:
         prim, tfar, _u, _v = self.embree.intersect(q, directions)
         hit = prim >= 0
         face = np.full(len(prim), -1, np.int64)
-        face[hit] = self.kernel_tables.face_map[prim[hit]]
+        face[hit] = prim[hit] if self.face_map is None else self.face_map[prim[hit]]
         t = np.full(len(prim), np.inf)
         if hit.any():
             f = face[hit]
@@ -138,11 +139,27 @@ class TracerScene:
         return face, t
 
     @cached_property
-    def kernel_tables(self) -> "KernelTables":
-        """Per-face tables in the dtypes and layout :mod:`raytrace.engine.kernels` is compiled for."""
-        face_map = np.arange(len(self.faces)) if self.face_map is None else self.face_map
-        return KernelTables(face_map=np.ascontiguousarray(face_map, np.int64),
-                            frame=np.ascontiguousarray(self._barycentric_frame))
+    def _primitive_faces(self) -> np.ndarray:
+        """Phantom face of each Embree primitive, int64."""
+        return np.ascontiguousarray(np.arange(len(self.faces)) if self.face_map is None else self.face_map, np.int64)
+
+    @cached_property
+    def kernel_tables(self) -> SceneTables:
+        """The float64 face tables the exact kernels of :mod:`raytrace.engine.kernels` take
+        (robust Embree scene)."""
+        return build(SceneTables, handle=self.embree.handle, center=np.ascontiguousarray(self.center, np.float64),
+                     face_map=self._primitive_faces, face_normals=np.ascontiguousarray(self.face_normals, np.float64),
+                     plane_d=np.ascontiguousarray(self.plane_d, np.float64),
+                     frame=np.ascontiguousarray(self._barycentric_frame), corner=self.corner_table64,
+                     face_organ=np.ascontiguousarray(self.face_organ, np.int64), offset_m=self.offset_m)
+
+    @cached_property
+    def shot_tables(self) -> ShotScene:
+        """The float32 face tables the shooting's kernel takes (the fast Embree scene,
+        :attr:`embree_shooting`)."""
+        return build(ShotScene, handle=self.embree_shooting.handle, face_map=self._primitive_faces,
+                     face_normals=self.face_normals32, corner=self.corner_table32, curvature=self.face_curvature32,
+                     face_organ=np.ascontiguousarray(self.face_organ, np.int64), offset_m=self.offset_m)
 
     @cached_property
     def face_normals32(self) -> np.ndarray:
@@ -207,12 +224,6 @@ class TracerScene:
         # Never let the smooth normal flip relative to the facet.
         flip = np.einsum("ij,ij->i", nrm, fallback) <= 0.0
         return np.where(flip[:, None], fallback, nrm)
-
-
-@dataclass(frozen=True)
-class KernelTables:
-    face_map: np.ndarray  # (Embree primitives,) int64 phantom face of each primitive
-    frame: np.ndarray  # (F, 22) float64 barycentric frame and corner normals per face
 
 
 def vertex_normals_max(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -58,6 +58,7 @@ from dataclasses import dataclass
 from typing import Final, Literal
 
 import numpy as np
+import scipy.constants
 
 from raytrace.errors import FrequencyOutOfRangeError, InputError, InvalidGeometryError
 
@@ -88,11 +89,14 @@ __all__ = [
     "wavenumber",
 ]
 
-#: Speed of light in vacuum, m/s (exact, SI 2019).
-C0: Final[float] = 299_792_458.0
-#: Vacuum permeability, H/m (CODATA 2018).
+#: Speed of light in vacuum, m/s (exact by the SI definition of the metre).
+C0: Final[float] = scipy.constants.c
+#: Vacuum permeability, H/m (CODATA 2018). Written here rather than taken from scipy.constants:
+#: since the 2019 SI it is measured, and scipy's value follows the CODATA edition of the
+#: installed scipy (2018 up to 1.14, 2022 from 1.15: 7e-10 relative apart), which would make
+#: the same request's gains depend on the scipy installed.
 MU0: Final[float] = 1.25663706212e-6
-#: Vacuum permittivity, F/m (CODATA 2018).
+#: Vacuum permittivity, F/m (CODATA 2018; as :data:`MU0`).
 EPS0: Final[float] = 8.8541878128e-12
 #: Impedance of free space, ohm.
 ETA0: Final[float] = MU0 * C0

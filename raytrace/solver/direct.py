@@ -26,49 +26,35 @@ receiver's side (:func:`reverse_seeds`).
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from raytrace.engine import kernels
+from raytrace.engine.records import WalkOutput, WalkRays, WalkTargets, build
 from raytrace.engine.scene import TracerScene
 from raytrace.solver.budget import Budget
+from raytrace.solver.config import TracerConfig
 from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.solver.media import MediaTable
 from raytrace.solver.refine import tangent_basis
-
-#: Refraction events followed at most.
-MAX_EVENTS = 24
-#: Seeds kept per receiver (closest approaches, launch directions two spacings apart).
-SEEDS_PER_RECEIVER = 12
-#: Rays walked together.
-BATCH = 50_000
-#: Walk batches traced concurrently (threads: the walk's kernels and Embree release the GIL).
-WALK_THREADS = min(2, os.cpu_count() or 1)
-#: Zoom grid: GRID x GRID launch directions per seed and level.
-GRID = 11
-#: Zoom levels (the grid half-width halves per level).
-ZOOM_LEVELS = 24
-#: The zoom stops once the miss is below this [m] (Newton then takes over).
-ZOOM_MISS_M = 1e-7
 
 
 @dataclass
 class Walk:
     miss_m: np.ndarray  # (P, R) closest approach of a leg in the receiver's material (inf: none)
-    events: np.ndarray  # (P, MAX_EVENTS) every refraction of the walk, -1 padded
+    events: np.ndarray  # (P, E) every refraction of the walk, -1 padded (E: TracerConfig.walk_max_events)
     nint: np.ndarray  # (P, R) events before that closest leg
     segments: int
 
     def codes(self, rows: np.ndarray, col: int | np.ndarray) -> np.ndarray:
         """Signatures (-1 padded) of walked rays ``rows`` up to their closest leg to receiver
         column ``col``: the first ``nint[rows, col]`` events. Built only for the rows asked
-        for (a (P, R, MAX_EVENTS) table of every ray would be tens of MB per batch)."""
+        for (a (P, R, E) table of every ray would be tens of MB per batch)."""
         rows = np.asarray(rows, np.int64)
         out = np.array(self.events[rows])
-        out[np.arange(MAX_EVENTS)[None, :] >= self.nint[rows, col][:, None]] = -1
+        out[np.arange(self.events.shape[1])[None, :] >= self.nint[rows, col][:, None]] = -1
         return out
 
 
@@ -83,43 +69,41 @@ def refraction_walk(
     ray_rx: np.ndarray | None = None,
     *,
     exact: bool = True,
+    config: TracerConfig | None = None,
 ) -> Walk:
     """Walk rays refraction-only; closest approach to every receiver (``ray_rx`` None, R
     columns) or to each ray's own receiver ``ray_rx[i]`` (one column). Vectorised per event.
     ``exact=False``: Embree's float32 hit distances and barycentric normals (about 1e-8 m,
-    enough for the global seed walk; the zoom uses the float64 re-intersection)."""
+    enough for the global seed walk; the zoom uses the float64 re-intersection). Up to
+    ``config.walk_max_events`` refractions."""
+    max_events = (config or TracerConfig()).walk_max_events
     p = len(dirs)
     own = ray_rx is not None
     cols = 1 if own else len(rx_m)
-    parent, cls, _transparent, n_re = media.kernel_tables
-    rx_cls = np.ascontiguousarray(cls[np.asarray(rx_medium, np.int64) + 1])
-    rx_m = np.ascontiguousarray(rx_m, dtype=float)
-    ray_rx = np.ascontiguousarray(ray_rx, np.int64) if own else np.zeros(0, np.int64)
-    codes = np.full((p, MAX_EVENTS), -1, np.int64)
-    miss = np.full((p, cols), np.inf)
-    nmiss = np.zeros((p, cols), np.int64)
+    media_tables = media.kernel_tables
+    rx_cls = media_tables.material_class[np.asarray(rx_medium, np.int64) + 1]
+    targets = build(WalkTargets, position_m=np.ascontiguousarray(rx_m, dtype=float),
+                    material_class=np.ascontiguousarray(rx_cls),
+                    ray_rx=np.ascontiguousarray(ray_rx, np.int64) if own else np.zeros(0, np.int64))
+    out = build(WalkOutput, miss=np.full((p, cols), np.inf), nmiss=np.zeros((p, cols), np.int64),
+                codes=np.full((p, max_events), -1, np.int64))
     tables = scene.kernel_tables
-    statics = (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.corner_table64,
-               scene.face_organ, parent, cls, n_re, scene.offset_m, scene.center, MAX_EVENTS)
     # state of the rays still alive only, compacted after every event (row ``r`` is walked ray
     # ``ids[r]``): no gathers and scatters of the whole launch per event
-    ids = np.arange(p)
     o = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
     d = np.array(dirs, float)
-    med = np.full(p, tx_medium, np.int64)
-    nint = np.zeros(p, np.int64)
-    q = (o - scene.center).astype(np.float32)
-    dq = d.astype(np.float32)
+    rays = build(WalkRays, ids=np.arange(p), o=o, d=d, med=np.full(p, tx_medium, np.int64), nint=np.zeros(p, np.int64),
+                 q=(o - scene.center).astype(np.float32), dq=d.astype(np.float32))
     segments = 0
     # the seed walk casts into the shooting's fast scene (raytrace.engine.scene: seeds only)
     embree = scene.embree if exact else scene.embree_shooting
-    for _ in range(MAX_EVENTS + 1):
-        if len(ids) == 0:
+    for _ in range(max_events + 1):
+        if len(rays.ids) == 0:
             break
-        prim, tfar, bu, bv = embree.intersect(q, dq)
-        segments += len(ids)
-        ids, o, d, med, nint, q, dq = kernels.walk_step(
-            ids, o, d, med, nint, q, prim, tfar, bu, bv, exact, ray_rx, rx_m, rx_cls, miss, nmiss, codes, *statics)
+        hits = embree.intersect(rays.q, rays.dq)
+        segments += len(rays.ids)
+        rays = kernels.walk_step(rays, hits, targets, out, tables, media_tables, exact, max_events)
+    miss, codes, nmiss = out.miss, out.codes, out.nmiss
     return Walk(miss_m=miss, events=codes, nint=nmiss, segments=segments)
 
 
@@ -128,7 +112,7 @@ class Seeds:
     receiver: np.ndarray  # (S,)
     launch_dir: np.ndarray  # (S, 3)
     miss_m: np.ndarray  # (S,)
-    codes: np.ndarray  # (S, MAX_EVENTS)
+    codes: np.ndarray  # (S, E) -1 padded
     nint: np.ndarray  # (S,)
     segments: int
 
@@ -159,39 +143,46 @@ def direct_seeds(
     rays: int,
     receivers: np.ndarray,
     budget: Budget | None = None,
+    config: TracerConfig | None = None,
 ) -> Seeds:
-    """Per receiver in ``receivers``, the :data:`SEEDS_PER_RECEIVER` launch directions (of a
-    ``rays``-direction Fibonacci launch) whose refraction-only rays pass closest to it.
+    """Per receiver in ``receivers``, the ``config.seeds_per_receiver`` launch directions (of a
+    ``rays``-direction Fibonacci launch) whose refraction-only rays pass closest to it, walked
+    in batches of ``config.walk_batch`` on ``config.threads`` threads.
     (:func:`raytrace.solver.sbr.shoot` does the same walk on the shooting's own rays.)"""
+    config = config or TracerConfig()
+    batch, threads = config.walk_batch, config.threads
     receivers = np.asarray(receivers, np.int64)
     launch = fibonacci_sphere(rays)
     segments = 0
     pools: list[list] = [[] for _ in receivers]
 
     def walk(first: int) -> Walk:
-        w = refraction_walk(scene, media, tx_m, tx_medium, launch[first:first + BATCH], rx_m[receivers],
-                            rx_medium[receivers], exact=False)
+        w = refraction_walk(scene, media, tx_m, tx_medium, launch[first:first + batch], rx_m[receivers],
+                            rx_medium[receivers], exact=False, config=config)
         _charge(budget, w.segments)
         return w
 
-    firsts = list(range(0, rays, BATCH))
-    # the walk's kernels and Embree run without the GIL: batches in two threads, in waves (so only
-    # a wave's walks are held at once), merged in batch order
-    with ThreadPoolExecutor(max_workers=min(WALK_THREADS, len(firsts))) as workers:
-        for wave in range(0, len(firsts), WALK_THREADS):
-            batch = firsts[wave:wave + WALK_THREADS]
-            for first, w in zip(batch, workers.map(walk, batch)):
+    firsts = list(range(0, rays, batch))
+    # the walk's kernels and Embree run without the GIL: batches in threads, in waves (so only a
+    # wave's walks are held at once), merged in batch order
+    with ThreadPoolExecutor(max_workers=min(threads, len(firsts))) as workers:
+        for wave in range(0, len(firsts), threads):
+            part = firsts[wave:wave + threads]
+            for first, w in zip(part, workers.map(walk, part)):
                 segments += w.segments
-                for pool, offer in zip(pools, closest_launches(w.miss_m, w.nint, w.codes, launch[first:first + BATCH])):
+                offers = closest_launches(w.miss_m, w.nint, w.codes, launch[first:first + batch],
+                                          config.seeds_per_receiver)
+                for pool, offer in zip(pools, offers):
                     pool.extend(offer)
-    return pick_seeds(pools, receivers, rays, segments)
+    return pick_seeds(pools, receivers, rays, segments, config)
 
 
-def closest_launches(miss_m: np.ndarray, nint: np.ndarray, codes_of, dirs: np.ndarray) -> list[list[tuple]]:
+def closest_launches(miss_m: np.ndarray, nint: np.ndarray, codes_of, dirs: np.ndarray,
+                     seeds_per_receiver: int) -> list[list[tuple]]:
     """Per receiver column of one batch of walked launches (``miss_m``, ``nint``: (B, R)),
-    the ``8 * SEEDS_PER_RECEIVER`` closest as ``(miss, launch direction, signature, events)``,
+    the ``8 * seeds_per_receiver`` closest as ``(miss, launch direction, signature, events)``,
     closest first; ``codes_of(rows, columns)`` gives the signatures (one call for all columns)."""
-    tops = [_closest(miss_m[:, c], 8 * SEEDS_PER_RECEIVER) for c in range(miss_m.shape[1])]
+    tops = [_closest(miss_m[:, c], 8 * seeds_per_receiver) for c in range(miss_m.shape[1])]
     rows = np.concatenate(tops) if tops else np.zeros(0, np.int64)
     cols = np.repeat(np.arange(len(tops)), [len(t) for t in tops])
     codes, launch = codes_of(rows, cols), dirs[rows]
@@ -200,9 +191,10 @@ def closest_launches(miss_m: np.ndarray, nint: np.ndarray, codes_of, dirs: np.nd
     return [list(zip(miss[a:b], launch[a:b], codes[a:b], events[a:b])) for a, b in zip([0] + ends, ends)]
 
 
-def pick_seeds(pools: list[list[tuple]], receivers: np.ndarray, rays: int, segments: int) -> Seeds:
+def pick_seeds(pools: list[list[tuple]], receivers: np.ndarray, rays: int, segments: int,
+               config: TracerConfig) -> Seeds:
     """From each receiver's pool of closest launches (``receivers[j]``'s is ``pools[j]``, in
-    launch-batch order), the :data:`SEEDS_PER_RECEIVER` closest whose launch directions are
+    launch-batch order), the ``config.seeds_per_receiver`` closest whose launch directions are
     two launch spacings apart."""
     min_cos = np.cos(2.0 * angular_spacing_rad(rays))
     out = []
@@ -211,12 +203,11 @@ def pick_seeds(pools: list[list[tuple]], receivers: np.ndarray, rays: int, segme
         for cand in sorted(pool, key=lambda x: x[0]):
             if all(float(cand[1] @ k[1]) < min_cos for k in kept):
                 kept.append(cand)
-                if len(kept) == SEEDS_PER_RECEIVER:
+                if len(kept) == config.seeds_per_receiver:
                     break
         out.extend((int(r),) + k for k in kept)
     if not out:
-        return Seeds(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, MAX_EVENTS), np.int64),
-                     np.zeros(0, np.int64), segments)
+        return _no_seeds(config, segments)
     return Seeds(
         receiver=np.array([x[0] for x in out], np.int64),
         launch_dir=np.array([x[2] for x in out]),
@@ -225,6 +216,11 @@ def pick_seeds(pools: list[list[tuple]], receivers: np.ndarray, rays: int, segme
         nint=np.array([x[4] for x in out], np.int64),
         segments=segments,
     )
+
+
+def _no_seeds(config: TracerConfig, segments: int) -> Seeds:
+    return Seeds(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0),
+                 np.zeros((0, config.walk_max_events), np.int64), np.zeros(0, np.int64), segments)
 
 
 def zoom_seeds(
@@ -237,10 +233,13 @@ def zoom_seeds(
     seeds: Seeds,
     half_width_rad: float,
     budget: Budget | None = None,
+    config: TracerConfig | None = None,
 ) -> Seeds:
-    """Derivative-free zoom: a GRID x GRID patch of launch directions around each seed, the
-    best (smallest refraction-only miss) becomes the centre, the half-width halves; until the
-    miss is below :data:`ZOOM_MISS_M` or :data:`ZOOM_LEVELS` levels (all seeds at once)."""
+    """Derivative-free zoom: a ``zoom_grid`` x ``zoom_grid`` patch of launch directions around
+    each seed, the best (smallest refraction-only miss) becomes the centre, the half-width
+    halves; until the miss is below ``zoom_miss_m`` or ``zoom_levels`` levels (all seeds at
+    once; :class:`~raytrace.solver.config.TracerConfig`)."""
+    config = config or TracerConfig()
     s = len(seeds.receiver)
     if s == 0:
         return seeds
@@ -249,11 +248,11 @@ def zoom_seeds(
     codes = np.array(seeds.codes)
     nint = np.array(seeds.nint)
     scale = np.full(s, float(half_width_rad))
-    a = np.linspace(-1.0, 1.0, GRID)
+    a = np.linspace(-1.0, 1.0, config.zoom_grid)
     ga, gb = (x.ravel() for x in np.meshgrid(a, a))
     segments = 0
-    for _ in range(ZOOM_LEVELS):
-        act = np.flatnonzero(best >= ZOOM_MISS_M)
+    for _ in range(config.zoom_levels):
+        act = np.flatnonzero(best >= config.zoom_miss_m)
         if len(act) == 0:
             break
         u, v = tangent_basis(d0[act])
@@ -262,7 +261,7 @@ def zoom_seeds(
                 + (scale[act, None] * gb)[:, :, None] * v[:, None, :]).reshape(-1, 3)
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         ray_rx = np.repeat(seeds.receiver[act], k)
-        w = refraction_walk(scene, media, tx_m, tx_medium, dirs, rx_m, rx_medium, ray_rx)
+        w = refraction_walk(scene, media, tx_m, tx_medium, dirs, rx_m, rx_medium, ray_rx, config=config)
         segments += w.segments
         _charge(budget, w.segments)
         m = w.miss_m[:, 0].reshape(len(act), k)
@@ -301,31 +300,34 @@ def reverse_seeds(
     receivers: np.ndarray,
     rays: int,
     budget: Budget | None = None,
+    config: TracerConfig | None = None,
 ) -> Seeds:
     """Forward seeds for ``receivers`` found from the receiver's side (reciprocity).
 
     Near a critical angle the launch-to-landing map from the high-index side is badly
     conditioned (a launch sliver fans out over centimetres of skin), while from the other
     end the same path can be a broad, well-conditioned bundle. For each receiver the walk
-    and Newton refinement (no zoom: this is the well-conditioned side) run with the roles swapped (source at the receiver, target
-    the transmitter); each converged reverse path gives the forward launch direction (towards
-    its last vertex) and the reversed signature, which the caller refines forward so the
-    field is computed along the forward path as usual. A loop over receivers (at most a
+    and Newton refinement (no zoom: this is the well-conditioned side) run with the roles swapped
+    (source at the receiver, target the transmitter); each converged reverse path gives the
+    forward launch direction (towards its last vertex) and the reversed signature, which the
+    caller refines forward so the field is computed along the forward path as usual. A loop over receivers (at most a
     dozen), vectorised inside."""
     from raytrace.solver.refine import follow, refine
 
+    config = config or TracerConfig()
     out_rx, out_dir, out_codes, out_n = [], [], [], []
     segments = 0
     target = np.asarray(tx_m, float)[None, :]
     target_medium = np.array([tx_medium])
     for r in np.asarray(receivers, np.int64):
         src, src_med = rx_m[r], int(rx_medium[r])
-        seeds = direct_seeds(scene, media, src, src_med, target, target_medium, rays, np.array([0]), budget)
+        seeds = direct_seeds(scene, media, src, src_med, target, target_medium, rays, np.array([0]), budget, config)
         segments += seeds.segments
         if len(seeds.receiver) == 0:
             continue
         tgt = np.repeat(target, len(seeds.receiver), axis=0)
-        ref = refine(scene, media, src, src_med, tgt, seeds.launch_dir, seeds.codes, seeds.nint, budget=budget)
+        ref = refine(scene, media, src, src_med, tgt, seeds.launch_dir, seeds.codes, seeds.nint, budget=budget,
+                     config=config)
         segments += ref.segments
         dirs, codes, nint, ok = ref.dirs, seeds.codes, seeds.nint, ref.converged
         if not ok.any():
@@ -341,8 +343,7 @@ def reverse_seeds(
         out_codes.append(reverse_signature(codes, nint))
         out_n.append(nint)
     if not out_rx:
-        return Seeds(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, MAX_EVENTS), np.int64),
-                     np.zeros(0, np.int64), segments)
+        return _no_seeds(config, segments)
     return Seeds(
         receiver=np.concatenate(out_rx),
         launch_dir=np.concatenate(out_dir),

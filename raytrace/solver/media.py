@@ -16,6 +16,7 @@ from functools import cached_property
 import numpy as np
 
 from raytrace.body.phantom import AIR, Material, Phantom
+from raytrace.engine.records import MediaTables, build
 from raytrace.physics.em import refractive_index
 
 
@@ -37,11 +38,13 @@ class MediaTable:
         return self.n[0].real
 
     @cached_property
-    def kernel_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(parent, material_class, face_transparent, n_real)`` in the dtypes and layout
-        :mod:`raytrace.engine.kernels` is compiled for."""
-        return (np.ascontiguousarray(self.parent, np.int64), np.ascontiguousarray(self.material_class, np.int64),
-                np.ascontiguousarray(self.face_transparent, np.bool_), np.ascontiguousarray(self.n_real, np.float64))
+    def kernel_tables(self) -> MediaTables:
+        """The parent, material class, face transparency and Re n tables the exact kernels of
+        :mod:`raytrace.engine.kernels` take."""
+        return build(MediaTables, parent=np.ascontiguousarray(self.parent, np.int64),
+                     material_class=np.ascontiguousarray(self.material_class, np.int64),
+                     transparent=np.ascontiguousarray(self.face_transparent, np.bool_),
+                     n_real=np.ascontiguousarray(self.n_real, np.float64))
 
     @classmethod
     def build(

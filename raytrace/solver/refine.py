@@ -27,66 +27,45 @@ one ray or seed at a time to its end; Newton's iterations run in the kernel too
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from raytrace.engine import kernels
 from raytrace.engine.kernels import KIND_PASS, KIND_REFLECTION, KIND_REFRACTION  # noqa: F401 (re-exported)
+from raytrace.engine.records import (
+    Differentials,
+    LineSearch,
+    NewtonSeeds,
+    NewtonSettings,
+    StepRecords,
+    TraceState,
+    build,
+    step_records,
+)
 from raytrace.engine.scene import TracerScene
 from raytrace.solver.budget import Budget
+from raytrace.solver.config import TracerConfig
 from raytrace.solver.media import MediaTable
 
-#: Newton stops when the last leg misses the receiver by less than this [m].
-MISS_TOLERANCE_M = 1e-9
-#: Largest Newton step on the launch angles [rad].
-MAX_STEP_RAD = 0.25
-MAX_ITERATIONS = 40
-#: A seed whose miss is not below STALL_FACTOR times its miss STALL_WINDOW iterations earlier
-#: (less than 0.3 % progress per iteration) is given up. Newton in its basin shrinks the miss
-#: quadratically; flat seeds otherwise keep every iteration's vectorised pass going for a
-#: handful of seeds up to MAX_ITERATIONS. Slow but steady seeds do converge late (one at
-#: iteration 35 after 24 iterations of ~1 % progress), so the rule only drops flat ones.
-#: Measured on the default torso, 6 capsules x (the 12 sensor sites + the 12 uniform-belt
-#: positions of tests/raytrace/test_tracer_torso.py), 2200 paths: none lost; window 10 with factor 0.9
-#: lost one (-37.5 dB under its receiver's strongest), window 6 / 0.9 two, a cap of 12
-#: iterations eleven (one 0.7 dB under the strongest).
-STALL_WINDOW = 10
-STALL_FACTOR = 0.97
-LINE_SEARCH_HALVINGS = 10
-#: A seed's line search starts this many halvings above its last accepted fraction (a step
-#: may double per iteration), not at the full step: a seed pushed against the edge of its
-#: signature's launch region accepts ever smaller fractions (1, 1/2, 1/8, 1/32, ... then
-#: none), and retrying the large ones first cost 4 of every 5 Newton rays on the default
-#: torso, almost all on seeds that fail. Seeds in their basin accept the full step and are
-#: unaffected.
-LINE_SEARCH_GROWTH = 1
-#: Seeds per call of the Newton kernel: the work budget is charged between calls.
-NEWTON_CHUNK = 128
-#: Step fractions of the backtracking line search, tried in this order per seed (in the compiled
-#: trace, one seed at a time, stopping at the first that reduces the miss: only the rays needed
-#: are cast; batches of fractions traced together cast 0.62e6 segments on 2225 torso seeds where
-#: this casts 0.2e6, same result).
-_LINE_SEARCH_FRACTIONS = 0.5 ** np.arange(LINE_SEARCH_HALVINGS)
+
+@functools.lru_cache(maxsize=16)
+def _newton_settings(config: TracerConfig) -> NewtonSettings:
+    """Newton's settings from ``config``; the line search's step fractions 1, 1/2, 1/4, ..."""
+    return build(NewtonSettings, fractions=0.5 ** np.arange(config.line_search_halvings),
+                 max_iterations=config.max_iterations, tolerance_m=config.miss_tolerance_m,
+                 max_step_rad=config.max_step_rad, stall_window=config.stall_window,
+                 stall_factor=config.stall_factor, growth=config.line_search_growth)
 
 
 def encode(organ: np.ndarray, leaving: np.ndarray, reflect: np.ndarray) -> np.ndarray:
     return (np.asarray(organ, np.int64) * 2 + np.asarray(leaving, np.int64)) * 2 + np.asarray(reflect, np.int64)
 
 
-@dataclass
-class Steps:
-    """Per-step records of a :func:`follow` in record mode, arrays over steps and paths
-    (S, P, ...): ``valid[s]`` is step s of every path."""
-
-    valid: np.ndarray  # (S, P) bool
-    point: np.ndarray  # (S, P, 3)
-    face: np.ndarray  # (S, P)
-    kind: np.ndarray  # (S, P) KIND_*
-    med_from: np.ndarray  # (S, P)
-    med_to: np.ndarray  # (S, P) far side of the surface
-    normal: np.ndarray  # (S, P, 3) smooth outward normal
-    dir_in: np.ndarray  # (S, P, 3)
+#: Per-step records of a :func:`follow` in record mode, arrays over steps and paths (S, P, ...):
+#: ``valid[s]`` is step s of every path (:class:`raytrace.engine.records.StepRecords`).
+Steps = StepRecords
 
 
 @dataclass
@@ -134,75 +113,69 @@ def follow(
     """
     p = len(dirs)
     record = targets_m is not None
-    o = np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy()
-    d = np.array(dirs, dtype=float)
-    med = np.full(p, tx_medium, dtype=np.int64)
-    push = np.zeros((p, 3))
-    k = np.zeros(p, dtype=np.int64)
     nint = np.ascontiguousarray(nint, dtype=np.int64)
-    codes = np.ascontiguousarray(codes, dtype=np.int64)
-    ok = np.ones(p, dtype=bool)
-    done = np.zeros(p, dtype=bool) if record else (nint == 0)
-    targets = np.ascontiguousarray(targets_m, dtype=float) if record else np.zeros((0, 3))
-    max_steps, statics = _trace_inputs(scene, media, nint)
-    out = _new_step_records(0, 0)
+    max_steps = _max_steps(media, nint)
+
+    def state() -> TraceState:
+        return build(TraceState, o=np.broadcast_to(np.asarray(tx_m, float), (p, 3)).copy(),
+                     d=np.array(dirs, dtype=float), med=np.full(p, tx_medium, dtype=np.int64), push=np.zeros((p, 3)),
+                     k=np.zeros(p, dtype=np.int64), nint=nint, ok=np.ones(p, dtype=bool),
+                     done=np.zeros(p, dtype=bool) if record else (nint == 0),
+                     codes=np.ascontiguousarray(codes, dtype=np.int64),
+                     targets=np.ascontiguousarray(targets_m, dtype=float) if record else np.zeros((0, 3)),
+                     record=record)
+
+    tables, media_tables = scene.kernel_tables, media.kernel_tables
+    out = _NO_STEPS
     counted = 0
     if record:
         # a counting pass first, so the step records are allocated for the steps taken (about a
         # dozen), not for the cap (~70: 160 MB at 20k paths)
-        state = [a.copy() for a in (o, d, med, push, k, ok, done)]
-        counted, used = kernels.follow(scene.embree.handle, scene.center, max_steps, *state[:5], nint, *state[5:], codes,
-                                 targets, record, *statics, *out, *_NO_DIFFERENTIALS, *_NO_LINE_SEARCH)
-        out = _new_step_records(used, p)
-    launch_d = _NO_DIFFERENTIALS[0]
+        counted, used = kernels.follow(tables, media_tables, state(), out, max_steps, _NO_DIFFERENTIALS,
+                                       _NO_LINE_SEARCH)
+        out = step_records(used, p)
+    run = state()
+    differentials = _NO_DIFFERENTIALS
     if tangents is not None and not record:
-        launch_d = np.ascontiguousarray(np.stack(tangents, axis=1), dtype=float)
+        differentials = build(Differentials, launch=np.ascontiguousarray(np.stack(tangents, axis=1), dtype=float),
+                              point=np.zeros((p, 2, 3)), direction=np.zeros((p, 2, 3)))
     search = _NO_LINE_SEARCH
     if line_search is not None and not record:
         fractions, step, rx_m, old_miss, first = line_search
-        search = (np.ascontiguousarray(fractions, dtype=float), d.copy(), np.ascontiguousarray(step, dtype=float),
-                  np.ascontiguousarray(rx_m, dtype=float), np.ascontiguousarray(old_miss, dtype=float),
-                  np.array(first, dtype=np.int64), np.zeros((p, 3)))
-    with_differentials = len(launch_d) > 0 or len(search[0]) > 0
-    d_point, d_dir = (np.zeros((p, 2, 3)), np.zeros((p, 2, 3))) if with_differentials else (launch_d, launch_d)
-    segments, used = kernels.follow(scene.embree.handle, scene.center, max_steps, o, d, med, push, k, nint, ok, done,
-                                    codes, targets, record, *statics, *out, launch_d, d_point, d_dir, *search)
+        search = build(LineSearch, fractions=np.ascontiguousarray(fractions, dtype=float), base_dir=run.d.copy(),
+                       step=np.ascontiguousarray(step, dtype=float), rx=np.ascontiguousarray(rx_m, dtype=float),
+                       old_miss=np.ascontiguousarray(old_miss, dtype=float), won=np.array(first, dtype=np.int64),
+                       trial_dir=np.zeros((p, 3)), dims={"P": p})
+        differentials = build(Differentials, launch=np.zeros((p, 2, 3)), point=np.zeros((p, 2, 3)),
+                              direction=np.zeros((p, 2, 3)))
+    with_differentials = len(differentials.point) > 0
+    segments, used = kernels.follow(tables, media_tables, run, out, max_steps, differentials, search)
     segments += counted
     steps = None
     if record:
         steps = Steps(*(rows[:used] for rows in out))
-    ok &= done
-    if record:
-        d_last = np.where(ok[:, None], d, np.nan)
-    else:
-        d_last = d
-    searched = len(search[0]) > 0
-    return FollowResult(ok=ok, last_point=o, last_dir=d_last, last_med=med, segments=segments, steps=steps,
-                        d_point=d_point if with_differentials else None, d_dir=d_dir if with_differentials else None,
-                        won=search[5] if searched else None, launch_dir=search[6] if searched else None)
+    ok = run.ok & run.done
+    d_last = np.where(ok[:, None], run.d, np.nan) if record else run.d
+    searched = len(search.fractions) > 0
+    return FollowResult(ok=ok, last_point=run.o, last_dir=d_last, last_med=run.med, segments=segments, steps=steps,
+                        d_point=differentials.point if with_differentials else None,
+                        d_dir=differentials.direction if with_differentials else None,
+                        won=search.won if searched else None, launch_dir=search.trial_dir if searched else None)
 
 
-def _trace_inputs(scene: TracerScene, media: MediaTable, nint: np.ndarray) -> tuple[int, tuple]:
-    """The step cap per ray (events, the passes through transparent surfaces, and a margin)
-    and the per-face and per-medium tables that :func:`raytrace.engine.kernels.follow` and
-    :func:`raytrace.engine.kernels.newton` take."""
-    max_steps = 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
-    tables = scene.kernel_tables
-    return max_steps, (tables.face_map, scene.face_normals, scene.plane_d, tables.frame, scene.face_organ,
-                       *media.kernel_tables, scene.offset_m)
+def _max_steps(media: MediaTable, nint: np.ndarray) -> int:
+    """The step cap per ray of :func:`raytrace.engine.kernels.follow` and
+    :func:`raytrace.engine.kernels.newton`: the events, the passes through transparent surfaces,
+    and a margin."""
+    return 4 * (int(nint.max(initial=0)) + 2) + 2 * len(media.materials) + 8
 
 
-_NO_DIFFERENTIALS = (np.zeros((0, 2, 3)), np.zeros((0, 2, 3)), np.zeros((0, 2, 3)))
-_NO_LINE_SEARCH = (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0),
-                   np.zeros(0, np.int64), np.zeros((0, 3)))
-
-
-def _new_step_records(steps: int, p: int) -> tuple:
-    """Per-step record arrays (steps, P, ...), in :class:`Steps` field order (a ray not advanced
-    at a step keeps these)."""
-    return (np.zeros((steps, p), bool), np.zeros((steps, p, 3)), np.full((steps, p), -1, np.int64),
-            np.full((steps, p), -1, np.int64), np.full((steps, p), -2, np.int64),
-            np.full((steps, p), -2, np.int64), np.zeros((steps, p, 3)), np.zeros((steps, p, 3)))
+_NO_STEPS = step_records(0, 0)
+_NO_DIFFERENTIALS = build(Differentials, launch=np.zeros((0, 2, 3)), point=np.zeros((0, 2, 3)),
+                          direction=np.zeros((0, 2, 3)))
+_NO_LINE_SEARCH = build(LineSearch, fractions=np.zeros(0), base_dir=np.zeros((0, 3)), step=np.zeros((0, 2)),
+                        rx=np.zeros((0, 3)), old_miss=np.zeros(0), won=np.zeros(0, np.int64),
+                        trial_dir=np.zeros((0, 3)))
 
 
 def tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -235,19 +208,21 @@ def refine_by_continuation(
     codes: np.ndarray,
     nint: np.ndarray,
     *,
-    stages: int = 8,
     budget: Budget | None = None,
+    config: TracerConfig | None = None,
 ) -> Refined:
     """Refraction-only paths by homotopy on the refractive indices.
 
     With every index set to 1 the straight transmitter->receiver line is the
     exact path; the indices are raised as ``n_i^s`` for s from 0 to 1 in
-    ``stages`` steps, each stage's Newton starting from the previous stage's
+    ``config.continuation_stages`` steps, each stage's Newton starting from the previous stage's
     solution. This finds direct paths whose straight launch direction would
     be totally reflected (a capsule deep in muscle, a sensor in air).
     """
     import dataclasses
 
+    config = config or TracerConfig()
+    stages = config.continuation_stages
     dirs = (rx_m - tx_m) / np.linalg.norm(rx_m - tx_m, axis=1, keepdims=True)
     alive = np.ones(len(dirs), bool)
     segments = 0
@@ -258,7 +233,8 @@ def refine_by_continuation(
         if len(idx) == 0:
             break
         staged = dataclasses.replace(media, n=np.exp(s * log_n)[None, :] + 0j)
-        res = refine(scene, staged, tx_m, tx_medium, rx_m[idx], dirs[idx], codes[idx], nint[idx], budget=budget)
+        res = refine(scene, staged, tx_m, tx_medium, rx_m[idx], dirs[idx], codes[idx], nint[idx], budget=budget,
+                     config=config)
         segments += res.segments
         dirs[idx[res.converged]] = res.dirs[res.converged]
         alive[idx[~res.converged]] = False
@@ -280,6 +256,7 @@ def refine(
     nint: np.ndarray,
     *,
     budget: Budget | None = None,
+    config: TracerConfig | None = None,
 ) -> Refined:
     """Newton on the two launch angles until each path's last leg hits its receiver.
 
@@ -288,12 +265,14 @@ def refine(
     offset's derivatives with respect to tilting the launch along two
     orthonormal tangents, from the ray differentials the trace carries
     (as :func:`follow` with ``tangents``), so the Jacobian determinant is the
-    ray-tube area per steradian. Steps are limited to :data:`MAX_STEP_RAD` and
-    backtracked (halved, :data:`LINE_SEARCH_GROWTH`) until the miss decreases;
-    seeds that stall (:data:`STALL_WINDOW`) are given up. Each seed is iterated
-    to its end in :func:`raytrace.engine.kernels.newton`, :data:`NEWTON_CHUNK` seeds per
-    call (the budget is charged between calls).
+    ray-tube area per steradian. Steps are limited to ``config.max_step_rad`` and
+    backtracked (halved, ``line_search_growth``) until the miss decreases; seeds that
+    stall (``stall_window``, ``stall_factor``) are given up
+    (:class:`~raytrace.solver.config.TracerConfig`). Each seed is iterated to its end in
+    :func:`raytrace.engine.kernels.newton`, ``newton_chunk`` seeds per call (the budget is
+    charged between calls).
     """
+    config = config or TracerConfig()
     p = len(dirs0)
     dirs = _normalize(np.asarray(dirs0, float).copy())
     converged = np.zeros(p, bool)
@@ -304,15 +283,15 @@ def refine(
     codes = np.ascontiguousarray(codes, dtype=np.int64)
     nint = np.ascontiguousarray(nint, dtype=np.int64)
     rx_m = np.ascontiguousarray(rx_m, dtype=float)
-    max_steps, statics = _trace_inputs(scene, media, nint)
-    statics = (*statics, *_new_step_records(0, 0))
-    tx = np.asarray(tx_m, dtype=float)
-    for a in range(0, p, NEWTON_CHUNK):  # the budget is charged (and checked) between chunks
-        part = slice(a, a + NEWTON_CHUNK)
-        cast = kernels.newton(scene.embree.handle, scene.center, max_steps, tx, int(tx_medium), dirs[part],
-                              codes[part], nint[part], rx_m[part], converged[part], tube[part], *statics,
-                              _LINE_SEARCH_FRACTIONS, MAX_ITERATIONS, MISS_TOLERANCE_M, MAX_STEP_RAD, STALL_WINDOW,
-                              STALL_FACTOR, LINE_SEARCH_GROWTH)
+    max_steps = _max_steps(media, nint)
+    settings = _newton_settings(config)
+    tables, media_tables = scene.kernel_tables, media.kernel_tables
+    tx = np.ascontiguousarray(tx_m, dtype=float)
+    for a in range(0, p, config.newton_chunk):  # the budget is charged (and checked) between chunks
+        part = slice(a, a + config.newton_chunk)
+        seeds = build(NewtonSeeds, tx=tx, tx_medium=int(tx_medium), dirs=dirs[part], codes=codes[part],
+                      nint=nint[part], rx=rx_m[part], converged=converged[part], tube=tube[part])
+        cast = kernels.newton(tables, media_tables, seeds, _NO_STEPS, max_steps, settings)
         segments += cast
         if budget is not None:
             budget.charge(cast)

@@ -1,10 +1,10 @@
 """Shooting and bouncing rays: candidate interaction signatures for every receiver.
 
 One launch (a Fibonacci sphere of directions at the transmitter) serves all
-receivers; it is processed in batches of :data:`LAUNCH_BATCH` directions,
+receivers; it is processed in batches of ``launch_batch`` directions,
 each batch's whole bounce tree at once, so memory stays bounded without
 culling branches. Per bounce, every live ray of the batch is cast together
-(Embree batches of :data:`CHUNK_RAYS`); at each hit it splits into a
+(Embree batches of ``chunk_rays``); at each hit it splits into a
 reflected ray and, unless Snell has no real solution (total internal
 reflection), a transmitted ray, up to ``max_interactions`` events. The scene
 given holds only the surfaces between different materials (see
@@ -22,7 +22,7 @@ spacing sqrt(4 pi / N), multiplied at each refraction by the tube's angular
 magnification ``max(n1 cos_i / (n2 cos_t), n1 / n2, 1)``, and widened at every
 curved surface by what a thin mirror / lens of the surface's curvature ``k``
 does to the tube's edge ray at half-width ``h``: ``2 k h`` on reflection,
-``k h |1 - n1 / n2|`` on refraction (times :data:`CURVATURE_MARGIN`; ``k``
+``k h |1 - n1 / n2|`` on refraction (times ``curvature_margin``; ``k``
 from :attr:`raytrace.engine.scene.TracerScene.face_curvature32`). Without that term
 curved organs (colon, kidneys, spine, the skin's own curvature) spread the rays
 of a reflected tube far beyond its modelled width, and receivers between them
@@ -41,39 +41,20 @@ default request this adds 14e3 casts to the shooting's 1.63e6 where the stand-al
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from raytrace.engine import kernels
+from raytrace.engine.records import ShotMedia, ShotRays, ShotReceivers, ShotScene, ShotSettings, WalkRecords, build
 from raytrace.engine.scene import TracerScene
+from raytrace.physics.em import C0
 from raytrace.solver.budget import Budget
-from raytrace.solver.direct import MAX_EVENTS, Seeds, closest_launches, pick_seeds
+from raytrace.solver.config import TracerConfig
+from raytrace.solver.direct import Seeds, closest_launches, pick_seeds
 from raytrace.solver.launch import angular_spacing_rad, fibonacci_sphere
 from raytrace.solver.media import MediaTable
-
-#: Launch directions traced together (their whole bounce tree at once). Batches are handed to
-#: the threads as they free up, so small ones balance the two cores and keep each generation's
-#: arrays in cache: on the default torso (1e5 rays, 2 threads) the shooting took 0.225-0.239 s
-#: wall (0.44-0.47 CPU-s) with 12 500, 0.253-0.263 s (0.48-0.50) with 50 000, and 0.237-0.251 s
-#: with 6 250 (more per-generation overhead); the paths are the same.
-LAUNCH_BATCH = 12_500
-#: Safety cap on the live rays of one launch batch (highest priority kept; the walk's rays,
-#: at most one per launch, always: so it must stay above LAUNCH_BATCH).
-MAX_LIVE_RAYS = 2_000_000
-#: Launch batches shot concurrently (threads; Embree releases the GIL). Peak memory grows
-#: with it: each batch holds its own bounce tree.
-SHOOT_THREADS = min(2, os.cpu_count() or 1)
-#: Reception radius in units of the local ray-tube half-width.
-RECEPTION_FACTOR = 1.0
-#: Safety factor on the curvature widening of the tubes (module doc). Measured on the default
-#: torso (3 capsules x 12 sensors, 1e5 rays; reference: the union of 1e6-ray traces): paths
-#: within 20 dB of a receiver's strongest that were missed, of 267: 84 without the term, 42
-#: with margin 1, 25 with margin 2; receivers missing their strongest path: 6, 1, 0 of 36.
-#: Request time grows with the candidates (about +50 % at margin 2).
-CURVATURE_MARGIN = 2.0
 
 
 @dataclass
@@ -90,62 +71,41 @@ class Candidates:
     #: every batch (:func:`raytrace.solver.direct.closest_launches`), in batch order; None if not walked
     walk: list[list[tuple]] | None = None
 
-    def direct_seeds(self, receivers: np.ndarray) -> Seeds:
+    def direct_seeds(self, receivers: np.ndarray, config: TracerConfig | None = None) -> Seeds:
         """:func:`raytrace.solver.direct.direct_seeds` of ``receivers`` from the shooting's own walk
         (its rays were cast and counted by the shooting)."""
         receivers = np.asarray(receivers, np.int64)
-        return pick_seeds([self.walk[int(r)] for r in receivers], receivers, self.rays_launched, 0)
+        return pick_seeds([self.walk[int(r)] for r in receivers], receivers, self.rays_launched, 0,
+                          config or TracerConfig())
 
 
-#: Rays processed per Embree batch inside one bounce (bounds the temporaries' memory).
-CHUNK_RAYS = 1 << 18
-
-
-#: The walk's records when there is no walk: (0, R)-shaped arrays and a launch offset.
-_NO_WALK = (np.zeros((0, 0)), np.zeros((0, 0), np.int32), np.zeros((0, 0), np.int32), 0)
+#: The walk's records when there is no walk: (0, 0) arrays and a launch offset.
+_NO_WALK = build(WalkRecords, miss=np.zeros((0, 0)), events=np.zeros((0, 0), np.int32),
+                 hist=np.zeros((0, 0), np.int32), src_base=0)
 
 
 @dataclass
 class _Context:
-    scene: TracerScene
-    tables: tuple  # per-face and per-medium tables, receivers: the arguments of kernels.bounce
-    threshold: float
-    kmax: int
-    no_passes: bool  # no transparent surface in the scene (a ray with kmax events has no children)
+    """The shooting's constant inputs: the records :func:`raytrace.engine.kernels.bounce` takes."""
+
+    scene: ShotScene
+    media: ShotMedia
+    receivers: ShotReceivers
+    settings: ShotSettings
     walk: bool  # the refraction-only walk rides on the shooting's rays
 
 
-@dataclass
-class _State:
-    """Live rays: origin (already pushed off the surface), direction, medium, power factor,
-    tube radius and angle, reduced length sum L_i / Re n_i, events so far, event-log pointer,
-    launch index."""
-
-    o: np.ndarray
-    d: np.ndarray
-    med: np.ndarray
-    w: np.ndarray
-    rad: np.ndarray
-    ang: np.ndarray
-    length: np.ndarray
-    nint: np.ndarray
-    hist: np.ndarray
-    src: np.ndarray
-    mode: np.ndarray  # 0 shot, 1 shot and walked (no reflection so far), 2 walked only (raytrace.engine.kernels.bounce)
-
-    def take(self, index) -> "_State":
-        return _State(*(getattr(self, f)[index] for f in _STATE_FIELDS))
-
-    @staticmethod
-    def concat(parts: list["_State"]) -> "_State | None":
-        if not parts:
-            return None
-        if len(parts) == 1:
-            return parts[0]
-        return _State(*(np.concatenate([getattr(p, f) for p in parts]) for f in _STATE_FIELDS))
+def _take(rays: ShotRays, index) -> ShotRays:
+    """The rays ``index`` (a slice or indices) of ``rays``, C-contiguous as the kernel needs."""
+    return ShotRays(*(a[index] for a in rays))
 
 
-_STATE_FIELDS = ("o", "d", "med", "w", "rad", "ang", "length", "nint", "hist", "src", "mode")
+def _concat(parts: list[ShotRays]) -> ShotRays | None:
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    return ShotRays(*(np.concatenate(arrays) for arrays in zip(*parts)))
 
 
 @dataclass
@@ -170,50 +130,49 @@ class _Found:
 
 
 def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium: np.ndarray, kmax: int,
-             dynamic_range_db: float, walk: bool = False) -> _Context:
+             dynamic_range_db: float, walk: bool = False, config: TracerConfig | None = None) -> _Context:
     """The shooting's constant inputs, in the dtypes :func:`raytrace.engine.kernels.bounce` is compiled for:
     geometry in float32 in the scene's centred frame, the power attenuation constant
     ``alpha = k0 |Im n|`` [Np/m] of every medium at the centre frequency."""
+    config = config or TracerConfig()
     rx_medium = np.asarray(rx_medium, np.int64)
-    parent, cls, transparent, _n = media.kernel_tables
-    alpha = (2.0 * np.pi * media.frequencies_hz[0] / 299_792_458.0) * -media.n[0].imag
+    tables = media.kernel_tables
+    alpha = (2.0 * np.pi * media.frequencies_hz[0] / C0) * -media.n[0].imag
+    shot = scene.shot_tables
+    no_passes = not bool(tables.transparent[shot.face_map].any())
     return _Context(
-        scene=scene,
-        tables=(
-            scene.kernel_tables.face_map, scene.face_normals32, scene.face_organ, parent, cls, transparent,
-            media.n_real.astype(np.float32), alpha.astype(np.float32), scene.corner_table32,
-            scene.face_curvature32, _interactions_needed(media, rx_medium),
-            np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
-            np.ascontiguousarray(cls[rx_medium + 1]),
-        ),
-        threshold=10.0 ** (-dynamic_range_db / 10.0),
-        kmax=int(kmax),
-        no_passes=not bool(transparent[scene.kernel_tables.face_map].any()),
+        scene=shot,
+        media=build(ShotMedia, parent=tables.parent, material_class=tables.material_class,
+                    transparent=tables.transparent, n_real=media.n_real.astype(np.float32),
+                    alpha=alpha.astype(np.float32), need=_interactions_needed(media, rx_medium)),
+        receivers=build(ShotReceivers,
+                        position_m=np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
+                        material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1])),
+        settings=build(ShotSettings, threshold=10.0 ** (-dynamic_range_db / 10.0), kmax=int(kmax),
+                       reception_factor=config.reception_factor, curvature_margin=config.curvature_margin,
+                       no_passes=no_passes, walk_events=config.walk_max_events),
         walk=bool(walk),
     )
 
 
-def _bounce(ctx: _Context, s: _State, log: _Log, found: _Found, walk: tuple = _NO_WALK) -> "tuple[int, _State | None]":
+def _bounce(ctx: _Context, rays: ShotRays, log: _Log, found: _Found, walk: WalkRecords = _NO_WALK
+            ) -> "tuple[int, ShotRays | None]":
     """Cast one chunk of live rays, record receptions, and spawn the next generation
     (the per-ray work is :func:`raytrace.engine.kernels.bounce`); returns the rays cast and the
     children."""
-    scene = ctx.scene
-    cast, children, entries, got = kernels.bounce(
-        s.o, s.d, s.med, s.w, s.rad, s.ang, s.length, s.nint, s.hist, s.src, s.mode, scene.embree_shooting.handle,
-        *ctx.tables, ctx.threshold, ctx.kmax, scene.offset_m, RECEPTION_FACTOR, CURVATURE_MARGIN, log.size,
-        ctx.no_passes, *walk, MAX_EVENTS,
-    )
-    if len(got[0]):
+    cast, children, entries, got = kernels.bounce(rays, ctx.scene, ctx.media, ctx.receivers, ctx.settings, walk,
+                                                  log.size)
+    if len(got.rx):
         for name, value in zip(("rx", "hist", "n", "src", "close"), got):
             getattr(found, name).append(value)
-    if len(entries[0]):
-        log.parent.append(entries[0])
-        log.code.append(entries[1])
-        log.face.append(entries[2])
-        log.size += len(entries[0])
-    if len(children[0]) == 0:
+    if len(entries.parent):
+        log.parent.append(entries.parent)
+        log.code.append(entries.code)
+        log.face.append(entries.face)
+        log.size += len(entries.parent)
+    if len(children.o) == 0:
         return cast, None
-    return cast, _State(*children)
+    return cast, children
 
 
 def shoot(
@@ -229,6 +188,7 @@ def shoot(
     budget: Budget | None = None,
     walk: bool = False,
     pool: Executor | None = None,
+    config: TracerConfig | None = None,
 ) -> Candidates:
     """Launch ``rays`` directions, bounce them, return reception candidates (vectorised per bounce).
     ``walk``: also the refraction-only walk of :func:`raytrace.solver.direct.direct_seeds` on the same
@@ -237,27 +197,33 @@ def shoot(
     Per ray the state is position, direction, medium, power factor, tube
     radius/angle, event count, launch index and a pointer into an event log
     (parent event, code, face) from which candidate signatures are rebuilt;
-    the spawned origin is offset off the surface just left (float32 safety).
+    the spawned origin is offset off the surface just left (float32 safety). Launch batches,
+    live-ray cap, threads, chunks and reception: ``config``
+    (:class:`~raytrace.solver.config.TracerConfig`); ``pool``: the caller's workers instead of
+    ``config.threads`` of its own.
     """
+    config = config or TracerConfig()
+    max_events = config.walk_max_events
     kmax = int(max_interactions)
     width = max(kmax, 1)
-    ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db, walk)
-    if ctx.walk and not ctx.no_passes:
+    ctx = _context(scene, media, rx_m, rx_medium, kmax, dynamic_range_db, walk, config)
+    if ctx.walk and not ctx.settings.no_passes:
         raise ValueError("the walk needs a scene without transparent surfaces (raytrace.engine.scene.scene_for)")
     n_rx = len(rx_m)
     max_steps = 4 * kmax + 2 * len(media.materials) + 8
     if ctx.walk:
-        max_steps = max(max_steps, MAX_EVENTS + 1)  # a walked ray's generations: one per event
+        max_steps = max(max_steps, max_events + 1)  # a walked ray's generations: one per event
     spacing = angular_spacing_rad(rays)
     tx_c = (np.asarray(tx_m, float) - scene.center).astype(np.float32)
 
     def launch_batch(first: int) -> tuple[_Found, int, list | None]:
         # the whole bounce tree of one batch of launch directions: bounds memory without
         # culling branches; batches are independent (own event log and candidates)
-        count = min(LAUNCH_BATCH, rays - first)
+        count = min(config.launch_batch, rays - first)
         launch = fibonacci_sphere(rays, np.arange(first, first + count))
         log, found, segments = _Log(), _Found(), 0
-        state = _State(
+        state = build(
+            ShotRays,
             o=np.broadcast_to(tx_c, (count, 3)).copy(),
             d=launch.astype(np.float32),
             med=np.full(count, tx_medium, np.int64),
@@ -272,42 +238,43 @@ def shoot(
         )
         records = _NO_WALK
         if ctx.walk:  # closest approach per launch and receiver, its events and last log entry
-            records = (np.full((count, n_rx), np.inf), np.zeros((count, n_rx), np.int32),
-                       np.full((count, n_rx), -1, np.int32), first)
+            records = build(WalkRecords, miss=np.full((count, n_rx), np.inf), events=np.zeros((count, n_rx), np.int32),
+                            hist=np.full((count, n_rx), -1, np.int32), src_base=first)
         for _ in range(max_steps):
             n_live = len(state.o)
             if n_live == 0:
                 break
             bounced = [
-                _bounce(ctx, state.take(slice(a, a + CHUNK_RAYS)), log, found, records)
-                for a in range(0, n_live, CHUNK_RAYS)
+                _bounce(ctx, _take(state, slice(a, a + config.chunk_rays)), log, found, records)
+                for a in range(0, n_live, config.chunk_rays)
             ]
             cast = sum(n for n, _c in bounced)
             segments += cast
             if budget is not None:
                 budget.charge(cast)
-            state = _State.concat([c for _n, c in bounced if c is not None])
+            state = _concat([c for _n, c in bounced if c is not None])
             if state is None:
                 break
-            if len(state.o) > MAX_LIVE_RAYS:
+            if len(state.o) > config.max_live_rays:
                 # safety cap: keep the rays most likely to matter, power factor over the squared
                 # reduced length sum L_i / n_i (the paraxial ray-tube spreading of layered media)
                 priority = state.w / np.maximum(state.length, 1e-4) ** 2
                 priority[state.mode > 0] = np.inf  # the walk's rays (no reflection yet): one per launch at most
-                keep = np.sort(np.argpartition(-priority, MAX_LIVE_RAYS - 1)[:MAX_LIVE_RAYS])
-                state = state.take(keep)
+                cap = config.max_live_rays
+                keep = np.sort(np.argpartition(-priority, cap - 1)[:cap])
+                state = _take(state, keep)
         offers = None
         entries = _log_arrays(log)
         if ctx.walk:
-            miss, n_ev, last, _first = records
-            offers = closest_launches(miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c],
-                                                                              MAX_EVENTS)[0],
-                                      launch)
+            miss, n_ev, last = records.miss, records.events, records.hist
+            offers = closest_launches(
+                miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c], max_events)[0], launch,
+                config.seeds_per_receiver)
         _resolve(found, log, entries, width)  # signatures of this batch's candidates; the log is freed
         return found, segments, offers
 
-    firsts = list(range(0, rays, LAUNCH_BATCH))
-    workers = min(SHOOT_THREADS, len(firsts))
+    firsts = list(range(0, rays, config.launch_batch))
+    workers = min(config.threads, len(firsts))
     if pool is not None:  # the caller's workers (raytrace.solver.tracer queues other work beside)
         batches = list(pool.map(launch_batch, firsts))
     elif workers > 1:

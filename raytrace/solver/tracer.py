@@ -58,7 +58,6 @@ organs are comparable to the wavelength (docs/science.md).
 
 from __future__ import annotations
 
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -78,6 +77,7 @@ from raytrace.results import (
     TraceStats,
 )
 from raytrace.solver.budget import Budget
+from raytrace.solver.config import TracerConfig
 from raytrace.solver.direct import Seeds, reverse_seeds, zoom_seeds
 from raytrace.solver.field import path_gains
 from raytrace.solver.launch import angular_spacing_rad
@@ -96,24 +96,9 @@ from raytrace.solver.sbr import shoot
 from raytrace.solver.validity import receiver_flags, smallest_organ
 from raytrace.spec import Antenna, ChannelSpec
 
-#: Worker threads of one request: the direct-path search and the shooting's launch batches,
-#: then the Newton refinement of the shooting's seeds (Embree and the kernels run without the GIL).
-THREADS = min(2, os.cpu_count() or 1)
-#: Candidate seeds refined per (receiver, signature) group, at most.
-SEEDS_PER_SIGNATURE = 6
-#: Seeds of one group must be this many launch spacings apart. With the curvature-widened
-#: reception tubes a group holds many neighbouring candidates that converge to one path:
-#: 6 seeds 3 spacings apart found the same strong paths as 16 seeds 1 spacing apart on the
-#: default torso (within 20 dB of the strongest, 24 of 267 missed against 1e6 rays by both)
-#: in about 25 % less time; 4 seeds lost one of two symmetric walls' paths (tests).
-SEED_SEPARATION = 3.0
-#: Two converged seeds with the same receiver and signature whose launch directions are
-#: closer than this are one path [rad] (a path is its signature's trace from its launch).
-DUPLICATE_ANGLE_RAD = 1e-6
 
-
-def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: Budget | None = None
-                  ) -> ChannelResult:
+def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: Budget | None = None,
+                  config: TracerConfig | None = None) -> ChannelResult:
     """Trace every path of ``spec`` from its transmitter to each receiver, with complex gains.
 
     ``phantom`` is the phantom ``spec.phantom`` names (pass it for an uploaded or
@@ -134,8 +119,13 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
     :class:`~raytrace.errors.InputError` subclasses of :meth:`ChannelSpec.resolve`
     and the media table (naming the field), and
     :class:`~raytrace.errors.BudgetExceededError` when ``budget`` runs out.
+
+    ``config`` (:class:`~raytrace.solver.config.TracerConfig`): the search's tuning constants and
+    threads; by default ``TracerConfig()`` (as many threads as this process may use).
     """
     started = time.monotonic()
+    config = TracerConfig() if config is None else config
+    threads = config.threads
     if phantom is None:
         phantom = get_phantom(spec.phantom)
     resolved = spec.resolve(phantom)
@@ -156,22 +146,22 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
     scene = scene_for(phantom, ~media.face_transparent)
     segments = 0
 
-    # --- one pool of THREADS workers for the request. Its queue: first the direct-path search
+    # --- one pool of ``threads`` workers for the request. Its queue: first the direct-path search
     # (it needs nothing from the shooting), then the shooting's launch batches (shooting and
     # bouncing rays: every other signature; the refraction-only seed walk rides on its rays),
     # so both cores stay busy until the last batch; then the Newton refinement of the shot
-    # seeds in THREADS interleaved shares, while this thread finishes the direct paths. All
+    # seeds in ``threads`` interleaved shares, while this thread finishes the direct paths. All
     # spend most of their time in the GIL-free kernels and Embree (docs/tracer.md,
     # "Performance"); the result is the same as a serial run's
-    with ThreadPoolExecutor(max_workers=THREADS) as pool:
-        direct = pool.submit(_direct_paths, scene, media, tx, tx_medium, rx, budget)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        direct = pool.submit(_direct_paths, scene, media, tx, tx_medium, rx, budget, config)
         cands = shoot(scene, media, tx, tx_medium, rx, rx_medium, int(rays), int(max_interactions),
-                      float(dynamic_range_db), budget, walk=True, pool=pool)
-        s_rx, s_codes, s_n, s_dir = _select_seeds(cands)
+                      float(dynamic_range_db), budget, walk=True, pool=pool, config=config)
+        s_rx, s_codes, s_n, s_dir = _select_seeds(cands, config)
         # Newton is independent per seed: the shot seeds in interleaved shares, one per thread
-        shares = [np.arange(k, len(s_rx), THREADS) for k in range(THREADS)]
+        shares = [np.arange(k, len(s_rx), threads) for k in range(threads)]
         shot = [pool.submit(refine, scene, media, tx, tx_medium, rx[s_rx[i]], s_dir[i], s_codes[i], s_n[i],
-                            budget=budget) for i in shares]
+                            budget=budget, config=config) for i in shares]
         # --- direct paths: the straight line's signature, refined (_direct_paths); then, for
         # receivers still without one, refraction-only rays walked from the transmitter (their
         # own signatures), zoomed in when Newton's basin is narrower than the launch spacing
@@ -181,9 +171,9 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
         groups = [(np.arange(len(rx)), d_codes, d_n, found)]
         missing = np.flatnonzero(~found.converged)
         if len(missing):
-            walk = cands.direct_seeds(missing)  # the refraction-only walk rode on the shooting's rays
+            walk = cands.direct_seeds(missing, config)  # the refraction-only walk rode on the shooting's rays
             ref_w = refine(scene, media, tx, tx_medium, rx[walk.receiver], walk.launch_dir, walk.codes, walk.nint,
-                           budget=budget)
+                           budget=budget, config=config)
             segments += ref_w.segments
             groups.append((walk.receiver, walk.codes, walk.nint, ref_w))
             have = np.unique(walk.receiver[ref_w.converged])
@@ -192,20 +182,20 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
                 sub = Seeds(walk.receiver[still], walk.launch_dir[still], walk.miss_m[still],
                             walk.codes[still], walk.nint[still], 0)
                 zoomed = zoom_seeds(scene, media, tx, tx_medium, rx, rx_medium, sub,
-                                    2.0 * angular_spacing_rad(int(rays)), budget)
+                                    2.0 * angular_spacing_rad(int(rays)), budget, config)
                 segments += zoomed.segments
                 ref_z = refine(scene, media, tx, tx_medium, rx[zoomed.receiver], zoomed.launch_dir, zoomed.codes,
-                               zoomed.nint, budget=budget)
+                               zoomed.nint, budget=budget, config=config)
                 segments += ref_z.segments
                 groups.append((zoomed.receiver, zoomed.codes, zoomed.nint, ref_z))
                 have = np.union1d(have, zoomed.receiver[ref_z.converged])
             # still none: search from the receiver's side (reciprocity), refine the reversed path forward
             rest = missing[~np.isin(missing, have)]
             if len(rest):
-                back = reverse_seeds(scene, media, tx, tx_medium, rx, rx_medium, rest, int(rays), budget)
+                back = reverse_seeds(scene, media, tx, tx_medium, rx, rx_medium, rest, int(rays), budget, config)
                 segments += back.segments
                 ref_b = refine(scene, media, tx, tx_medium, rx[back.receiver], back.launch_dir, back.codes, back.nint,
-                               budget=budget)
+                               budget=budget, config=config)
                 segments += ref_b.segments
                 groups.append((back.receiver, back.codes, back.nint, ref_b))
 
@@ -220,7 +210,7 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
     # shooting's) it is seeded from the direct path here
     t_rx, t_codes, t_n, t_dir = _surface_echo_seeds(groups[1:-1], rx_medium, int(max_interactions))
     if len(t_rx):
-        ref_t = refine(scene, media, tx, tx_medium, rx[t_rx], t_dir, t_codes, t_n, budget=budget)
+        ref_t = refine(scene, media, tx, tx_medium, rx[t_rx], t_dir, t_codes, t_n, budget=budget, config=config)
         segments += ref_t.segments
         groups.append((t_rx, t_codes, t_n, ref_t))
 
@@ -237,7 +227,7 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
     conv = np.flatnonzero(refined.converged)
     # one row per exact path (_unique_paths) before the re-trace and the fields, which then
     # run once per path rather than once per converged seed (about 2.3 seeds per path)
-    conv = conv[_unique_paths(seed_rx[conv], seed_codes[conv], refined.dirs[conv])]
+    conv = conv[_unique_paths(seed_rx[conv], seed_codes[conv], refined.dirs[conv], config)]
     rec = follow(full_scene, media, tx, tx_medium, refined.dirs[conv], seed_codes[conv], seed_n[conv],
                  targets_m=rx[seed_rx[conv]])
     segments += rec.segments
@@ -359,19 +349,19 @@ def _surface_echo_seeds(groups, rx_medium, max_interactions):
 
 
 def _direct_paths(scene: TracerScene, media: MediaTable, tx: np.ndarray, tx_medium: int, rx: np.ndarray,
-                  budget: Budget | None):
+                  budget: Budget | None, config: TracerConfig):
     """The direct path of every receiver from its straight line's refraction-only signature,
     refined from the straight launch; where that fails (the straight launch totally
     reflected on the way), by homotopy on the indices (:func:`refine_by_continuation`).
     Returns the refined paths, the signatures, their event counts and the segments cast."""
     d_codes, d_n, segments = _straight_signatures(scene, media, tx, rx)
     direct_dir = (rx - tx) / np.linalg.norm(rx - tx, axis=1, keepdims=True)
-    found = refine(scene, media, tx, tx_medium, rx, direct_dir, d_codes, d_n, budget=budget)
+    found = refine(scene, media, tx, tx_medium, rx, direct_dir, d_codes, d_n, budget=budget, config=config)
     segments += found.segments
     retry = np.flatnonzero(~found.converged)
     if len(retry):
         again = refine_by_continuation(scene, media, tx, tx_medium, rx[retry], d_codes[retry], d_n[retry],
-                                       budget=budget)
+                                       budget=budget, config=config)
         segments += again.segments
         found.dirs[retry] = again.dirs
         found.converged[retry] = again.converged
@@ -425,11 +415,11 @@ def _pad(a: np.ndarray, width: int) -> np.ndarray:
     return out
 
 
-def _select_seeds(c):
+def _select_seeds(c, config: TracerConfig):
     """Seeds to refine: per (receiver, signature), candidates in order of closeness, each
-    kept only if its launch direction is at least :data:`SEED_SEPARATION` launch spacings
+    kept only if its launch direction is at least ``config.seed_separation`` launch spacings
     from the seeds already kept (neighbouring rays converge to the same path; distinct walls
-    of one organ sharing the signature are far apart), up to :data:`SEEDS_PER_SIGNATURE`.
+    of one organ sharing the signature are far apart), up to ``config.seeds_per_signature``.
     Vectorised ranking (one stable sort by receiver, signature, closeness); the greedy pass
     is :func:`raytrace.engine.kernels.spread_picks`."""
     if len(c.receiver) == 0:
@@ -438,15 +428,15 @@ def _select_seeds(c):
     order = np.lexsort((c.closeness, *key.T[::-1]))
     k = key[order]
     starts = np.flatnonzero(np.r_[True, (k[1:] != k[:-1]).any(axis=1), True])
-    min_cos = np.cos(SEED_SEPARATION * np.sqrt(4.0 * np.pi / max(c.rays_launched, 1)))
+    min_cos = np.cos(config.seed_separation * np.sqrt(4.0 * np.pi / max(c.rays_launched, 1)))
     chosen = np.flatnonzero(kernels.spread_picks(order, starts, np.ascontiguousarray(c.launch_dir, float), min_cos,
-                                                 SEEDS_PER_SIGNATURE))
+                                                 config.seeds_per_signature))
     return c.receiver[chosen], c.codes[chosen], c.nint[chosen], c.launch_dir[chosen]
 
 
-def _unique_paths(rx_idx, codes, dirs):
+def _unique_paths(rx_idx, codes, dirs, config: TracerConfig):
     """Mask keeping one of several converged seeds with the same receiver, signature and
-    launch direction (within :data:`DUPLICATE_ANGLE_RAD`): seeds from neighbouring rays
+    launch direction (within ``config.duplicate_angle_rad``): seeds from neighbouring rays
     converge to the same exact path, while symmetric walls of one organ give distinct paths
     (with equal delays) from distinct launches. Rows in order, each against the rows
     already kept in its group (:func:`raytrace.engine.kernels.first_of_duplicates`)."""
@@ -455,7 +445,7 @@ def _unique_paths(rx_idx, codes, dirs):
     key = np.concatenate([rx_idx[:, None], codes], axis=1)
     _, group = np.unique(key, axis=0, return_inverse=True)
     return kernels.first_of_duplicates(np.ascontiguousarray(group.ravel(), np.int64), np.ascontiguousarray(dirs, float),
-                                       DUPLICATE_ANGLE_RAD)
+                                       config.duplicate_angle_rad)
 
 
 def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarray, tx_m: np.ndarray,
@@ -503,9 +493,8 @@ def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarr
             media.append(mf)
             med = mf if kind == KIND_REFLECTION else mt
         media.append(med)
-        segments = tuple(
-            Segment(names[m + 1], lengths[e + j + i], start_m=points[i], end_m=points[i + 1]) for i, m in enumerate(media)
-        )
+        segments = tuple(Segment(names[m + 1], lengths[e + j + i], start_m=points[i], end_m=points[i + 1])
+                         for i, m in enumerate(media))
         out.append(Path(delay_s=delay_s[j], group_delay_s=group_delay_s[j], gain=gain[j], length_m=length_m[j],
                         interactions=tuple(interactions), segments=segments,
                         band_gains=fields.gains[rows[j], 1:].copy() if band else None))

@@ -37,7 +37,8 @@ async def compute_channel(req: ChannelRequest, request: Request) -> Response:
 
     def work(budget: Budget) -> tuple[dict, bytes]:
         spec, phantom = channel_ops.to_spec(req, st.registry, st.settings)
-        out = channel_ops.result_to_dict(trace_channel(spec, phantom, budget=budget), req.scenario, req.outputs)
+        result = trace_channel(spec, phantom, budget=budget, config=st.settings.tracer_config())
+        out = channel_ops.result_to_dict(result, req.scenario, req.outputs)
         # serialised here, in the worker: a 12-sensor answer is ~0.75 MB, and building the pydantic
         # model of its ~500 paths took 0.12 s that would block the event loop; result_to_dict
         # writes exactly ChannelResponse's fields (finite numbers only: allow_nan=False raises

@@ -13,6 +13,7 @@ import pytest
 from raytrace.body.library import half_space, homogeneous_sphere
 from raytrace.body.phantom import Material
 from raytrace.engine import kernels
+from raytrace.engine.records import ShotRays, build
 from raytrace.engine.scene import scene_for
 from raytrace.physics import em
 from raytrace.solver import sbr
@@ -34,7 +35,8 @@ def one_bounce():
     d = d[d[:, 1] < -0.3]  # towards the face, hitting it within 0.1 m of the foot point
     n = len(d)
     ctx = sbr._context(scene, media, np.array([[0.0, -0.05, 0.0]]), np.array([-1]), kmax=6, dynamic_range_db=200.0)
-    state = sbr._State(
+    state = build(
+        ShotRays,
         o=np.broadcast_to((tx - scene.center).astype(np.float32), (n, 3)).copy(), d=d.astype(np.float32),
         med=np.full(n, 0, np.int64), w=np.ones(n, np.float32), rad=np.zeros(n, np.float32),
         ang=np.full(n, 1e-3, np.float32), length=np.zeros(n, np.float32), nint=np.zeros(n, np.int64),
@@ -48,7 +50,7 @@ def one_bounce():
 def _split(children):
     """Reflected children (back in muscle, medium 0) and transmitted ones (air, -1)."""
     refl = children.med == 0
-    return children.take(np.flatnonzero(refl)), children.take(np.flatnonzero(~refl))
+    return sbr._take(children, np.flatnonzero(refl)), sbr._take(children, np.flatnonzero(~refl))
 
 
 def test_bounce_directions_follow_the_laws_of_reflection_and_refraction(one_bounce):
@@ -125,7 +127,8 @@ def test_bounce_reception_is_the_ray_tube_width(events):
     offsets = np.array([0.5, 0.9, 1.1, 2.0]) * width
     rx = tx + s * d + offsets[:, None] * np.array([1.0, 0.0, 0.0])
     ctx = sbr._context(scene, media, rx, np.zeros(len(rx), np.int64), kmax=6, dynamic_range_db=80.0)
-    state = sbr._State(
+    state = build(
+        ShotRays,
         o=(tx - scene.center).astype(np.float32)[None, :], d=d.astype(np.float32)[None, :],
         med=np.zeros(1, np.int64), w=np.ones(1, np.float32), rad=np.full(1, rad, np.float32),
         ang=np.full(1, ang, np.float32), length=np.zeros(1, np.float32), nint=np.full(1, events, np.int64),
@@ -153,7 +156,8 @@ def test_bounce_casts_a_ray_without_children_only_if_a_receiver_is_on_its_line()
     off_line = tx + 0.02 * d + np.array([0.05, 0.0, 0.0])
     for rx, events, cast_expected in ((off_line, 6, 0), (off_line, 5, 1), (beyond, 6, 1)):
         ctx = sbr._context(scene, media, rx[None, :], np.zeros(1, np.int64), kmax=6, dynamic_range_db=80.0)
-        state = sbr._State(
+        state = build(
+            ShotRays,
             o=(tx - scene.center).astype(np.float32)[None, :], d=d.astype(np.float32)[None, :],
             med=np.zeros(1, np.int64), w=np.ones(1, np.float32), rad=np.full(1, 1e-3, np.float32),
             ang=np.full(1, 0.01, np.float32), length=np.zeros(1, np.float32), nint=np.full(1, events, np.int64),
@@ -313,7 +317,8 @@ def test_line_search_accepts_the_first_fraction_from_its_start_that_reduces_the_
                         line_search=(fractions, step, rx, old, np.full(len(base), first)))
     np.testing.assert_array_equal(res.won, expected)
     ok = expected >= 0
-    won_launch = refine._normalize(base[ok] + fractions[expected[ok], None] * (step[ok, :1] * u[ok] + step[ok, 1:] * v[ok]))
+    tilt = step[ok, :1] * u[ok] + step[ok, 1:] * v[ok]
+    won_launch = refine._normalize(base[ok] + fractions[expected[ok], None] * tilt)
     np.testing.assert_allclose(res.launch_dir[ok], won_launch, atol=1e-12)
 
 

@@ -155,7 +155,7 @@ def test_duplicate_filter_keeps_distinct_paths_with_nearby_launches():
     """A narrow box: the reflections off its +y and -y walls share signature and delay, and
     their launches are only 0.2 rad apart (image method: atan(0.04 / 0.4) either side of
     the axis). Both must be kept, once each: a duplicate filter merging launches 0.2 rad
-    apart drops them (raytrace.solver.tracer.DUPLICATE_ANGLE_RAD is 1e-6). A filter that merges
+    apart drops them (raytrace.solver.config.TracerConfig.duplicate_angle_rad is 1e-6). A filter that merges
     nothing fails test_reciprocity_lossless_planar_layers (duplicated paths)."""
     walls = _wall_reflections(0.6, 0.04, -0.2, 0.2)
     assert sorted(np.sign(p.interactions[0].point_m[1]) for p in walls) == [-1.0, 1.0]

@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from raytrace.body import torso
 from raytrace.body.phantom import Material, Organ, Phantom
 from raytrace.engine.scene import scene_for
 from raytrace.solver import sbr
+from raytrace.solver.config import TracerConfig
 from raytrace.solver.media import MediaTable
+
+torso = pytest.importorskip("raytrace.body.torso")
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +76,7 @@ def test_pruning_leaves_the_candidates_unchanged(phantom, monkeypatch, max_inter
     assert _candidate_set(pruned) == _candidate_set(full)
 
 
-def test_concurrent_launch_batches_give_the_serial_candidates(phantom, monkeypatch):
+def test_concurrent_launch_batches_give_the_serial_candidates(phantom):
     """Launch batches shot in threads are merged in batch order: exactly the serial result."""
     media = MediaTable.build(phantom, np.array([402e6]))
     scene = scene_for(phantom, ~media.face_transparent)
@@ -82,12 +84,9 @@ def test_concurrent_launch_batches_give_the_serial_candidates(phantom, monkeypat
     rx = np.array([s.position_m for s in phantom.sites.values() if s.kind == "sensor"])
     tx_med = int(phantom.medium_index(tx[None, :])[0])
     rx_med = np.array([int(phantom.medium_index(r[None, :])[0]) for r in rx])
-    monkeypatch.setattr(sbr, "LAUNCH_BATCH", 7_000)  # 3 batches of a 20k launch
     args = (scene, media, tx, tx_med, rx, rx_med, 20_000, 6, 80.0)
-    monkeypatch.setattr(sbr, "SHOOT_THREADS", 1)
-    serial = sbr.shoot(*args)
-    monkeypatch.setattr(sbr, "SHOOT_THREADS", 2)
-    threaded = sbr.shoot(*args)
+    serial = sbr.shoot(*args, config=TracerConfig(launch_batch=7_000, threads=1))  # 3 batches of a 20k launch
+    threaded = sbr.shoot(*args, config=TracerConfig(launch_batch=7_000, threads=2))
     assert len(serial.receiver) > 0
     assert serial.segments == threaded.segments
     for name in ("receiver", "codes", "faces", "nint", "launch_dir", "closeness"):

@@ -36,10 +36,10 @@ def held_server(make_settings, monkeypatch):
     started = []
     real_trace = channel_route.trace_channel
 
-    def held_trace(spec, phantom=None, *, budget=None):
+    def held_trace(spec, phantom=None, *, budget=None, config=None):
         started.append(spec.phantom)
         assert release.wait(60), "test never released the computation"
-        return real_trace(spec, phantom, budget=budget)
+        return real_trace(spec, phantom, budget=budget, config=config)
 
     monkeypatch.setattr(channel_route, "trace_channel", held_trace)
     app = create_app(make_settings(max_concurrency=2, max_queue=1, retry_after_s=7))
@@ -106,7 +106,7 @@ def test_a_client_that_goes_away_cancels_its_computation(make_settings, monkeypa
     seen = {}
     cancelled = threading.Event()
 
-    def watching_trace(spec, phantom=None, *, budget=None):
+    def watching_trace(spec, phantom=None, *, budget=None, config=None):
         seen["budget"] = budget
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:

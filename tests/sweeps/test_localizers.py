@@ -7,7 +7,8 @@ c / sqrt(27.9)), capsule and six receivers 0.4 m deep, only the direct path kept
 alone): noiseless GCC ranges are the straight distances to within that velocity error
 (<= 0.3 mm here), so the range fixes must land within 1 mm of the capsule (measured 0.17 and
 0.26 mm). Far field (``near_field`` off): the dipole's near-field phase at kr ~ 4 biases
-carrier-phase TOA by millimetres, a physical effect tested in tests/raytrace. Positions and truth are written here; the error column is checked with numpy.
+carrier-phase TOA by millimetres, a physical effect tested in tests/raytrace. Positions and
+truth are written here; the error column is checked with numpy.
 """
 
 from __future__ import annotations
