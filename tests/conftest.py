@@ -10,8 +10,6 @@
 
 from __future__ import annotations
 
-import io
-import json
 import os
 import socket
 import subprocess
@@ -20,7 +18,6 @@ import time
 from pathlib import Path
 
 import httpx
-import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
@@ -142,7 +139,7 @@ def phantom_manifest(**overrides) -> dict:
         "name": "test box",
         "units": "m",
         "organs": {"body": {"tissue": "muscle"}, "organ": {"relative_permittivity": 11.6, "conductivity_s_per_m": 0.08}},
-        "sites": {"capsule": [0.0, 0.0, 0.01], "sensor": [0.0, -0.15, 0.0]},
+        "sites": {"capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.01]}, "sensor": [0.0, -0.15, 0.0]},
     }
     manifest.update(overrides)
     return manifest
