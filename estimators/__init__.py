@@ -11,13 +11,19 @@ Ranging (Monte Carlo, vectorised over trials, seeded; return result dataclasses)
     estimate_toa(profile, method="all"|"first_peak"|"all_peaks"|"gcc"|"envelope",
                  waveform=ToneBurst()|GaussianPulse()|dict, snr_db=30.0, trials=100, seed=0,
                  relative_permittivity=27.9, true_distance_m=None,
-                 return_estimates=False) -> list[TOAResult]
+                 return_estimates=False, check=None) -> list[TOAResult]
+    toa_samples(profile, waveform=None) -> int      (samples per trial: the unit of TOA work)
     estimate_pdoa(profile, frequencies_hz=None, band=None, method="two_tone"|"regression",
                   snr_db=30.0, trials=100, seed=0, relative_permittivity=27.9,
-                  true_distance_m=None, duration_s=None, return_estimates=False) -> PDOAResult
+                  true_distance_m=None, duration_s=None, return_estimates=False, check=None) -> PDOAResult
     estimate_rss(profile=None, *, rss_dbm=None, transmit_power_dbm=None,
                  model="cm2_deep_tissue"|"cm2_near_surface", trials=100, seed=0,
-                 true_distance_m=None, shadowing=True, return_estimates=False) -> RSSResult
+                 true_distance_m=None, shadowing=True, return_estimates=False, check=None) -> RSSResult
+
+``check`` (optional) is the stop protocol of the long loops: a no-argument callable
+called between chunks of work that raises to stop the computation (a deadline, a
+client that went away); the exception propagates unchanged. The estimators know
+nothing of who calls them.
 
 Bounds (closed forms, derivations in estimators.bounds):
 
@@ -43,20 +49,32 @@ Errors: every invalid input raises EstimatorInputError (a ValueError) with
 ``.field`` (dotted request path) and ``.reason``; map it to HTTP 422.
 """
 
-from .bounds import (PDOABound, RSSBound, TOABound, multitone_crlb, pdoa_crlb, rss_crlb, toa_crlb,
-                     waveform_toa_crlb)
-from .constants import DEFAULT_RELATIVE_PERMITTIVITY, SPEED_OF_LIGHT_M_PER_S, velocity_m_per_s
+from .bounds import (
+                     PDOABound,
+                     RSSBound,
+                     TOABound,
+                     multitone_crlb,
+                     pdoa_crlb,
+                     rss_crlb,
+                     toa_crlb,
+                     waveform_toa_crlb,
+)
+from .constants import (
+                     DEFAULT_RELATIVE_PERMITTIVITY,
+                     SPEED_OF_LIGHT_M_PER_S,
+                     velocity_m_per_s,
+)
 from .errors import EstimatorInputError
 from .pdoa import estimate_pdoa
 from .profile import PathProfile, single_path
 from .results import PDOAResult, RSSResult, TOAResult
 from .rss import CM2_MODELS, estimate_rss
-from .toa import estimate_toa, make_waveform
+from .toa import estimate_toa, make_waveform, toa_samples
 from .waveforms import GaussianPulse, ToneBurst
 
 __all__ = [
     "CM2_MODELS", "DEFAULT_RELATIVE_PERMITTIVITY", "EstimatorInputError", "GaussianPulse", "PDOABound",
     "PDOAResult", "PathProfile", "RSSBound", "RSSResult", "SPEED_OF_LIGHT_M_PER_S", "TOABound", "TOAResult",
     "ToneBurst", "estimate_pdoa", "estimate_rss", "estimate_toa", "make_waveform", "multitone_crlb",
-    "pdoa_crlb", "rss_crlb", "single_path", "toa_crlb", "velocity_m_per_s", "waveform_toa_crlb",
+    "pdoa_crlb", "rss_crlb", "single_path", "toa_crlb", "toa_samples", "velocity_m_per_s", "waveform_toa_crlb",
 ]

@@ -52,7 +52,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ._checks import MonteCarloInputs, finite_float
+from ._checks import Check, MonteCarloInputs, checkpoint, finite_float
 from .bounds import multitone_crlb, pdoa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
@@ -167,7 +167,7 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
                   snr_db: float | None = 30.0, trials: int = 100, seed=0,
                   relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                   true_distance_m: float | None = None, duration_s: float | None = None,
-                  return_estimates: bool = False) -> PDOAResult:
+                  return_estimates: bool = False, check: Check = None) -> PDOAResult:
     """Monte Carlo PDOA ranging over ``profile`` (api.md POST /v1/ranging/pdoa).
 
     Args:
@@ -178,7 +178,8 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
         snr_db: in-band SNR (see module docstring); None = noiseless.
         trials (1..10000), seed (int >= 0 or Generator), relative_permittivity,
         true_distance_m (adds error_m / rmse_m and the wrap check), duration_s (T0,
-        default 1 / bandwidth), return_estimates.
+        default 1 / bandwidth), return_estimates, check (called between chunks of
+        trials; raises to stop, ``estimators._checks.Check``).
     """
     if not isinstance(profile, PathProfile):
         raise EstimatorInputError("must be a PathProfile", "profile")
@@ -202,6 +203,7 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
     delays = np.empty(n_trials)
     chunk = max(1, _CHUNK_ELEMENTS // f.size)  # bounded memory; the noise stream is the same as one draw
     for start in range(0, n_trials, chunk):
+        checkpoint(check)
         count = min(chunk, n_trials - start)
         obs = np.broadcast_to(h, (count, f.size)).copy()
         if sigma is not None:

@@ -60,14 +60,22 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.fft
 
-from ._checks import MonteCarloInputs
+from ._checks import Check, MonteCarloInputs, checkpoint
 from .bounds import waveform_toa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
 from .profile import PathProfile
 from .results import TOAResult, summarise
-from .waveforms import (GaussianPulse, ToneBurst, Waveform, add_awgn, observation_samples, received,
-                        signal_power, transmitted)
+from .waveforms import (
+    GaussianPulse,
+    ToneBurst,
+    Waveform,
+    add_awgn,
+    observation_samples,
+    received,
+    signal_power,
+    transmitted,
+)
 
 METHODS = ("first_peak", "all_peaks", "gcc", "envelope")
 THESIS_METHODS = ("first_peak", "all_peaks", "gcc")
@@ -218,10 +226,21 @@ def peak_delays(rx: np.ndarray, tx_crests: np.ndarray, grid: np.ndarray, fs: flo
     return d[:, 0], np.mean(d, axis=1)
 
 
+def toa_samples(profile: PathProfile, waveform: Waveform | Mapping | None = None) -> int:
+    """Samples per trial of a TOA request, the unit of its work: synthesising the received
+    waveform costs about ``paths x samples`` complex exponentials, each Monte Carlo trial
+    about ``samples`` (an FFT correlation of twice that length). Raises like
+    :func:`estimate_toa` for an invalid waveform or an observation over the sample cap."""
+    if not isinstance(profile, PathProfile):
+        raise EstimatorInputError("must be a PathProfile", "profile")
+    return observation_samples(make_waveform(waveform), profile)
+
+
 def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform | Mapping | None = None,
                  snr_db: float | None = 30.0, trials: int = 100, seed=0,
                  relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
-                 true_distance_m: float | None = None, return_estimates: bool = False) -> list[TOAResult]:
+                 true_distance_m: float | None = None, return_estimates: bool = False,
+                 check: Check = None) -> list[TOAResult]:
     """Monte Carlo TOA ranging over ``profile`` (api.md POST /v1/ranging/toa).
 
     Args:
@@ -235,6 +254,8 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         relative_permittivity: velocity assumption (default 27.9).
         true_distance_m: adds error_m / rmse_m.
         return_estimates: attach the per-trial distance estimates.
+        check: called between chunks of synthesis and of trials; raises to stop
+            (``estimators._checks.Check``). Work: see :func:`toa_samples`.
 
     Returns one TOAResult per method. crlb_m is the Eq 4.16 bound for this
     waveform and SNR with W = fs / 2 (None when noiseless); the envelope
@@ -268,7 +289,7 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         raise EstimatorInputError(
             f"{n_trials} trials x {n} samples exceeds the work cap of {MAX_TOTAL_SAMPLES} samples", "trials")
     tx = transmitted(wf, n)
-    clean = received(wf, profile, n, normalise=True)
+    clean = received(wf, profile, n, normalise=True, check=check)
     power = signal_power(clean, wf)
     if not power > 0.0:
         raise EstimatorInputError("the paths cancel: the received waveform is identically zero",
@@ -282,6 +303,7 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
     est = {m: np.empty(n_trials) for m in methods}
     chunk = max(1, _CHUNK_ELEMENTS // scipy.fft.next_fast_len(2 * n))
     for start in range(0, n_trials, chunk):
+        checkpoint(check)
         count = min(chunk, n_trials - start)
         rx = add_awgn(clean, snr, rng, count, power)
         r_a = analytic_xcorr(rx, tx)

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import finite_float
+from ._checks import Check, checkpoint, finite_float
 from .errors import EstimatorInputError
 from .profile import PathProfile
 
@@ -160,6 +160,12 @@ def sample_times(waveform: Waveform, n_samples: int) -> np.ndarray:
 def observation_samples(waveform: Waveform, profile: PathProfile) -> int:
     """Samples needed to hold the latest path's burst plus a guard of T0/2 + 4 carrier periods."""
     t_end = float(profile.delays_s.max()) + 1.5 * waveform.duration_s + 4.0 / waveform.carrier_hz
+    if not t_end * waveform.sample_rate_hz < MAX_SAMPLES_PER_TRIAL:  # also catches an infinite pulse
+        field = "waveform.bandwidth_hz" if waveform.kind == "gaussian_pulse" else "waveform.sample_rate_hz"
+        raise EstimatorInputError(
+            f"observing up to the last path ({profile.delays_s.max():.3g} s) plus the {waveform.duration_s:.3g} s "
+            f"waveform needs over {MAX_SAMPLES_PER_TRIAL} samples per trial at {waveform.sample_rate_hz:.6g} Hz; "
+            "lower sample_rate_hz, shorten the waveform or drop late paths", field)
     n = int(math.ceil(t_end * waveform.sample_rate_hz)) + 1
     if n > MAX_SAMPLES_PER_TRIAL:
         raise EstimatorInputError(
@@ -175,13 +181,14 @@ def transmitted(waveform: Waveform, n_samples: int) -> np.ndarray:
 
 
 def received(waveform: Waveform, profile: PathProfile, n_samples: int, *, complex_output: bool = False,
-             normalise: bool = False) -> np.ndarray:
+             normalise: bool = False, check: Check = None) -> np.ndarray:
     """Noiseless received samples sum_k Re{a_k s_a(t_n - tau_k)} (exact fractional delays).
 
     Returns shape (n_samples,), real (or the complex sum when ``complex_output``).
     ``normalise`` divides the gains by the largest |a_k| (TOA is scale-free;
     this keeps extreme gains from overflowing). Paths are evaluated in chunks
-    of bounded memory (vectorised within a chunk).
+    of bounded memory (vectorised within a chunk); ``check`` (see
+    ``estimators._checks.Check``) is called before each chunk.
     """
     t = sample_times(waveform, n_samples)
     out = np.zeros(n_samples, dtype=complex)
@@ -189,6 +196,7 @@ def received(waveform: Waveform, profile: PathProfile, n_samples: int, *, comple
     a = profile.baseband_gains / (np.max(np.abs(profile.baseband_gains)) if normalise else 1.0)
     tau = profile.delays_s
     for start in range(0, tau.size, chunk):
+        checkpoint(check)
         sl = slice(start, start + chunk)
         out += a[sl] @ analytic(waveform, t[None, :] - tau[sl, None])
     return out if complex_output else out.real
