@@ -11,11 +11,10 @@ import os
 
 import pytest
 from fastapi.testclient import TestClient
+from test_service_api import assert_field
 
 from service.app import create_app
 from service.storage import PhantomStore
-
-from test_service_api import assert_field
 
 
 def upload(api, glb: bytes, manifest, filename: str = "p.glb"):
@@ -94,7 +93,6 @@ def _truncated(glb: bytes) -> bytes:
 
 BAD_UPLOADS = {
     "not a glb (magic)": (lambda g: b"PK\x03\x04" + g[4:], {}, ("body", "mesh")),
-    "wrong extension": (lambda g: g, {"filename": "p.obj"}, ("body", "mesh")),
     "malformed glb": (lambda g: b"glTF" + b"\x02\x00\x00\x00" + os.urandom(200), {}, ("body",)),
     "truncated glb": (_truncated, {}, ("body",)),
     "empty": (lambda g: b"", {}, ("body", "mesh")),
@@ -135,6 +133,14 @@ def test_invalid_phantoms_are_rejected_naming_the_problem(client, settings, glb_
     for part in loc:
         assert part in flat, (part, locs)
     assert stored_entries(settings) == []
+
+
+def test_the_content_decides_not_the_file_name(client, glb_phantom):
+    """Browsers name a blob as they like: a binary glTF is taken whatever its file name (the
+    magic bytes and the loader decide)."""
+    glb, manifest = glb_phantom()
+    r = upload(client, glb, manifest, filename="blob")
+    assert r.status_code == 201, r.text
 
 
 def test_manifest_must_be_json(client, settings, glb_phantom):
