@@ -4,7 +4,10 @@ Conventions:
 
 * SI units, the unit in the field name and in brackets in its description.
 * Every request model forbids unknown fields and non-finite numbers
-  (``NaN`` / ``Infinity`` get a 422). Responses never contain them either:
+  (``NaN`` / ``Infinity`` get a 422), and its types are strict: a boolean or
+  a numeric string is not a number, 1.5 is not an integer. Where fields
+  depend on each other (exactly one of two), the schema says it with
+  ``oneOf``. Responses never contain non-finite numbers either:
   a zero gain's ``-inf`` dB is clamped to :data:`GAIN_DB_FLOOR` (-400 dB).
 * Complex numbers are ``{"re": float, "im": float}``.
 * Array sizes and compute knobs are bounded; the ``le`` bounds here are the
@@ -19,8 +22,17 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    model_validator,
+)
 
+from raytrace import gltf
+from raytrace.tissues import TISSUE_NAMES
 from service.settings import (
     MAX_BAND_POINTS,
     MAX_INTERACTIONS,
@@ -38,25 +50,40 @@ FREQUENCY_MIN_HZ = 10.0
 FREQUENCY_MAX_HZ = 20e9
 
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
-NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+NAME_PATTERN = gltf.NAME_PATTERN.pattern  # organ and site names: the upload's own rule
 
 PhantomId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 ScenarioId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+def _integral(value: Any) -> Any:
+    """JSON Schema's ``integer`` is any number without a fractional part (``100.0``, ``1e2``): such
+    a float becomes the int; every other value goes on to strict validation (a boolean or a
+    numeric string stays refused)."""
+    if type(value) is float and value.is_integer():
+        return int(value)
+    return value
+
+
+#: An integer field of a request: strict, but 100.0 counts, as the schema's ``integer`` says.
+Int = Annotated[int, BeforeValidator(_integral)]
 FrequencyHz = Annotated[float, Field(ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ)]
 
 
 class Strict(BaseModel):
-    """Base of request models: no unknown fields, no NaN / infinity."""
+    """Base of request models: no unknown fields, no NaN / infinity, strict types (``"rays": true``
+    and ``"rays": "5"`` are refused, as the schema's ``integer`` says)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class Out(BaseModel):
-    """Base of response models."""
+    """Base of response models (strict as well: a profile's paths, interactions and segments
+    come back inside ranging requests)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 # ----------------------------------------------------------------- errors
@@ -79,7 +106,7 @@ class Complex(Strict):
 class Band(Strict):
     start_hz: FrequencyHz = Field(description="First frequency [Hz].")
     stop_hz: FrequencyHz = Field(description="Last frequency [Hz] (> start_hz).")
-    points: int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].")
+    points: Int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].")
 
     @model_validator(mode="after")
     def _order(self) -> "Band":
@@ -121,6 +148,7 @@ class ChannelRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {
@@ -161,11 +189,11 @@ class ChannelRequest(Strict):
         max_length=MAX_RECEIVERS,
         description=f"Receivers (skin sensors), 1..{MAX_RECEIVERS}; required without a scenario.",
     )
-    max_interactions: int | None = Field(
-        None, ge=0, le=MAX_INTERACTIONS, description=f"Max reflections + refractions per path [-] (default 6, <= {MAX_INTERACTIONS})."
+    max_interactions: Annotated[int, Field(ge=0, le=MAX_INTERACTIONS), BeforeValidator(_integral)] | None = Field(
+        None, description=f"Max reflections + refractions per path [-] (default 6, <= {MAX_INTERACTIONS})."
     )
-    rays: int | None = Field(
-        None, ge=1, le=MAX_RAYS, description=f"Rays launched from the transmitter [-] (default 100000, <= {MAX_RAYS})."
+    rays: Annotated[int, Field(ge=1, le=MAX_RAYS), BeforeValidator(_integral)] | None = Field(
+        None, description=f"Rays launched from the transmitter [-] (default 100000, <= {MAX_RAYS})."
     )
     dynamic_range_db: float | None = Field(
         None, gt=0.0, le=300.0, description="Paths weaker than the strongest by more than this are dropped [dB] (default 80)."
@@ -252,6 +280,24 @@ class GainIn(Strict):
     im: float = Field(ge=-MAX_GAIN_COMPONENT, le=MAX_GAIN_COMPONENT, description="Imaginary part [-].")
 
 
+#: JSON Schema of a number that is not zero (without ``not``, which fuzzers handle poorly).
+_NONZERO = {"anyOf": [{"exclusiveMinimum": 0}, {"exclusiveMaximum": 0}]}
+
+
+class PathGainIn(GainIn):
+    """A path's complex gain: not zero (a path of zero gain carries nothing; leave it out)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={"anyOf": [{"properties": {"re": _NONZERO}}, {"properties": {"im": _NONZERO}}]}
+    )
+
+    @model_validator(mode="after")
+    def _nonzero(self) -> "PathGainIn":
+        if self.re == 0.0 and self.im == 0.0:
+            raise ValueError("a path's gain must not be zero (a path of zero gain carries nothing: leave it out)")
+        return self
+
+
 class BandGainIn(Strict):
     frequency_hz: FrequencyHz = Field(description="Frequency [Hz].")
     gain: GainIn = Field(description="Complex path gain at that frequency [-].")
@@ -261,16 +307,30 @@ class PathIn(Strict):
     """A path of a profile: at least delay and complex gain; the other channel fields are accepted and ignored."""
 
     delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute delay [s].")
-    gain: GainIn = Field(description="Complex gain [-].")
+    gain: PathGainIn = Field(description="Complex gain [-], not zero.")
     gain_db: float | None = None
     length_m: float | None = None
     interactions: list[Interaction] | None = Field(None, max_length=64)
     segments: list[Segment] | None = Field(None, max_length=128)
-    band_gains: list[BandGainIn] | None = Field(None, max_length=MAX_BAND_POINTS)
+    band_gains: list[BandGainIn] | None = Field(
+        None, max_length=MAX_BAND_POINTS,
+        description="Gains per frequency: used when every path lists the same distinct frequencies, else ignored.",
+    )
 
 
+#: JSON schema of "some path has a non-zero gain" (``contains``): a profile of zero gains carries no signal.
 class ProfileIn(Strict):
     """A channel profile: ``profiles[i]`` of POST /v1/channel as is, or a hand-made ``{"paths": [...]}``."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "oneOf": [
+                {"properties": {"gains_include_delay_phase": {"const": False}}},
+                {"required": ["gains_include_delay_phase", "reference_frequency_hz"],
+                 "properties": {"gains_include_delay_phase": {"const": True}}},
+            ]
+        }
+    )
 
     paths: list[PathIn] = Field(min_length=1, max_length=MAX_PROFILE_PATHS)
     receiver: str | None = Field(None, max_length=64)
@@ -286,8 +346,9 @@ class ProfileIn(Strict):
         "phase exp(-j 2 pi f delay_k); true (profiles from POST /v1/channel): they include it at "
         "reference_frequency_hz (band_gains at their own frequencies).",
     )
-    reference_frequency_hz: float | None = Field(
-        None, ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ, description="Frequency of `gain` when gains_include_delay_phase [Hz]."
+    reference_frequency_hz: float = Field(
+        None, ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ,
+        description="Frequency of `gain` [Hz]: required when gains_include_delay_phase is true.",
     )
 
     @model_validator(mode="after")
@@ -308,8 +369,14 @@ _EXAMPLE_PROFILE = {
 class RangingCommon(Strict):
     profile: ProfileIn
     snr_db: float = Field(30.0, ge=-50.0, le=200.0, description="Signal-to-noise ratio [dB].")
-    trials: int = Field(100, ge=1, le=MAX_TRIALS, description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}).")
-    seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the noise generator [-].")
+    trials: Int = Field(
+        100, ge=1, le=MAX_TRIALS,
+        description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}; default 100, or this server's limit "
+        "if lower).",
+    )
+    seed: Int = Field(
+        0, ge=0, le=2**53 - 1, description="Seed of the noise generator [-] (<= 2^53 - 1: exact as any JSON number)."
+    )
     relative_permittivity: float = Field(
         27.9, ge=1.0, le=1000.0, description="Assumed relative permittivity for delay-to-distance [-]."
     )
@@ -330,6 +397,7 @@ class ToaRequest(RangingCommon):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {
@@ -356,6 +424,7 @@ class PdoaRequest(RangingCommon):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {
@@ -367,22 +436,32 @@ class PdoaRequest(RangingCommon):
                     "seed": 1,
                     "true_distance_m": 0.076,
                 }
-            ]
+            ],
+            "oneOf": [{"required": ["frequencies_hz"]}, {"required": ["band"]}],
         },
     )
     method: Literal["two_tone", "regression"] = Field("two_tone", description="PDOA estimator.")
-    frequencies_hz: list[FrequencyHz] | None = Field(
-        None, min_length=2, max_length=MAX_BAND_POINTS, description="Tone frequencies [Hz] (or give band)."
+    frequencies_hz: list[FrequencyHz] = Field(
+        None,
+        min_length=2,
+        max_length=MAX_BAND_POINTS,
+        json_schema_extra={"uniqueItems": True},
+        description="Distinct tone frequencies [Hz], in any order (two_tone uses the lowest and the highest; "
+        "regression needs them equally spaced). Exactly one of frequencies_hz and band.",
     )
-    band: Band | None = Field(None, description="Equally spaced tones (or give frequencies_hz).")
+    band: Band = Field(
+        None, description="Equally spaced tones (two_tone uses its ends). Exactly one of frequencies_hz and band."
+    )
     duration_s: float | None = Field(
         None, ge=1e-12, le=1e-3, description="Observation time per tone [s] (default: the estimator's, 1 / tone spacing)."
     )
 
     @model_validator(mode="after")
     def _tones(self) -> "PdoaRequest":
-        if self.frequencies_hz is not None and self.band is not None:
-            raise ValueError("give frequencies_hz or band, not both")
+        if (self.frequencies_hz is None) == (self.band is None):
+            raise ValueError("give exactly one of frequencies_hz or band")
+        if self.frequencies_hz is not None and len(set(self.frequencies_hz)) != len(self.frequencies_hz):
+            raise ValueError("frequencies_hz must be distinct")
         return self
 
 
@@ -390,24 +469,37 @@ class RssRequest(RangingCommon):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {"profile": _EXAMPLE_PROFILE, "model": "cm2_deep_tissue", "trials": 200, "seed": 1, "true_distance_m": 0.076}
-            ]
+            ],
+            "oneOf": [
+                {"required": ["profile"], "properties": {"rss_dbm": False}},
+                {"required": ["rss_dbm", "transmit_power_dbm"], "properties": {"profile": False}},
+            ],
         },
     )
     model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
         "cm2_deep_tissue", description="IEEE 802.15.6 CM2 path-loss model (thesis Table 2.2)."
     )
-    profile: ProfileIn | None = Field(None, description="Channel profile: its path gain gives the path loss (or give rss_dbm).")
-    rss_dbm: float | None = Field(None, ge=-300.0, le=100.0, description="Measured received power [dBm] (with transmit_power_dbm).")
-    transmit_power_dbm: float | None = Field(
-        None, ge=-100.0, le=100.0, description="Transmit power [dBm], with rss_dbm; not needed with a profile."
+    profile: ProfileIn = Field(
+        None,
+        description="Channel profile: its path gain gives the path loss. Give it, or rss_dbm with transmit_power_dbm.",
+    )
+    rss_dbm: float = Field(
+        None, ge=-300.0, le=100.0,
+        description="Measured received power [dBm], with transmit_power_dbm (not with a profile).",
+    )
+    transmit_power_dbm: float = Field(
+        None, ge=-100.0, le=100.0, description="Transmit power [dBm], with rss_dbm; ignored with a profile."
     )
     shadowing: bool = Field(True, description="Draw log-normal shadowing per trial (false: deterministic inversion).")
 
     @model_validator(mode="after")
     def _source(self) -> "RssRequest":
+        if self.profile is not None and self.rss_dbm is not None:
+            raise ValueError("give a profile or rss_dbm, not both")
         if self.profile is None and (self.rss_dbm is None or self.transmit_power_dbm is None):
             raise ValueError("give a profile, or rss_dbm together with transmit_power_dbm")
         return self
@@ -443,6 +535,7 @@ class ToaBoundRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30, "relative_permittivity": 27.9}
@@ -452,7 +545,7 @@ class ToaBoundRequest(Strict):
     carrier_hz: float = Field(ge=1.0, le=1e12, description="Tone frequency [Hz].")
     duration_s: float = Field(ge=1e-15, le=1.0, description="Observation time T0 [s].")
     bandwidth_hz: float = Field(ge=1.0, le=1e12, description="Receiver (noise) bandwidth W [Hz].")
-    snr_db: float = Field(ge=-100.0, le=200.0, description="Signal-to-noise ratio [dB].")
+    snr_db: float = Field(ge=-50.0, le=200.0, description="Signal-to-noise ratio [dB].")
     relative_permittivity: float = Field(27.9, ge=1.0, le=1000.0, description="Relative permittivity [-].")
     delay_s: float = Field(0.0, ge=0.0, le=1.0, description="True delay tau [s].")
 
@@ -461,6 +554,7 @@ class PdoaBoundRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "duration_s": 50e-9, "relative_permittivity": 27.9}
@@ -469,7 +563,7 @@ class PdoaBoundRequest(Strict):
     )
     center_hz: float = Field(ge=1.0, le=1e12, description="Centre frequency f0 [Hz].")
     tone_spacing_hz: float = Field(ge=1e-3, le=1e12, description="Tone spacing W [Hz] (< 2 center_hz).")
-    snr_db: float = Field(ge=-100.0, le=200.0, description="In-band signal-to-noise ratio [dB].")
+    snr_db: float = Field(ge=-50.0, le=200.0, description="In-band signal-to-noise ratio [dB].")
     duration_s: float | None = Field(
         None, ge=1e-15, le=1.0, description="Observation time T0 [s] (default 1 / tone_spacing_hz, i.e. W T0 = 1)."
     )
@@ -480,6 +574,7 @@ class RssBoundRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={"examples": [{"shadowing_db": 2.236, "path_loss_exponent": 3.0, "distance_m": 0.1}]},
     )
     shadowing_db: float = Field(ge=0.0, le=100.0, description="Shadowing standard deviation sigma [dB].")
@@ -566,29 +661,38 @@ class ScenariosResponse(Out):
     scenarios: list[ScenarioOut]
 
 
-class ManifestOrgan(Strict):
-    tissue: str | None = Field(None, max_length=64, description="Gabriel 1996 tissue name (GET /v1/tissues).")
-    relative_permittivity: float | None = Field(None, ge=1.0, le=1000.0, description="Explicit medium eps_r' [-].")
-    conductivity_s_per_m: float | None = Field(None, ge=0.0, le=1000.0, description="Explicit medium conductivity [S/m].")
+class ManifestTissue(Strict):
+    tissue: Literal[TISSUE_NAMES] = Field(  # type: ignore[valid-type]
+        description="Gabriel 1996 tissue (GET /v1/tissues)."
+    )
 
-    @model_validator(mode="after")
-    def _one(self) -> "ManifestOrgan":
-        if (self.tissue is None) == (self.relative_permittivity is None):
-            raise ValueError("give either tissue or relative_permittivity (+ conductivity_s_per_m)")
-        return self
+
+class ManifestMedium(Strict):
+    relative_permittivity: float = Field(ge=1.0, le=gltf.MAX_PERMITTIVITY, description="Explicit medium eps_r' [-].")
+    conductivity_s_per_m: float = Field(
+        0.0, ge=0.0, le=gltf.MAX_CONDUCTIVITY_S_PER_M, description="Explicit medium conductivity [S/m]."
+    )
 
 
 class ManifestSite(Strict):
-    kind: Literal["capsule", "sensor"] | None = Field(None, description="Default: sensor in air, else capsule.")
+    kind: Literal["capsule", "sensor"] | None = Field(
+        None, description="Required for a site inside tissue (capsule, or a contact sensor in the skin); "
+        "without it a site in air is a sensor."
+    )
     position_m: Vec3 = Field(description="Position [m] (always metres, whatever `units`).")
 
 
 class Manifest(Strict):
-    """The JSON part of an upload (api.md "POST /v1/phantoms"); checked again, strictly, by the loader."""
+    """The JSON part of an upload (api.md "POST /v1/phantoms").
+
+    This model documents the manifest in the API schema; the one validator is
+    ``raytrace.gltf.validate_manifest`` (with the loader's checks against the
+    mesh), whose constants these bounds are."""
 
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {
@@ -598,20 +702,29 @@ class Manifest(Strict):
                         "body": {"tissue": "muscle"},
                         "organ": {"relative_permittivity": 11.6, "conductivity_s_per_m": 0.08},
                     },
-                    "sites": {"capsule": [0.0, 0.0, 0.01], "sensor": {"kind": "sensor", "position_m": [0.0, -0.15, 0.0]}},
+                    "sites": {
+                        "capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.01]},
+                        "sensor": [0.0, -0.15, 0.0],
+                    },
                 }
             ]
         },
     )
 
-    name: str = Field(min_length=1, max_length=128, description="Human name of the phantom.")
-    description: str = Field("", max_length=2000)
-    units: Literal["m", "mm"] = Field(description="Unit of the mesh coordinates (and of `[x, y, z]` sites).")
-    organs: dict[Name, ManifestOrgan] = Field(min_length=1, max_length=256, description="Mesh node name -> medium.")
+    name: str = Field(min_length=1, max_length=gltf.MAX_NAME_CHARS, description="Human name of the phantom.")
+    description: str = Field("", max_length=gltf.MAX_DESCRIPTION_CHARS)
+    units: Literal[tuple(gltf.UNITS)] = Field(  # type: ignore[valid-type]
+        description=f"Unit of the mesh coordinates (and of `[x, y, z]` sites); the mesh's largest extent in "
+        f"metres must lie in {gltf.MIN_EXTENT_M:g}-{gltf.MAX_EXTENT_M:g} m."
+    )
+    organs: dict[Name, ManifestTissue | ManifestMedium] = Field(
+        min_length=1, max_length=gltf.MAX_ORGANS, description="Mesh node name -> medium (a tissue, or an explicit one)."
+    )
     sites: dict[Name, Vec3 | ManifestSite] = Field(
         default_factory=dict,
-        max_length=1024,
-        description="Site name -> [x, y, z] in `units`, or {kind, position_m} with the position in metres.",
+        max_length=gltf.MAX_SITES,
+        description="Site name -> [x, y, z] in `units` (a site in air: a sensor), or {kind, position_m} with the "
+        "position in metres (kind required inside tissue).",
     )
 
 

@@ -94,7 +94,7 @@ def test_upload_manifest_schema_is_documented():
     manifest = schema["components"]["schemas"]["Manifest"]
     assert set(manifest["required"]) == {"name", "units", "organs"}
     assert manifest["additionalProperties"] is False and manifest["examples"]
-    assert "ManifestOrgan" in schema["components"]["schemas"]
+    assert {"ManifestTissue", "ManifestMedium", "ManifestSite"} <= set(schema["components"]["schemas"])
     body = schema["paths"]["/v1/phantoms"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
     assert body["required"] == ["mesh", "manifest"]
 
