@@ -24,7 +24,10 @@ COPY service ./service
 RUN pip install --no-cache-dir ".[test]" \
     && groupadd --system --gid 10001 tester \
     && useradd --system --create-home --uid 10001 --gid 10001 tester
-COPY tests ./tests
+# Only the end-to-end suite (it imports the installed packages, never bench/ or the unit
+# tests' helpers): tests/test_service_docker.py builds exactly this file set and runs the
+# entry point below against a live server.
+COPY tests/conftest.py tests/test_e2e_*.py ./tests/
 COPY docs ./docs
 
 USER 10001:10001
