@@ -13,6 +13,8 @@ state (a sample rate above twice the carrier...) are forgiven exactly as
 
 from __future__ import annotations
 
+import tempfile
+
 import schemathesis
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
@@ -50,8 +52,6 @@ def _app(tmp_dir: str):
     app.state.capsule.registry.load_builtins(True)
     return app
 
-
-import tempfile
 
 _DATA = tempfile.TemporaryDirectory(prefix="capsule-rt-fuzz-")
 APP = _app(_DATA.name)

@@ -129,7 +129,7 @@ def test_invalid_phantoms_are_rejected_naming_the_problem(client, settings, glb_
     r = upload(client, glb, manifest)
     assert r.status_code == 422, r.text
     locs = [item["loc"] for item in r.json()["detail"]]
-    flat = [str(x) for l in locs for x in l]
+    flat = [str(x) for one in locs for x in one]
     for part in loc:
         assert part in flat, (part, locs)
     assert stored_entries(settings) == []
@@ -295,7 +295,9 @@ def test_builtin_phantom_round_trips_through_mesh_and_manifest(client, settings)
         original = client.get("/v1/phantoms/thesis-fig-5-6").json()
         copy = r.json()
         # .glb stores float32 coordinates: geometry agrees to float32 precision, the rest exactly.
-        strip = lambda organs: [{k: v for k, v in o.items() if k != "bounds_m"} for o in organs]
+        def strip(organs):
+            return [{k: v for k, v in o.items() if k != "bounds_m"} for o in organs]
+
         assert strip(copy["organs"]) == strip(original["organs"])
         for a, b in zip(copy["organs"], original["organs"]):
             assert sum(a["bounds_m"], []) == pytest.approx(sum(b["bounds_m"], []), abs=1e-6)
