@@ -20,12 +20,20 @@ COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
 COPY plots ./plots
+COPY evaluation ./evaluation
+COPY sweeps ./sweeps
+COPY vision ./vision
+COPY fullwave ./fullwave
 # The local project with its test extra; versions are constrained in pyproject.toml.
 # hadolint ignore=DL3013
 RUN pip install --no-cache-dir ".[test]" \
     && groupadd --system --gid 10001 tester \
     && useradd --system --create-home --uid 10001 --gid 10001 tester
-COPY tests ./tests
+# Only the end-to-end suite (it imports the installed packages, never bench/ or the unit
+# tests' helpers): tests/service/test_docker.py builds exactly this file set and runs the
+# entry point below against a live server.
+COPY tests/__init__.py tests/conftest.py ./tests/
+COPY tests/e2e ./tests/e2e
 COPY docs ./docs
 
 USER 10001:10001

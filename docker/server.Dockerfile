@@ -18,6 +18,10 @@ COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
 COPY plots ./plots
+COPY evaluation ./evaluation
+COPY sweeps ./sweeps
+COPY vision ./vision
+COPY fullwave ./fullwave
 # The warm-up compiles the tracer's numba kernels into the image, so a container's start does
 # not pay the ~17 s compile. numba only uses a cache directory it can write to: the cache is
 # handed to the service's user.

@@ -12,17 +12,24 @@ Ranging (Monte Carlo, vectorised over trials, seeded; return result dataclasses)
     estimate_toa(profile, method="all"|"first_peak"|"all_peaks"|"gcc"|"envelope",
                  waveform=ToneBurst()|GaussianPulse()|dict, snr_db=30.0, trials=100, seed=0,
                  relative_permittivity=27.9, true_distance_m=None,
-                 return_estimates=False, link=None) -> list[TOAResult]
+                 return_estimates=False, link=None, check=None) -> list[TOAResult]
+    toa_samples(profile, waveform=None) -> int      (samples per trial: the unit of TOA work)
     estimate_pdoa(profile, frequencies_hz=None, band=None, method="two_tone"|"regression",
                   snr_db=30.0, trials=100, seed=0, relative_permittivity=27.9,
-                  true_distance_m=None, duration_s=None, return_estimates=False, link=None) -> PDOAResult
+                  true_distance_m=None, duration_s=None, return_estimates=False, link=None, check=None) -> PDOAResult
 
     The TOA waveform goes through the profile's own H(f) (dispersion, Fresnel, absorption at
     every frequency when the profile has band gains); PDOA's tones default to the profile's band.
     ``link=LinkBudget(...)`` (or its dict) replaces ``snr_db`` by P_t + G - kTBF.
+    ``check`` (a callable raising to stop) is called inside the Monte Carlo loops (service deadlines).
     estimate_rss(profile=None, *, rss_dbm=None, transmit_power_dbm=None,
                  model="cm2_deep_tissue"|"cm2_near_surface", trials=100, seed=0,
-                 true_distance_m=None, shadowing=True, return_estimates=False) -> RSSResult
+                 true_distance_m=None, shadowing=True, return_estimates=False, check=None) -> RSSResult
+
+``check`` (optional) is the stop protocol of the long loops: a no-argument callable
+called between chunks of work that raises to stop the computation (a deadline, a
+client that went away); the exception propagates unchanged. The estimators know
+nothing of who calls them.
 
 Bounds (closed forms, derivations in estimators.bounds):
 
@@ -64,13 +71,13 @@ from .pdoa import estimate_pdoa
 from .profile import PathProfile, single_path
 from .results import PDOAResult, RSSResult, TOAResult
 from .rss import CM2_MODELS, estimate_rss
-from .toa import estimate_toa, make_waveform
+from .toa import estimate_toa, make_waveform, toa_samples
 from .waveforms import GaussianPulse, ToneBurst
 
 __all__ = [
     "CM2_MODELS", "DEFAULT_RELATIVE_PERMITTIVITY", "EstimatorInputError", "GaussianPulse", "LinkBudget",
     "MICS_EIRP_DBM", "PDOABound", "PDOAResult", "PathProfile", "RSSBound", "RSSResult", "SPEED_OF_LIGHT_M_PER_S",
     "TOABound", "TOAResult", "ToneBurst", "cfr", "cir", "estimate_pdoa", "estimate_rss", "estimate_toa",
-    "make_waveform", "multitone_crlb", "pdoa_crlb", "rss_crlb", "single_path", "taps", "toa_crlb",
+    "make_waveform", "multitone_crlb", "pdoa_crlb", "rss_crlb", "single_path", "taps", "toa_crlb", "toa_samples",
     "velocity_m_per_s", "waveform_toa_crlb",
 ]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -10,6 +11,18 @@ import numpy as np
 from .errors import EstimatorInputError
 
 MAX_TRIALS = 10_000
+
+Check = Callable[[], None] | None
+"""The stop protocol of long estimator loops: a callable that takes no argument, called
+between chunks of work (every few hundred milliseconds at most), that returns to go on
+and raises (any exception, which propagates unchanged) to stop the computation -- e.g. a
+deadline passed or the caller went away. ``None``: never stop."""
+
+
+def checkpoint(check: Check) -> None:
+    """Call ``check`` if one was given (see :data:`Check`)."""
+    if check is not None:
+        check()
 
 
 def finite_float(value: Any, field: str, *, positive: bool = False, nonnegative: bool = False) -> float:

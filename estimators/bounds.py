@@ -103,12 +103,23 @@ def _snr_linear(snr_db: float) -> float:
 
 def tone_energy_integrals(carrier_hz: float, duration_s: float, delay_s: float = 0.0,
                           amplitude: float = 1.0) -> tuple[float, float]:
-    """(Is, Itau) of Eq 4.11-4.12 for A cos(w (t - tau)) on [0, T0], w = 2 pi f."""
+    """(Is, Itau) of Eq 4.11-4.12 for A cos(w (t - tau)) on [0, T0], w = 2 pi f.
+
+    Evaluated without cancellation: with x = w T0 and y = w (T0 - 2 tau), Eq 4.11 reads
+    Itau = A^2 w [(x - sin x) + sin x (1 - cos y)] / 2 (both terms >= 0 for x <= pi, x - sin x
+    from its series for small x), and Is = A^2 T0 - Itau / w^2 (cos^2 + sin^2 = 1). The
+    textbook form T0/2 - S/(4 w) loses every digit when w T0 << 1 (a 1e-15 s observation)."""
     w = 2.0 * math.pi * carrier_hz
-    s = math.sin(2.0 * w * (duration_s - delay_s)) + math.sin(2.0 * w * delay_s)
+    x = w * duration_s
+    y = w * (duration_s - 2.0 * delay_s)
+    if x < 1e-2:
+        x2 = x * x
+        x_minus_sin = x * x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0))
+    else:
+        x_minus_sin = x - math.sin(x)
     a2 = amplitude * amplitude
-    i_s = a2 * (duration_s / 2.0 + s / (4.0 * w))
-    i_tau = a2 * w * w * (duration_s / 2.0 - s / (4.0 * w))
+    i_tau = a2 * w * 0.5 * (x_minus_sin + math.sin(x) * 2.0 * math.sin(0.5 * y) ** 2)
+    i_s = a2 * duration_s - i_tau / (w * w)
     return i_s, i_tau
 
 

@@ -46,6 +46,10 @@ MAX_OUTPUT_SAMPLES = 1 << 16
 """Cap on impulse-response samples / taps per call."""
 _CHUNK_ELEMENTS = 1 << 20  # paths x samples evaluated at once
 
+#: Lowest tap bandwidth and impulse-response sampling rate [Hz]: samples at most a second apart
+#: (in-body delays are nanoseconds; below this h / W or h / fs overflows for no purpose).
+MIN_RATE_HZ = 1.0
+
 
 def _check_profile(profile) -> PathProfile:
     if not isinstance(profile, PathProfile):
@@ -166,6 +170,8 @@ def _centre_and_band(profile: PathProfile, centre_hz, bandwidth_hz) -> tuple[flo
         if not bandwidth_hz > 0:
             raise EstimatorInputError(f"centre {fc:.6g} Hz is not inside the profile's band", "centre_hz")
     w = finite_float(bandwidth_hz, "bandwidth_hz", positive=True)
+    if w < MIN_RATE_HZ:
+        raise EstimatorInputError(f"must be at least {MIN_RATE_HZ:g} Hz (taps 1 / W apart), got {w:g}", "bandwidth_hz")
     if w >= 2.0 * fc:
         raise EstimatorInputError(f"must be below twice the centre frequency ({2 * fc:.6g} Hz)", "bandwidth_hz")
     return fc, w
@@ -186,6 +192,8 @@ def cir(profile: PathProfile, sample_rate_hz: float, *, bandwidth_hz: float | No
     """
     profile = _check_profile(profile)
     fs = finite_float(sample_rate_hz, "sample_rate_hz", positive=True)
+    if fs < MIN_RATE_HZ:
+        raise EstimatorInputError(f"must be at least {MIN_RATE_HZ:g} Hz, got {fs:g}", "sample_rate_hz")
     fc, w = _centre_and_band(profile, centre_hz, bandwidth_hz)
     t0 = finite_float(start_s, "start_s")
     origin = _time_origin(profile, normalize_delays)

@@ -63,9 +63,11 @@ class LinkBudget:
         if nf > 60.0:
             raise EstimatorInputError(f"must lie in [0, 60] dB, got {nf!r}", "link.noise_figure_db")
         t = finite_float(self.temperature_k, "link.temperature_k", positive=True)
-        if t > 1e4:
-            raise EstimatorInputError(f"must lie in (0, 10000] K, got {t!r}", "link.temperature_k")
+        if not 1.0 <= t <= 1e4:
+            raise EstimatorInputError(f"must lie in [1, 10000] K, got {t!r}", "link.temperature_k")
         b = None if self.bandwidth_hz is None else finite_float(self.bandwidth_hz, "link.bandwidth_hz", positive=True)
+        if b is not None and b < 1.0:
+            raise EstimatorInputError(f"a noise bandwidth is at least 1 Hz, got {b:g}", "link.bandwidth_hz")
         for name, value in (("transmit_power_dbm", p), ("noise_figure_db", nf), ("temperature_k", t),
                             ("bandwidth_hz", b)):
             object.__setattr__(self, name, value)

@@ -52,7 +52,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ._checks import MonteCarloInputs, finite_float
+from ._checks import Check, MonteCarloInputs, checkpoint, finite_float
 from .bounds import multitone_crlb, pdoa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
@@ -175,7 +175,8 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
                   snr_db: float | None = 30.0, trials: int = 100, seed=0,
                   relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                   true_distance_m: float | None = None, duration_s: float | None = None,
-                  return_estimates: bool = False, link: LinkBudget | Mapping | None = None) -> PDOAResult:
+                  return_estimates: bool = False, link: LinkBudget | Mapping | None = None,
+                  check: Check = None) -> PDOAResult:
     """Monte Carlo PDOA ranging over ``profile`` (docs/api.md POST /v1/ranging/pdoa).
 
     Args:
@@ -191,6 +192,7 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
         link: a :class:`~estimators.link.LinkBudget` (or its dict) instead of ``snr_db``: the
             in-band SNR is then (S24) from the profile's own path gain over the tones' span
             W unless the link gives a bandwidth; ``snr_db`` is ignored.
+        check: called between chunks of trials; raises to stop (``estimators._checks.Check``).
     """
     if not isinstance(profile, PathProfile):
         raise EstimatorInputError("must be a PathProfile", "profile")
@@ -217,6 +219,7 @@ def estimate_pdoa(profile: PathProfile, frequencies_hz=None, band=None, method: 
     delays = np.empty(n_trials)
     chunk = max(1, _CHUNK_ELEMENTS // f.size)  # bounded memory; the noise stream is the same as one draw
     for start in range(0, n_trials, chunk):
+        checkpoint(check)
         count = min(chunk, n_trials - start)
         obs = np.broadcast_to(h, (count, f.size)).copy()
         if sigma is not None:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import finite_float, generator, trials_count
+from ._checks import Check, checkpoint, finite_float, generator, trials_count
 from .bounds import rss_crlb
 from .errors import EstimatorInputError
 from .profile import PathProfile
@@ -65,7 +65,8 @@ CM2_MODELS = {
 def estimate_rss(profile: PathProfile | None = None, *, rss_dbm: float | None = None,
                  transmit_power_dbm: float | None = None, model: "str | PathLossModel" = "cm2_deep_tissue",
                  trials: int = 100, seed=0, true_distance_m: float | None = None,
-                 shadowing: bool = True, return_estimates: bool = False) -> RSSResult:
+                 shadowing: bool = True, return_estimates: bool = False,
+                 check: Check = None) -> RSSResult:
     """Monte Carlo RSS ranging (docs/api.md POST /v1/ranging/rss).
 
     Give ``profile`` (path loss = -path gain; ``transmit_power_dbm`` is then not
@@ -73,6 +74,8 @@ def estimate_rss(profile: PathProfile | None = None, *, rss_dbm: float | None = 
     ``cm2_deep_tissue`` | ``cm2_near_surface``, or a :class:`PathLossModel` (one fitted to a
     phantom: ``sweeps.pathloss.fit_path_loss``). ``shadowing=False`` gives the
     deterministic inversion in every trial. trials 1..10000, seed int >= 0 or Generator.
+    ``check`` (``estimators._checks.Check``) is called once before the draws (they take
+    microseconds).
     """
     if isinstance(model, PathLossModel):  # e.g. one fitted to a phantom (sweeps.pathloss)
         m = model
@@ -102,6 +105,7 @@ def estimate_rss(profile: PathProfile | None = None, *, rss_dbm: float | None = 
     if true_distance_m is not None:
         true_distance_m = finite_float(true_distance_m, "true_distance_m", positive=True)
 
+    checkpoint(check)
     s = m.shadowing_db * rng.standard_normal(n_trials) if shadowing else np.zeros(n_trials)
     est = m.median_distance_m(path_loss + s)
     median = float(m.median_distance_m(path_loss))

@@ -71,7 +71,7 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.fft
 
-from ._checks import MonteCarloInputs
+from ._checks import Check, MonteCarloInputs, checkpoint
 from .bounds import waveform_toa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError
@@ -239,11 +239,21 @@ def peak_delays(rx: np.ndarray, tx_crests: np.ndarray, grid: np.ndarray, fs: flo
     return d[:, 0], np.mean(d, axis=1)
 
 
+def toa_samples(profile: PathProfile, waveform: Waveform | Mapping | None = None) -> int:
+    """Samples per trial of a TOA request, the unit of its work: synthesising the received
+    waveform costs about ``paths x samples`` complex exponentials, each Monte Carlo trial
+    about ``samples`` (an FFT correlation of twice that length). Raises like
+    :func:`estimate_toa` for an invalid waveform or an observation over the sample cap."""
+    if not isinstance(profile, PathProfile):
+        raise EstimatorInputError("must be a PathProfile", "profile")
+    return observation_samples(make_waveform(waveform), profile)
+
+
 def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform | Mapping | None = None,
                  snr_db: float | None = 30.0, trials: int = 100, seed=0,
                  relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                  true_distance_m: float | None = None, return_estimates: bool = False,
-                 link: LinkBudget | Mapping | None = None) -> list[TOAResult]:
+                 link: LinkBudget | Mapping | None = None, check: Check = None) -> list[TOAResult]:
     """Monte Carlo TOA ranging over ``profile`` (docs/api.md POST /v1/ranging/toa).
 
     Args:
@@ -260,6 +270,8 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         link: a :class:`~estimators.link.LinkBudget` (or its dict) instead of ``snr_db``: the
             per-sample SNR is then (S24) from the profile's own path gain, over the noise
             bandwidth fs / 2 unless the link gives one; ``snr_db`` is ignored.
+        check: called between chunks of synthesis and of trials; raises to stop
+            (``estimators._checks.Check``). Work: see :func:`toa_samples`.
 
     The waveform goes through the profile's channel model (module docstring,
     waveforms.received); each result names it (``channel_model``) and reports the
@@ -298,7 +310,7 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
         raise EstimatorInputError(
             f"{n_trials} trials x {n} samples exceeds the work cap of {MAX_TOTAL_SAMPLES} samples", "trials")
     tx = transmitted(wf, n)
-    clean = received(wf, profile, n, normalise=True)
+    clean = received(wf, profile, n, normalise=True, check=check)
     power = signal_power(clean, wf)
     if not power > 0.0:
         raise EstimatorInputError("the paths cancel: the received waveform is identically zero",
@@ -312,6 +324,7 @@ def estimate_toa(profile: PathProfile, method: str = "all", waveform: Waveform |
     est = {m: np.empty(n_trials) for m in methods}
     chunk = max(1, _CHUNK_ELEMENTS // scipy.fft.next_fast_len(2 * n))
     for start in range(0, n_trials, chunk):
+        checkpoint(check)
         count = min(chunk, n_trials - start)
         rx = add_awgn(clean, snr, rng, count, power)
         r_a = analytic_xcorr(rx, tx)

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from ._checks import finite_float
+from ._checks import Check, checkpoint, finite_float
 from .errors import EstimatorInputError
 from .profile import PathProfile
 
@@ -162,6 +162,12 @@ def sample_times(waveform: Waveform, n_samples: int) -> np.ndarray:
 def observation_samples(waveform: Waveform, profile: PathProfile) -> int:
     """Samples needed to hold the latest path's burst plus a guard of T0/2 + 4 carrier periods."""
     t_end = float(profile.delays_s.max()) + 1.5 * waveform.duration_s + 4.0 / waveform.carrier_hz
+    if not t_end * waveform.sample_rate_hz < MAX_SAMPLES_PER_TRIAL:  # also catches an infinite pulse
+        field = "waveform.bandwidth_hz" if waveform.kind == "gaussian_pulse" else "waveform.sample_rate_hz"
+        raise EstimatorInputError(
+            f"observing up to the last path ({profile.delays_s.max():.3g} s) plus the {waveform.duration_s:.3g} s "
+            f"waveform needs over {MAX_SAMPLES_PER_TRIAL} samples per trial at {waveform.sample_rate_hz:.6g} Hz; "
+            "lower sample_rate_hz, shorten the waveform or drop late paths", field)
     n = int(math.ceil(t_end * waveform.sample_rate_hz)) + 1
     if n > MAX_SAMPLES_PER_TRIAL:
         raise EstimatorInputError(
@@ -177,7 +183,7 @@ def transmitted(waveform: Waveform, n_samples: int) -> np.ndarray:
 
 
 def received(waveform: Waveform, profile: PathProfile, n_samples: int, *, complex_output: bool = False,
-             normalise: bool = False) -> np.ndarray:
+             normalise: bool = False, check: Check = None) -> np.ndarray:
     """Noiseless received samples: the transmitted waveform through the profile's channel.
 
     The channel is the profile's frequency response H(f) = sum_k b_k(f) exp(-j 2 pi f tau_k)
@@ -197,11 +203,12 @@ def received(waveform: Waveform, profile: PathProfile, n_samples: int, *, comple
     Returns shape (n_samples,), real (or the complex sum when ``complex_output``).
     ``normalise`` divides the gains by :attr:`PathProfile.gain_scale` (TOA is scale-free;
     this keeps extreme gains from overflowing). Paths are evaluated in chunks of bounded
-    memory (vectorised within a chunk).
+    memory (vectorised within a chunk); ``check`` (``estimators._checks.Check``) is called
+    before each chunk.
     """
     model = profile.channel_model
     if model == "band_gains":
-        out = _received_through_band(waveform, profile, n_samples, normalise)
+        out = _received_through_band(waveform, profile, n_samples, normalise, check)
         return out if complex_output else out.real
     t = sample_times(waveform, n_samples)
     out = np.zeros(n_samples, dtype=complex)
@@ -213,6 +220,7 @@ def received(waveform: Waveform, profile: PathProfile, n_samples: int, *, comple
         a = a * np.exp(2j * np.pi * profile.reference_frequency_hz * (profile.group_delays_s - tau))
         tau = profile.group_delays_s
     for start in range(0, tau.size, chunk):
+        checkpoint(check)
         sl = slice(start, start + chunk)
         out += a[sl] @ analytic(waveform, t[None, :] - tau[sl, None])
     return out if complex_output else out.real
@@ -225,7 +233,8 @@ def _fft_grid(waveform: Waveform, n_samples: int) -> tuple[int, np.ndarray, np.n
     return nfft, scipy.fft.fftfreq(nfft, 1.0 / waveform.sample_rate_hz), spectrum
 
 
-def _received_through_band(waveform: Waveform, profile: PathProfile, n_samples: int, normalise: bool) -> np.ndarray:
+def _received_through_band(waveform: Waveform, profile: PathProfile, n_samples: int, normalise: bool,
+                           check: Check = None) -> np.ndarray:
     """F^-1{S_a H}, H evaluated only where |S_a| exceeds 1e-10 of its peak (a Gaussian pulse's
     spectrum fills a few percent of the bins; the bins left out change the waveform by < 1e-10
     relative each, far below any noise; a burst's sinc spectrum keeps every bin)."""
@@ -237,6 +246,7 @@ def _received_through_band(waveform: Waveform, profile: PathProfile, n_samples: 
     h = np.zeros(keep.size, complex)
     chunk = max(1, _PATH_CHUNK_ELEMENTS // max(keep.size, 1))
     for start in range(0, profile.delays_s.size, chunk):
+        checkpoint(check)
         sl = slice(start, start + chunk)
         b = profile.path_responses(fk, sl, extrapolate=True, scale=scale)
         h += np.sum(b * np.exp(-2j * np.pi * fk[None, :] * profile.delays_s[sl, None]), axis=0)

@@ -1,21 +1,33 @@
 """Typed errors of the physics core.
 
-Every error carries the request ``field`` it is about (dotted path, e.g.
-``receivers[2].position_m``) and a human ``reason``. The service maps
+Every error carries the request ``field`` it is about and a human ``reason``.
+``field`` is a dotted path (``receivers[2].position_m``) or, where a part is a
+user-chosen name that may itself hold a dot (an organ or site of an upload
+manifest), a tuple of parts (``("manifest", "sites", "Sphere.001")``);
+:func:`field_text` writes either as text. The service maps
 :class:`InputError` subclasses to HTTP 4xx and :class:`BudgetExceededError`
 to 503/504; nothing here knows about HTTP.
 """
 
 from __future__ import annotations
 
+Field = str | tuple[str | int, ...]
+
+
+def field_text(field: Field | None) -> str:
+    """A field as dotted text (tuple parts joined with dots)."""
+    if isinstance(field, tuple):
+        return ".".join(str(part) for part in field)
+    return field or ""
+
 
 class CapsuleRTError(Exception):
     """Base of every error raised on purpose by CapsuleRT."""
 
-    def __init__(self, reason: str, field: str | None = None) -> None:
+    def __init__(self, reason: str, field: Field | None = None) -> None:
         self.reason = reason
         self.field = field
-        super().__init__(f"{field}: {reason}" if field else reason)
+        super().__init__(f"{field_text(field)}: {reason}" if field else reason)
 
 
 class InputError(CapsuleRTError, ValueError):
@@ -55,6 +67,6 @@ class BudgetExceededError(CapsuleRTError):
     ``kind`` is ``"deadline"`` or ``"work"``.
     """
 
-    def __init__(self, reason: str, kind: str = "deadline", field: str | None = None) -> None:
+    def __init__(self, reason: str, kind: str = "deadline", field: Field | None = None) -> None:
         self.kind = kind
         super().__init__(reason, field)

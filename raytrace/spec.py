@@ -44,8 +44,6 @@ BOUNDS_MARGIN_FRACTION = 1.0
 #: Largest dynamic range [dB]: float64 resolves amplitude ratios down to its epsilon, 2.2e-16
 #: (-313 dB); a path weaker than the strongest by more cannot change any sum of their amplitudes.
 MAX_DYNAMIC_RANGE_DB = 300.0
-#: Receiver names: what the API accepts (also used for file and column names by sweeps).
-NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 
 
 def wavelength_m(material: Material, frequency_hz: float | np.ndarray) -> np.ndarray:

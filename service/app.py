@@ -6,12 +6,14 @@ compute gate); tests build several with different limits.
 
 from __future__ import annotations
 
+import copy
 import gc
 import logging
 from contextlib import asynccontextmanager
 
 import anyio.to_thread
 from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
 
 from raytrace.solver.tracer import warm_up
 from service import __version__
@@ -21,9 +23,10 @@ from service.errors import install_error_handlers
 from service.jobs import SweepJobs
 from service.logs import configure_logging
 from service.metrics import Metrics
-from service.middleware import RequestContextMiddleware
+from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
 from service.registry import Registry
 from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging, sweeps
+from service.security import API_KEY_HEADER, OriginGuard
 from service.settings import Settings
 from service.storage import PhantomStore
 
@@ -100,14 +103,46 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (channel, ranging, bounds, plots, catalogue, phantoms, sweeps, ops):
         app.include_router(module.router)
     pages.install(app)
+    # outermost last: request id and metrics see every answer, CORS answers its preflights,
+    # then foreign-origin writes are refused, JSON bodies capped per operation while they
+    # stream in (uploads have their own streaming caps, service.uploads), and OPTIONS / 405
+    # get the contract's Allow
+    app.add_middleware(AllowedMethods, openapi=lambda: app.openapi())  # the documented one, see _document
+    app.add_middleware(BodyLimit, caps=[("/v1/ranging/", settings.max_ranging_body_bytes),
+                                        ("/v1/channel", settings.max_json_body_bytes),
+                                        ("/v1/bounds/", settings.max_json_body_bytes),
+                                        ("/v1/plots/", settings.max_ranging_body_bytes),
+                                        ("/v1/sweeps", settings.max_json_body_bytes)])
+    app.add_middleware(OriginGuard, allowed_origins=settings.cors_origins)
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_methods=["GET", "POST", "DELETE"],
+            allow_headers=["Content-Type", API_KEY_HEADER, "X-Request-ID"],
+            expose_headers=["X-Request-ID", "Retry-After", "Location"],
+        )
     app.add_middleware(RequestContextMiddleware, metrics=metrics)
-    _document_manifest(app)
+    _document(app, settings)
     return app
 
 
-def _document_manifest(app: FastAPI) -> None:
-    """Add the upload manifest's schema to the OpenAPI components (the multipart
-    part is JSON text, so no route references the model directly)."""
+#: Where the schema carries a limit that a setting may lower: (component, property, keyword, setting).
+_LIMITS = [
+    ("ChannelRequest", "rays", "maximum", "max_rays"),
+    ("ChannelRequest", "max_interactions", "maximum", "max_interactions"),
+    ("ChannelRequest", "receivers", "maxItems", "max_receivers"),
+    ("Band", "points", "maximum", "max_band_points"),
+    ("PdoaRequest", "frequencies_hz", "maxItems", "max_band_points"),
+    *((name, "trials", "maximum", "max_trials") for name in ("ToaRequest", "PdoaRequest", "RssRequest")),
+]
+
+
+def _document(app: FastAPI, settings: Settings) -> None:
+    """The served OpenAPI document says what this server enforces: the manifest's schema is
+    added to the components (the multipart part is JSON text, so no route references the
+    model); limits lowered by settings replace the schema's ceilings (examples follow); with
+    API keys configured, uploads and deletes declare the key."""
     from service.schemas import Manifest
 
     generate = app.openapi
@@ -119,10 +154,49 @@ def _document_manifest(app: FastAPI) -> None:
             components = schema.setdefault("components", {}).setdefault("schemas", {})
             components.update(model.pop("$defs", {}))
             components["Manifest"] = model
+            for name, prop, keyword, setting in _LIMITS:
+                _lower(components[name], prop, keyword, getattr(settings, setting))
+            for content in schema["paths"]["/v1/sweeps"]["post"]["requestBody"]["content"].values():
+                content["schema"] = copy.deepcopy(content["schema"])  # the route's dict is shared by every app
+                _lower_sweep(content["schema"], settings)
+            if settings.api_keys:
+                schema["components"]["securitySchemes"] = {
+                    "ApiKey": {"type": "apiKey", "in": "header", "name": API_KEY_HEADER}}
+                schema["paths"]["/v1/phantoms"]["post"]["security"] = [{"ApiKey": []}]
+                schema["paths"]["/v1/phantoms/{phantom_id}"]["delete"]["security"] = [{"ApiKey": []}]
             app.openapi_schema = schema
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _lower_sweep(spec: dict, settings: Settings) -> None:
+    """The sweep spec's limits that settings lower (its channel knobs and trials), example included."""
+    channel = spec["properties"]["channel"]["properties"]
+    for key, value in (("rays", settings.max_rays), ("max_interactions", settings.max_interactions)):
+        channel[key]["maximum"] = min(channel[key]["maximum"], value)
+        spec["example"]["channel"][key] = min(spec["example"]["channel"][key], value)
+    trials = spec["properties"]["trials"]
+    trials["maximum"] = min(trials["maximum"], settings.max_trials)
+    trials["default"] = min(trials["default"], settings.max_trials)
+    spec["example"]["trials"] = min(spec["example"]["trials"], settings.max_trials)
+
+
+def _lower(component: dict, prop: str, keyword: str, value: int) -> None:
+    """Lower ``keyword`` of ``component.properties[prop]`` (or of its ``anyOf`` branches) to
+    ``value``, and clamp the property's default and the component's examples to it."""
+    spec = component["properties"][prop]
+    for branch in [spec, *spec.get("anyOf", [])]:
+        if keyword in branch and branch[keyword] > value:
+            branch[keyword] = value
+    if isinstance(spec.get("default"), int) and spec["default"] > value:
+        spec["default"] = value
+    for example in component.get("examples", []):
+        current = example.get(prop)
+        if isinstance(current, int) and current > value:
+            example[prop] = value
+        elif isinstance(current, list) and len(current) > value:
+            example[prop] = current[:value]
 
 
 def _default_app() -> FastAPI:

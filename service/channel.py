@@ -10,6 +10,7 @@ in its registry (uploads included).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -23,8 +24,11 @@ from service.settings import Settings
 
 def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tuple[ChannelSpec, Phantom]:
     """The request as a spec (fields it leaves unset come from its scenario, then from the
-    spec's defaults), checked against this server's limits, and the phantom it names.
-    Raises the spec's typed errors (the error handlers make them 422s naming the field)."""
+    spec's defaults), checked against this server's limits, and the phantom it names. A
+    ``rays`` or ``max_interactions`` the request leaves unset is at most this server's limit
+    (a scenario's or the spec's value above it is lowered to it, as the served schema's default
+    says); an explicit value above the limit is refused. Raises the spec's typed errors (the
+    error handlers make them 422s naming the field)."""
     base = None
     if req.scenario is not None:
         scenario = registry.scenarios.get(req.scenario)
@@ -35,6 +39,10 @@ def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tupl
         base = scenario.spec
     given = req.model_dump(exclude_none=True, exclude={"scenario", "outputs"})
     spec = ChannelSpec.from_dict(given, base)
+    lowered = {key: cap for key, cap in (("rays", settings.max_rays), ("max_interactions", settings.max_interactions))
+               if key not in given and getattr(spec, key) > cap}
+    if lowered:
+        spec = replace(spec, **lowered)
     phantom = registry.get(spec.phantom, field_loc=["body", "phantom"])
     checks = [
         (["body", "rays"], spec.rays, settings.max_rays),
@@ -44,8 +52,7 @@ def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tupl
     ]
     for loc, value, cap in checks:
         if value is not None and value > cap:
-            source = "" if loc[1] in given else (" (the scenario's value)" if base is not None else " (the default)")
-            raise Unprocessable(f"{value}{source} exceeds this server's limit of {cap}", loc=loc)
+            raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=loc)
     _check_outputs(req.outputs, spec)
     return spec, phantom
 

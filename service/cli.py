@@ -2,7 +2,7 @@
 
     capsule-rt serve [--host H] [--port P] [--workers N] [--data-dir DIR]
     capsule-rt channel REQUEST.json [--output OUT.json] [--export OUT.npz | OUT.csv]
-    capsule-rt demo [--rays N]
+    capsule-rt demo [--rays N]          (default: the API's own default, 100000)
     capsule-rt openapi [--output openapi.json] [--check]
     capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
     capsule-rt sweep SPEC --out DIR [--cluster ADDRESS] [--resume]   (service.sweep_cli)
@@ -282,11 +282,14 @@ def _demo_case(title: str, payload: dict) -> None:
 def _cmd_demo(args: argparse.Namespace) -> int:
     registry, _ = _local_registry()
     cases = []
+    # without --rays the requests carry none: the API's (and the scenarios') own default, what a
+    # user of the API gets (a sparser launch can miss a sensor's strongest path)
+    rays = {} if args.rays is None else {"rays": args.rays}
     if "thesis-fig-5-6" in registry.scenarios:
-        cases.append(("thesis-fig-5-6 (thesis Fig 5.5/5.6)", {"scenario": "thesis-fig-5-6", "rays": args.rays}))
+        cases.append(("thesis-fig-5-6 (thesis Fig 5.5/5.6)", {"scenario": "thesis-fig-5-6", **rays}))
     if "torso-small-intestine" in registry.scenarios:
         cases.append(("default torso, capsule in the small intestine (scenario torso-small-intestine)",
-                      {"scenario": "torso-small-intestine", "rays": args.rays}))
+                      {"scenario": "torso-small-intestine", **rays}))
     elif "torso" in registry.builtins:
         torso = registry.builtins["torso"]
         capsule = next((n for n, s in torso.sites.items() if s.kind == "capsule"), None)
@@ -295,7 +298,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             cases.append((
                 f"default torso, capsule at {capsule}",
                 {"phantom": "torso", "transmitter": {"site": capsule}, "receivers": [{"site": n} for n in sensors],
-                 "rays": args.rays, "max_interactions": 4},
+                 "max_interactions": 4, **rays},
             ))
     if not cases:
         print("no built-in scenario or phantom available", file=sys.stderr)
@@ -307,7 +310,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="capsule-rt", description="CapsuleRT in-body channel emulator.")
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
     s = sub.add_parser("serve", help="run the HTTP API (uvicorn)")
     s.add_argument("--host", default=None, help="bind address (default CAPSULE_RT_HOST or 127.0.0.1)")
     s.add_argument("--port", type=int, default=None, help="port (default CAPSULE_RT_PORT or 8000)")
@@ -321,10 +324,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "to this .npz or .csv file")
     c.set_defaults(func=_cmd_channel)
     d = sub.add_parser("demo", help="trace thesis-fig-5-6 and a default-torso case; print paths and TOA/PDOA")
-    d.add_argument("--rays", type=int, default=20_000, help="rays launched per trace (default 20000)")
+    d.add_argument("--rays", type=int, default=None,
+                   help="rays launched per trace (default: the API's default, 100000; fewer is faster but "
+                   "may miss weak or grazing paths)")
     d.set_defaults(func=_cmd_demo)
     o = sub.add_parser("openapi", help="write openapi.json (stable key order)")
-    o.add_argument("--output", "-o", default=str(REPO_ROOT / "openapi.json"))
+    o.add_argument("--output", "-o", default=str(REPO_ROOT / "openapi.json"),
+                   help="where to write it (default: openapi.json at the repository root)")
     o.add_argument("--check", action="store_true", help="exit 1 if the file differs instead of writing it")
     o.set_defaults(func=_cmd_openapi)
     plots_cli.add_parser(sub)

@@ -10,6 +10,9 @@ raises :class:`APIError` carrying the status, the ``detail`` list and the
         tissues = api.tissues(402e6)
         ch = api.channel({"scenario": "thesis-fig-5-6", "rays": 20000})
         toa = api.ranging_toa({"profile": ch.profiles[0].model_dump(), "method": "gcc"})
+
+``api_key=...`` sends ``X-API-Key`` with every request (a server with
+``CAPSULE_RT_API_KEYS`` set needs it for uploads and deletes).
 """
 
 from __future__ import annotations
@@ -49,6 +52,13 @@ class _Call(Generic[M]):
     model: type[M] | None
     kwargs: dict[str, Any]
     raw: bool = False
+
+
+def _with_key(api_key: str | None, httpx_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """httpx options with the API key (uploads and deletes on a server that requires keys)."""
+    if api_key is None:
+        return httpx_kwargs
+    return {**httpx_kwargs, "headers": {**dict(httpx_kwargs.get("headers") or {}), "X-API-Key": api_key}}
 
 
 def _body(model: type[BaseModel], req: BaseModel | dict) -> dict[str, Any]:
@@ -165,8 +175,9 @@ class _Endpoints:
 class Client:
     """Synchronous client. ``Client(base_url, timeout=..., transport=...)``; a context manager."""
 
-    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = 120.0, **httpx_kwargs: Any):
-        self._http = httpx.Client(base_url=base_url, timeout=timeout, **httpx_kwargs)
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = 120.0,
+                 api_key: str | None = None, **httpx_kwargs: Any):
+        self._http = httpx.Client(base_url=base_url, timeout=timeout, **_with_key(api_key, httpx_kwargs))
 
     def close(self) -> None:
         self._http.close()
@@ -238,8 +249,9 @@ class Client:
 class AsyncClient:
     """Asynchronous client (same methods, awaitable)."""
 
-    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = 120.0, **httpx_kwargs: Any):
-        self._http = httpx.AsyncClient(base_url=base_url, timeout=timeout, **httpx_kwargs)
+    def __init__(self, base_url: str = "http://127.0.0.1:8000", *, timeout: float = 120.0,
+                 api_key: str | None = None, **httpx_kwargs: Any):
+        self._http = httpx.AsyncClient(base_url=base_url, timeout=timeout, **_with_key(api_key, httpx_kwargs))
 
     async def aclose(self) -> None:
         await self._http.aclose()

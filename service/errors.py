@@ -20,6 +20,7 @@ schema violation                   422
 ``raytrace.errors.InputError``      422 (and every subclass)
 ``EstimatorInputError``             422
 ``raytrace.errors.NotFoundError``   404
+``Unauthorized`` / ``Forbidden``    401 / 403 (API keys, origins)
 ``UploadTooLarge``                  413
 ``ServerSaturated``                 503 + Retry-After
 ``BudgetExceededError`` deadline    504
@@ -62,6 +63,16 @@ class ServiceError(Exception):
         self.headers = headers or {}
 
 
+class Unauthorized(ServiceError):
+    status_code = 401
+    type = "unauthorized"
+
+
+class Forbidden(ServiceError):
+    status_code = 403
+    type = "forbidden"
+
+
 class UploadTooLarge(ServiceError):
     status_code = 413
     type = "too_large"
@@ -92,11 +103,20 @@ class Unprocessable(ServiceError):
     type = "invalid"
 
 
+class InvalidMesh(Unprocessable):
+    """The mesh part is no binary glTF: the loader's own error type (raytrace PhantomValidationError)."""
+
+    type = "phantom_validation"
+
+
 _INDEX = re.compile(r"\[(\d+)\]")
 
 
-def field_to_loc(field: str | None) -> list[str | int]:
-    """``receivers[2].position_m`` -> ``["receivers", 2, "position_m"]``."""
+def field_to_loc(field: str | tuple | None) -> list[str | int]:
+    """``receivers[2].position_m`` -> ``["receivers", 2, "position_m"]``; a tuple of parts
+    (``("manifest", "sites", "Sphere.001")``, see :mod:`raytrace.errors`) is taken as is."""
+    if isinstance(field, tuple):
+        return list(field)
     if not field:
         return []
     loc: list[str | int] = []
@@ -150,9 +170,11 @@ def install_error_handlers(app: FastAPI, retry_after_s: int) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         msg = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
-        loc: list[str | int] = ["path"] if exc.status_code in (404, 405) else ["body"] if exc.status_code == 400 else []
+        loc: list[str | int] = (["path"] if exc.status_code in (404, 405)
+                                else ["body"] if exc.status_code in (400, 413) else [])
+        kinds = {400: "malformed_body", 404: "not_found", 405: "method_not_allowed", 413: "too_large"}
         return JSONResponse(
-            error_body(loc, msg, {400: "malformed_body", 404: "not_found", 405: "method_not_allowed"}.get(exc.status_code, "http_error")),
+            error_body(loc, msg, kinds.get(exc.status_code, "http_error")),
             status_code=exc.status_code,
             headers=getattr(exc, "headers", None),
         )
@@ -191,9 +213,11 @@ def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
 
     text = {
         400: "Malformed request.",
+        401: "API key missing or not valid (only when the server requires keys; header `X-API-Key`).",
+        403: "Refused: the key did not upload this phantom, or a cross-origin write.",
         404: "Unknown phantom, scenario, site or route.",
         409: "Conflict (e.g. deleting a built-in phantom).",
-        413: "Upload over its size cap.",
+        413: "Request body over its size cap.",
         415: "Unsupported upload format.",
         422: "Schema violation or a physical precondition broken; `detail[].loc` names the field.",
         503: "Saturated or work budget exceeded; retry after `Retry-After` seconds.",

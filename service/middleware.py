@@ -1,4 +1,4 @@
-"""Pure-ASGI middleware: request id, access log, request metrics."""
+"""Pure-ASGI middleware: request id, access log, request metrics; methods per the contract."""
 
 from __future__ import annotations
 
@@ -6,6 +6,9 @@ import logging
 import re
 import time
 import uuid
+
+from starlette.exceptions import HTTPException
+from starlette.responses import JSONResponse
 
 from service.logs import request_id_var
 from service.metrics import Metrics
@@ -73,3 +76,94 @@ class RequestContextMiddleware:
                 },
             )
             request_id_var.reset(token)
+
+
+class AllowedMethods:
+    """Answer per the contract (the OpenAPI document) about methods: ``OPTIONS`` on an
+    operation's path is 204 with ``Allow`` listing the methods the document declares for it
+    (a CORS preflight, when CORS is configured, is answered before this); a 405 lists the
+    same set (the router alone would list only one of the routes sharing the path)."""
+
+    def __init__(self, app, openapi) -> None:
+        self.app = app
+        self._openapi = openapi  # a callable returning the document (built on first use)
+        self._table: list[tuple[re.Pattern, str]] | None = None
+
+    def _allow(self, path: str) -> str | None:
+        if self._table is None:
+            table = []
+            for template, item in self._openapi().get("paths", {}).items():
+                pattern = re.compile("^" + re.sub(r"\\\{[^}]+\\\}", "[^/]+", re.escape(template)) + "$")
+                methods = sorted({m.upper() for m in item} & _METHODS | {"OPTIONS"})
+                table.append((pattern, ", ".join(methods)))
+            self._table = table
+        return next((allow for pattern, allow in self._table if pattern.match(path)), None)
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        allow = self._allow(scope.get("path", ""))
+        if allow is not None and scope.get("method") == "OPTIONS":
+            await send({"type": "http.response.start", "status": 204,
+                        "headers": [(b"allow", allow.encode("ascii")), (b"content-length", b"0")]})
+            await send({"type": "http.response.body", "body": b""})
+            return
+
+        async def send_allow(message):
+            if message["type"] == "http.response.start" and message["status"] == 405 and allow is not None:
+                headers = [(k, v) for k, v in message.get("headers", []) if k.lower() != b"allow"]
+                message = {**message, "headers": [*headers, (b"allow", allow.encode("ascii"))]}
+            await send(message)
+
+        await self.app(scope, receive, send_allow)
+
+
+class BodyLimit:
+    """Cap the request body of each operation while it streams in: a declared
+    ``Content-Length`` over the cap is refused before anything is read, and a body that
+    passes the cap while arriving stops being read there. Both answer 413 with the usual
+    error body. ``caps``: (path prefix, bytes), first match wins; other paths are not capped
+    here (uploads stream through their own caps, service.uploads)."""
+
+    def __init__(self, app, caps: list[tuple[str, int]]) -> None:
+        self.app = app
+        self.caps = caps
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or scope.get("method") not in ("POST", "PUT", "PATCH"):
+            await self.app(scope, receive, send)
+            return
+        path = scope.get("path", "")
+        cap = next((c for prefix, c in self.caps if path.startswith(prefix)), None)
+        if cap is None:
+            await self.app(scope, receive, send)
+            return
+        declared = next((v for k, v in scope.get("headers", []) if k == b"content-length"), b"")
+        if declared.isdigit() and int(declared) > cap:
+            await _too_large(cap, int(declared))(scope, receive, send)
+            return
+        received = 0
+
+        async def receive_capped():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > cap:
+                    # an HTTPException reaches the app's handler (JSON body), wherever the read happens
+                    raise HTTPException(413, _too_large_text(cap, None))
+            return message
+
+        await self.app(scope, receive_capped, send)
+
+
+def _too_large_text(cap: int, declared: int | None) -> str:
+    size = f"of {declared} bytes " if declared is not None else ""
+    return f"request body {size}exceeds this operation's cap of {cap} bytes (refused while reading it)"
+
+
+def _too_large(cap: int, declared: int):
+    from service.errors import error_body
+
+    return JSONResponse(error_body(["body"], _too_large_text(cap, declared), "too_large"), status_code=413)

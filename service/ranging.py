@@ -7,8 +7,15 @@ from typing import Any
 
 import numpy as np
 
+from raytrace.solver.budget import Budget
 from service.errors import Unprocessable
-from service.schemas import PdoaRequest, ProfileIn, RangingCommon, RssRequest, ToaRequest
+from service.schemas import (
+    PdoaRequest,
+    ProfileIn,
+    RangingCommon,
+    RssRequest,
+    ToaRequest,
+)
 from service.settings import Settings
 
 
@@ -18,7 +25,9 @@ def path_profile(profile: ProfileIn):
     Hand-made profiles default to gains without the propagation phase (the
     delay carries it); channel profiles say ``gains_include_delay_phase: true``
     with their carrier as ``reference_frequency_hz``, and the estimators
-    remove it once (estimators.profile docstring)."""
+    remove it once (estimators.profile docstring). Per-frequency gains are used when every
+    path lists the same distinct frequencies (in any order); otherwise they are ignored, like
+    the other channel fields a profile may carry."""
     from estimators.profile import PathProfile
 
     delays = np.array([p.delay_s for p in profile.paths], float)
@@ -29,10 +38,11 @@ def path_profile(profile: ProfileIn):
     if all(p.group_delay_s is not None for p in profile.paths):
         group = np.array([p.group_delay_s for p in profile.paths], float)
     band_f = band_g = None
-    with_band = [p.band_gains for p in profile.paths if p.band_gains]
+    with_band = [sorted(p.band_gains, key=lambda b: b.frequency_hz) for p in profile.paths if p.band_gains]
     if with_band and len(with_band) == len(profile.paths):
         freqs = [tuple(b.frequency_hz for b in bg) for bg in with_band]
-        if all(f == freqs[0] for f in freqs):
+        distinct = len(set(freqs[0])) == len(freqs[0])
+        if distinct and all(f == freqs[0] for f in freqs):
             band_f = np.array(freqs[0], float)
             band_g = np.array([[complex(b.gain.re, b.gain.im) for b in bg] for bg in with_band])
     return PathProfile(
@@ -56,8 +66,50 @@ def _link(req: RangingCommon) -> dict[str, Any] | None:
 
 
 def _check_trials(req: RangingCommon, settings: Settings) -> None:
+    """A given ``trials`` over this server's limit is refused; the default is capped to it (the
+    served schema says so: its default and maximum follow the setting)."""
+    if "trials" not in req.model_fields_set:
+        req.trials = min(req.trials, settings.max_trials)
     if req.trials > settings.max_trials:
         raise Unprocessable(f"{req.trials} exceeds this server's limit of {settings.max_trials}", loc=["body", "trials"])
+
+
+def _stop(budget: Budget | None):
+    """The estimators' stop protocol (``estimators._checks.Check``) over a request budget: the
+    deadline, and a cancellation (the client went away) end the loops at their next chunk."""
+    return None if budget is None else (lambda: budget.charge(0))
+
+
+def _toa_waveform(req: ToaRequest) -> dict[str, Any]:
+    waveform = req.waveform.model_dump(exclude_none=True)
+    if waveform["kind"] == "gaussian_pulse":
+        waveform.pop("duration_s", None)
+    else:
+        waveform.pop("bandwidth_hz", None)
+    return waveform
+
+
+def _check_toa_work(req: ToaRequest, profile, waveform: dict[str, Any], settings: Settings) -> None:
+    """Refuse, before any work, a TOA request over ``max_ranging_samples`` (settings): the
+    synthesis costs samples x paths, the Monte Carlo samples x trials (estimators.toa_samples)."""
+    from estimators import toa_samples
+
+    n = toa_samples(profile, waveform)
+    cap = settings.max_ranging_samples
+    paths = len(req.profile.paths)
+    if n * paths > cap:
+        raise Unprocessable(
+            f"{paths} paths x {n} samples per trial = {n * paths} exceeds this server's work limit of {cap} samples: "
+            "drop weak or late paths, or lower waveform.sample_rate_hz",
+            loc=["body", "profile", "paths"],
+        )
+    if n * req.trials > cap:
+        raise Unprocessable(
+            f"{req.trials} trials x {n} samples per trial = {n * req.trials} exceeds this server's work limit of "
+            f"{cap} samples: lower trials (at most {max(cap // n, 1)} here), or shorten the observation "
+            "(the last path's delay, waveform.duration_s) or waveform.sample_rate_hz",
+            loc=["body", "trials"],
+        )
 
 
 def _num(x: Any) -> float | None:
@@ -98,17 +150,15 @@ def _result(r: Any, **extra: Any) -> dict[str, Any]:
     return out
 
 
-def toa(req: ToaRequest, settings: Settings) -> dict[str, Any]:
+def toa(req: ToaRequest, settings: Settings, budget: Budget | None = None) -> dict[str, Any]:
     from estimators.toa import estimate_toa
 
     _check_trials(req, settings)
-    waveform = req.waveform.model_dump(exclude_none=True)
-    if waveform["kind"] == "gaussian_pulse":
-        waveform.pop("duration_s", None)
-    else:
-        waveform.pop("bandwidth_hz", None)
+    waveform = _toa_waveform(req)
+    profile = path_profile(req.profile)
+    _check_toa_work(req, profile, waveform, settings)
     results = estimate_toa(
-        path_profile(req.profile),
+        profile,
         method=req.method,
         waveform=waveform,
         snr_db=req.snr_db,
@@ -117,6 +167,7 @@ def toa(req: ToaRequest, settings: Settings) -> dict[str, Any]:
         relative_permittivity=req.relative_permittivity,
         true_distance_m=req.true_distance_m,
         link=_link(req),
+        check=_stop(budget),
     )
     return _response([_result(r) for r in results], "gcc" if req.method == "all" else req.method)
 
@@ -128,17 +179,26 @@ def _response(results: list[dict[str, Any]], primary: str | None) -> dict[str, A
     return {**top, "results": results}
 
 
-def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
+def _tones(req: PdoaRequest) -> np.ndarray:
+    """The request's distinct tones, increasing; two_tone measures between the lowest and the
+    highest (as it does with a band's two ends)."""
+    f = np.sort(np.asarray(req.frequencies_hz, float))
+    return f[[0, -1]] if req.method == "two_tone" else f
+
+
+def pdoa(req: PdoaRequest, settings: Settings, budget: Budget | None = None) -> dict[str, Any]:
     from estimators.pdoa import estimate_pdoa
 
     _check_trials(req, settings)
     if req.band is not None and req.band.points > settings.max_band_points:
-        raise Unprocessable(
-            f"{req.band.points} exceeds this server's limit of {settings.max_band_points}", loc=["body", "band", "points"]
-        )
+        raise Unprocessable(f"{req.band.points} exceeds this server's limit of {settings.max_band_points}",
+                            loc=["body", "band", "points"])
+    if req.frequencies_hz is not None and len(req.frequencies_hz) > settings.max_band_points:
+        raise Unprocessable(f"{len(req.frequencies_hz)} tones exceed this server's limit of {settings.max_band_points}",
+                            loc=["body", "frequencies_hz"])
     result = estimate_pdoa(
         path_profile(req.profile),
-        frequencies_hz=None if req.frequencies_hz is None else np.asarray(req.frequencies_hz, float),
+        frequencies_hz=None if req.frequencies_hz is None else _tones(req),
         band=None if req.band is None else req.band.model_dump(),
         method=req.method,
         snr_db=req.snr_db,
@@ -148,11 +208,12 @@ def pdoa(req: PdoaRequest, settings: Settings) -> dict[str, Any]:
         relative_permittivity=req.relative_permittivity,
         true_distance_m=req.true_distance_m,
         link=_link(req),
+        check=_stop(budget),
     )
     return _response([_result(result)], req.method)
 
 
-def rss(req: RssRequest, settings: Settings) -> dict[str, Any]:
+def rss(req: RssRequest, settings: Settings, budget: Budget | None = None) -> dict[str, Any]:
     from estimators.rss import estimate_rss
 
     _check_trials(req, settings)
@@ -165,5 +226,6 @@ def rss(req: RssRequest, settings: Settings) -> dict[str, Any]:
         seed=req.seed,
         true_distance_m=req.true_distance_m,
         shadowing=req.shadowing,
+        check=_stop(budget),
     )
     return _response([_result(result)], None)

@@ -13,7 +13,7 @@ import logging
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -21,7 +21,7 @@ from raytrace import SCENARIOS, Scenario
 from raytrace.body import gltf, library
 from raytrace.body.phantom import AIR_NAME, Phantom
 from service.errors import NotFound
-from service.storage import PhantomStore, is_upload_id
+from service.storage import Missing, PhantomStore, is_upload_id
 
 log = logging.getLogger("capsule_rt.registry")
 
@@ -64,6 +64,23 @@ def describe_phantom(phantom_id: str, phantom: Phantom, *, builtin: bool) -> dic
 
 
 SUMMARY_KEYS = ("id", "name", "description", "builtin", "triangles", "bounds_m")
+
+
+def with_site_kinds(manifest: dict, meta: dict) -> dict:
+    """The stored manifest, with the kind of each site that lies in tissue made explicit from
+    its description: phantoms uploaded while a kindless site in tissue was still taken as a
+    capsule reload (and re-upload) with the kinds they were stored with."""
+    sites = manifest.get("sites")
+    if not isinstance(sites, dict):
+        return manifest
+    described = meta.get("sites", {})
+    patched = dict(sites)
+    for name, spec in sites.items():
+        kindless = not isinstance(spec, dict) or spec.get("kind") is None
+        known = described.get(name)
+        if kindless and known and known.get("medium") != AIR_NAME:
+            patched[name] = {"kind": known["kind"], "position_m": known["position_m"]}
+    return {**manifest, "sites": patched} if patched != sites else manifest
 
 
 @dataclass
@@ -113,8 +130,16 @@ class Registry:
     def info(self, phantom_id: str, field_loc: list | None = None) -> dict[str, Any]:
         if phantom_id in self.builtin_info:
             return self.builtin_info[phantom_id]
-        if is_upload_id(phantom_id) and self.store.exists(phantom_id):
-            return self.store.meta(phantom_id)
+        return self._stored(phantom_id, field_loc, self.store.meta)
+
+    def _stored(self, phantom_id: str, field_loc: list | None, read: Callable[[str], Any]) -> Any:
+        """``read(phantom_id)`` of a stored upload, or 404: an unknown id, or one deleted
+        between the look-up and the read (a concurrent DELETE)."""
+        if is_upload_id(phantom_id):
+            try:
+                return read(phantom_id)
+            except Missing:
+                pass
         raise NotFound(self.unknown_message(phantom_id), loc=field_loc or ["path", "phantom_id"])
 
     def summaries(self) -> list[dict[str, Any]]:
@@ -131,15 +156,12 @@ class Registry:
         """The phantom (parsing a stored upload on first use)."""
         if phantom_id in self.builtins:
             return self.builtins[phantom_id]
-        loc = field_loc or ["path", "phantom_id"]
-        if not (is_upload_id(phantom_id) and self.store.exists(phantom_id)):
-            raise NotFound(self.unknown_message(phantom_id), loc=loc)
         with self._lock:
             if phantom_id in self._cache:
                 self._cache.move_to_end(phantom_id)
                 return self._cache[phantom_id]
-        stored = self.store.load(phantom_id)
-        phantom = gltf.load_phantom(stored.mesh, stored.manifest)
+        stored = self._stored(phantom_id, field_loc, self.store.load)
+        phantom = gltf.load_phantom(stored.mesh, with_site_kinds(stored.manifest, stored.meta))
         with self._lock:
             self._cache[phantom_id] = phantom
             while len(self._cache) > self.cache_size:
@@ -151,17 +173,14 @@ class Registry:
             if phantom_id not in self._glb_cache:
                 self._glb_cache[phantom_id] = gltf.export_glb(self.builtins[phantom_id])
             return self._glb_cache[phantom_id]
-        if is_upload_id(phantom_id) and self.store.exists(phantom_id):
-            return self.store.load(phantom_id).mesh
-        raise NotFound(self.unknown_message(phantom_id), loc=["path", "phantom_id"])
+        return self._stored(phantom_id, None, self.store.load).mesh
 
     def manifest(self, phantom_id: str) -> dict:
         """The manifest that reloads :meth:`mesh_glb` through POST /v1/phantoms."""
         if phantom_id in self.builtins:
             return gltf.export_manifest(self.builtins[phantom_id])
-        if is_upload_id(phantom_id) and self.store.exists(phantom_id):
-            return self.store.load(phantom_id).manifest
-        raise NotFound(self.unknown_message(phantom_id), loc=["path", "phantom_id"])
+        stored = self._stored(phantom_id, None, self.store.load)
+        return with_site_kinds(stored.manifest, stored.meta)
 
     def remember(self, phantom_id: str, phantom: Phantom) -> None:
         """Cache a freshly uploaded phantom (saves re-parsing its .glb on first use)."""

@@ -4,7 +4,10 @@ Conventions:
 
 * SI units, the unit in the field name and in brackets in its description.
 * Every request model forbids unknown fields and non-finite numbers
-  (``NaN`` / ``Infinity`` get a 422). Responses never contain them either:
+  (``NaN`` / ``Infinity`` get a 422), and its types are strict: a boolean or
+  a numeric string is not a number, 1.5 is not an integer. Where fields
+  depend on each other (exactly one of two), the schema says it with
+  ``oneOf``. Responses never contain non-finite numbers either:
   a zero gain's ``-inf`` dB is clamped to :data:`GAIN_DB_FLOOR` (-400 dB).
 * Complex numbers are ``{"re": float, "im": float}``.
 * Array sizes and compute knobs are bounded; the ``le`` bounds here are the
@@ -20,11 +23,20 @@ from __future__ import annotations
 from dataclasses import fields as dataclass_fields
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    model_validator,
+)
 
+from estimators.channel_response import MIN_RATE_HZ
 from estimators.link import MICS_EIRP_DBM
-from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
-from raytrace.spec import MAX_DYNAMIC_RANGE_DB, NAME_PATTERN, ChannelSpec
+from raytrace.body import gltf
+from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ, TISSUE_NAMES
+from raytrace.spec import MAX_DYNAMIC_RANGE_DB, ChannelSpec
 from service.settings import (
     MAX_BAND_POINTS,
     MAX_INTERACTIONS,
@@ -41,24 +53,47 @@ GAIN_DB_FLOOR = -400.0
 SPEC_DEFAULTS = {f.name: f.default for f in dataclass_fields(ChannelSpec)}
 
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
+NAME_PATTERN = gltf.NAME_PATTERN.pattern  # organ and site names: the upload's own rule
 
 PhantomId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 ScenarioId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN)]
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+def _integral(value: Any) -> Any:
+    """JSON Schema's ``integer`` is any number without a fractional part (``100.0``, ``1e2``): such
+    a float becomes the int; every other value goes on to strict validation (a boolean or a
+    numeric string stays refused)."""
+    if type(value) is float and value.is_integer():
+        return int(value)
+    return value
+
+
+#: An integer field of a request: strict, but 100.0 counts, as the schema's ``integer`` says.
+Int = Annotated[int, BeforeValidator(_integral)]
+
+
+def int_range(ge: int, le: int) -> Any:
+    """An ``Int`` between ``ge`` and ``le``, for optional fields: written this way (the bounds before
+    the validator) the schema says ``minimum``/``maximum``; ``Int | None = Field(ge=...)`` would
+    emit pydantic's internal ``ge`` keys, which no schema tool reads."""
+    return Annotated[int, Field(ge=ge, le=le), BeforeValidator(_integral)]
 FrequencyHz = Annotated[float, Field(ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ)]
 
 
 class Strict(BaseModel):
-    """Base of request models: no unknown fields, no NaN / infinity."""
+    """Base of request models: no unknown fields, no NaN / infinity, strict types (``"rays": true``
+    and ``"rays": "5"`` are refused, as the schema's ``integer`` says)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class Out(BaseModel):
-    """Base of response models."""
+    """Base of response models (strict as well: a profile's paths, interactions and segments
+    come back inside ranging requests)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 # ----------------------------------------------------------------- errors
@@ -81,7 +116,7 @@ class Complex(Strict):
 class Band(Strict):
     start_hz: FrequencyHz = Field(description="First frequency [Hz].")
     stop_hz: FrequencyHz = Field(description="Last frequency [Hz] (> start_hz).")
-    points: int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].")
+    points: Int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].")
 
     @model_validator(mode="after")
     def _order(self) -> "Band":
@@ -100,7 +135,9 @@ class AntennaIn(Strict):
     :class:`raytrace.spec.Antenna`, enforces it and the schema states it)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False,
-                              json_schema_extra={"oneOf": [{"required": ["position_m"]}, {"required": ["site"]}]})
+                              json_schema_extra={"oneOf": [
+                                  {"required": ["position_m"], "properties": {"position_m": {"type": "array"}}},
+                                  {"required": ["site"], "properties": {"site": {"type": "string"}}}]})
 
     position_m: Vec3 | None = Field(None, description="Position [m] (phantom coordinates).")
     site: Name | None = Field(None, description="Name of one of the phantom's sites (GET /v1/phantoms/{id}).")
@@ -119,19 +156,19 @@ MAX_OUTPUT_SAMPLES = 4096
 
 
 class CirIn(Strict):
-    sample_rate_hz: float = Field(gt=0.0, le=1e12, description="Sampling rate of the impulse response [Hz].")
-    num_samples: int | None = Field(
-        None, ge=1, le=MAX_OUTPUT_SAMPLES,
+    sample_rate_hz: float = Field(ge=MIN_RATE_HZ, le=1e12, description="Sampling rate of the impulse response [Hz].")
+    num_samples: int_range(1, MAX_OUTPUT_SAMPLES) | None = Field(
+        None,
         description=f"Samples [-] (default: up to 8 / bandwidth after the last path; <= {MAX_OUTPUT_SAMPLES}).")
     start_s: float = Field(0.0, ge=-1e-3, le=1e-3, description="Time of the first sample [s] (0: the emission).")
 
 
 class TapsIn(Strict):
-    bandwidth_hz: float = Field(gt=0.0, le=20e9, description="System bandwidth W: taps at l / W [Hz]; the band "
+    bandwidth_hz: float = Field(ge=MIN_RATE_HZ, le=20e9, description="System bandwidth W: taps at l / W [Hz]; the band "
                                 "centre +- W/2 must lie inside `band`.")
-    l_min: int | None = Field(None, ge=-100_000, le=100_000, description="First tap index [-] (default: six "
+    l_min: int_range(-100_000, 100_000) | None = Field(None, description="First tap index [-] (default: six "
                               "before the first path's).")
-    l_max: int | None = Field(None, ge=-100_000, le=100_000, description="Last tap index [-] (default: six after "
+    l_max: int_range(-100_000, 100_000) | None = Field(None, description="Last tap index [-] (default: six after "
                               "the last path's).")
 
 
@@ -155,9 +192,12 @@ class ChannelRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             # what ChannelSpec requires: a scenario, or a transmitter and receivers of one's own
-            "anyOf": [{"required": ["scenario"]}, {"required": ["transmitter", "receivers"]}],
+            "anyOf": [{"required": ["scenario"], "properties": {"scenario": {"type": "string"}}},
+                      {"required": ["transmitter", "receivers"],
+                       "properties": {"transmitter": {"type": "object"}, "receivers": {"type": "array"}}}],
             "examples": [
                 {
                     "phantom": "torso",
@@ -197,14 +237,12 @@ class ChannelRequest(Strict):
         max_length=MAX_RECEIVERS,
         description=f"Receivers (skin sensors), 1..{MAX_RECEIVERS}; required without a scenario.",
     )
-    max_interactions: int | None = Field(
-        None, ge=1, le=MAX_INTERACTIONS,
-        description=f"Max reflections + refractions per path [-] (default {SPEC_DEFAULTS['max_interactions']}, "
+    max_interactions: Annotated[int, Field(ge=1, le=MAX_INTERACTIONS), BeforeValidator(_integral)] | None = Field(
+        None, description=f"Max reflections + refractions per path [-] (default {SPEC_DEFAULTS['max_interactions']}, "
         f"<= {MAX_INTERACTIONS}).",
     )
-    rays: int | None = Field(
-        None, ge=1, le=MAX_RAYS,
-        description=f"Rays launched from the transmitter [-] (default {SPEC_DEFAULTS['rays']}, <= {MAX_RAYS}).",
+    rays: Annotated[int, Field(ge=1, le=MAX_RAYS), BeforeValidator(_integral)] | None = Field(
+        None, description=f"Rays launched from the transmitter [-] (default {SPEC_DEFAULTS['rays']}, <= {MAX_RAYS}).",
     )
     dynamic_range_db: float | None = Field(
         None, gt=0.0, le=MAX_DYNAMIC_RANGE_DB,
@@ -340,6 +378,24 @@ class GainIn(Strict):
     im: float = Field(ge=-MAX_GAIN_COMPONENT, le=MAX_GAIN_COMPONENT, description="Imaginary part [-].")
 
 
+#: JSON Schema of a number that is not zero (without ``not``, which fuzzers handle poorly).
+_NONZERO = {"anyOf": [{"exclusiveMinimum": 0}, {"exclusiveMaximum": 0}]}
+
+
+class PathGainIn(GainIn):
+    """A path's complex gain: not zero (a path of zero gain carries nothing; leave it out)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={"anyOf": [{"properties": {"re": _NONZERO}}, {"properties": {"im": _NONZERO}}]}
+    )
+
+    @model_validator(mode="after")
+    def _nonzero(self) -> "PathGainIn":
+        if self.re == 0.0 and self.im == 0.0:
+            raise ValueError("a path's gain must not be zero (a path of zero gain carries nothing: leave it out)")
+        return self
+
+
 class BandGainIn(Strict):
     frequency_hz: FrequencyHz = Field(description="Frequency [Hz].")
     gain: GainIn = Field(description="Complex path gain at that frequency [-].")
@@ -349,18 +405,32 @@ class PathIn(Strict):
     """A path of a profile: at least delay and complex gain; the other channel fields are accepted and ignored."""
 
     delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute (phase) delay [s].")
-    gain: GainIn = Field(description="Complex gain [-].")
+    gain: PathGainIn = Field(description="Complex gain [-], not zero.")
     group_delay_s: float | None = Field(None, ge=0.0, le=1e-3, description="Absolute group delay [s] (as a channel "
                                         "profile gives it).")
     gain_db: float | None = None
     length_m: float | None = None
     interactions: list[Interaction] | None = Field(None, max_length=64)
     segments: list[Segment] | None = Field(None, max_length=128)
-    band_gains: list[BandGainIn] | None = Field(None, max_length=MAX_BAND_POINTS)
+    band_gains: list[BandGainIn] | None = Field(
+        None, max_length=MAX_BAND_POINTS,
+        description="Gains per frequency: used when every path lists the same distinct frequencies, else ignored.",
+    )
 
 
+#: JSON schema of "some path has a non-zero gain" (``contains``): a profile of zero gains carries no signal.
 class ProfileIn(Strict):
     """A channel profile: ``profiles[i]`` of POST /v1/channel as is, or a hand-made ``{"paths": [...]}``."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "oneOf": [
+                {"properties": {"gains_include_delay_phase": {"const": False}}},
+                {"required": ["gains_include_delay_phase", "reference_frequency_hz"],
+                 "properties": {"gains_include_delay_phase": {"const": True}}},
+            ],
+        }
+    )
 
     paths: list[PathIn] = Field(min_length=1, max_length=MAX_PROFILE_PATHS)
     receiver: str | None = Field(None, max_length=64)
@@ -384,8 +454,9 @@ class ProfileIn(Strict):
         "phase exp(-j 2 pi f delay_k); true (profiles from POST /v1/channel): they include it at "
         "reference_frequency_hz (band_gains at their own frequencies).",
     )
-    reference_frequency_hz: float | None = Field(
-        None, ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ, description="Frequency of `gain` when gains_include_delay_phase [Hz]."
+    reference_frequency_hz: float = Field(
+        None, ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ,
+        description="Frequency of `gain` [Hz]: required when gains_include_delay_phase is true.",
     )
 
     @model_validator(mode="after")
@@ -411,9 +482,9 @@ class LinkIn(Strict):
                                       "(default the MICS limit, 25 uW = -16.02 dBm).")
     noise_figure_db: float = Field(0.0, ge=0.0, le=60.0, description="Receiver noise figure F [dB] (default 0: the "
                                    "thermal floor).")
-    temperature_k: float = Field(290.0, gt=0.0, le=1e4, description="Noise temperature T [K] (default 290 K, the "
+    temperature_k: float = Field(290.0, ge=1.0, le=1e4, description="Noise temperature T [K] (default 290 K, the "
                                  "noise figure's reference).")
-    bandwidth_hz: float | None = Field(None, gt=0.0, le=1e12, description="Noise bandwidth B [Hz] (default the "
+    bandwidth_hz: float | None = Field(None, ge=1.0, le=1e12, description="Noise bandwidth B [Hz] (default the "
                                        "method's: TOA fs / 2, PDOA the tones' span, bounds their bandwidth).")
 
 
@@ -422,8 +493,14 @@ class RangingCommon(Strict):
     snr_db: float = Field(30.0, ge=-50.0, le=200.0, description="Signal-to-noise ratio [dB] (or give `link`).")
     link: LinkIn | None = Field(None, description="Derive the SNR from this link budget and the profile's path "
                                 "gain instead of `snr_db`.")
-    trials: int = Field(100, ge=1, le=MAX_TRIALS, description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}).")
-    seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the noise generator [-].")
+    trials: Int = Field(
+        100, ge=1, le=MAX_TRIALS,
+        description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}; default 100, or this server's limit "
+        "if lower).",
+    )
+    seed: Int = Field(
+        0, ge=0, le=2**53 - 1, description="Seed of the noise generator [-] (<= 2^53 - 1: exact as any JSON number)."
+    )
     relative_permittivity: float = Field(
         27.9, ge=1.0, le=1000.0, description="Assumed relative permittivity for delay-to-distance [-]."
     )
@@ -444,7 +521,9 @@ class ToaRequest(RangingCommon):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
+            "not": {"required": ["snr_db", "link"]},  # the link budget sets the SNR: not both
             "examples": [
                 {
                     "profile": _EXAMPLE_PROFILE,
@@ -470,6 +549,7 @@ class PdoaRequest(RangingCommon):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {
@@ -481,14 +561,24 @@ class PdoaRequest(RangingCommon):
                     "seed": 1,
                     "true_distance_m": 0.076,
                 }
-            ]
+            ],
+            # at most one of frequencies_hz and band (neither: the profile's own band, a channel profile's
+            # band_gains); the link budget sets the SNR: not both
+            "allOf": [{"not": {"required": ["frequencies_hz", "band"]}}, {"not": {"required": ["snr_db", "link"]}}],
         },
     )
     method: Literal["two_tone", "regression"] = Field("two_tone", description="PDOA estimator.")
-    frequencies_hz: list[FrequencyHz] | None = Field(
-        None, min_length=2, max_length=MAX_BAND_POINTS, description="Tone frequencies [Hz] (or give band)."
+    frequencies_hz: list[FrequencyHz] = Field(
+        None,
+        min_length=2,
+        max_length=MAX_BAND_POINTS,
+        json_schema_extra={"uniqueItems": True},
+        description="Distinct tone frequencies [Hz], in any order (two_tone uses the lowest and the highest; "
+        "regression needs them equally spaced). At most one of frequencies_hz and band; neither: the profile's band.",
     )
-    band: Band | None = Field(None, description="Equally spaced tones (or give frequencies_hz).")
+    band: Band = Field(
+        None, description="Equally spaced tones (two_tone uses its ends). At most one of frequencies_hz and band; neither: the profile's band."
+    )
     duration_s: float | None = Field(
         None, ge=1e-12, le=1e-3, description="Observation time per tone [s] (default: the estimator's, 1 / tone spacing)."
     )
@@ -496,7 +586,9 @@ class PdoaRequest(RangingCommon):
     @model_validator(mode="after")
     def _tones(self) -> "PdoaRequest":
         if self.frequencies_hz is not None and self.band is not None:
-            raise ValueError("give frequencies_hz or band, not both")
+            raise ValueError("give at most one of frequencies_hz or band (neither: the profile's own band)")
+        if self.frequencies_hz is not None and len(set(self.frequencies_hz)) != len(self.frequencies_hz):
+            raise ValueError("frequencies_hz must be distinct")
         return self
 
 
@@ -504,24 +596,38 @@ class RssRequest(RangingCommon):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
+            "not": {"required": ["snr_db", "link"]},  # the link budget sets the SNR: not both
             "examples": [
                 {"profile": _EXAMPLE_PROFILE, "model": "cm2_deep_tissue", "trials": 200, "seed": 1, "true_distance_m": 0.076}
-            ]
+            ],
+            "oneOf": [
+                {"required": ["profile"], "properties": {"rss_dbm": False}},
+                {"required": ["rss_dbm", "transmit_power_dbm"], "properties": {"profile": False}},
+            ],
         },
     )
     model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
         "cm2_deep_tissue", description="IEEE 802.15.6 CM2 path-loss model (thesis Table 2.2)."
     )
-    profile: ProfileIn | None = Field(None, description="Channel profile: its path gain gives the path loss (or give rss_dbm).")
-    rss_dbm: float | None = Field(None, ge=-300.0, le=100.0, description="Measured received power [dBm] (with transmit_power_dbm).")
-    transmit_power_dbm: float | None = Field(
-        None, ge=-100.0, le=100.0, description="Transmit power [dBm], with rss_dbm; not needed with a profile."
+    profile: ProfileIn = Field(
+        None,
+        description="Channel profile: its path gain gives the path loss. Give it, or rss_dbm with transmit_power_dbm.",
+    )
+    rss_dbm: float = Field(
+        None, ge=-300.0, le=100.0,
+        description="Measured received power [dBm], with transmit_power_dbm (not with a profile).",
+    )
+    transmit_power_dbm: float = Field(
+        None, ge=-100.0, le=100.0, description="Transmit power [dBm], with rss_dbm; ignored with a profile."
     )
     shadowing: bool = Field(True, description="Draw log-normal shadowing per trial (false: deterministic inversion).")
 
     @model_validator(mode="after")
     def _source(self) -> "RssRequest":
+        if self.profile is not None and self.rss_dbm is not None:
+            raise ValueError("give a profile or rss_dbm, not both")
         if self.profile is None and (self.rss_dbm is None or self.transmit_power_dbm is None):
             raise ValueError("give a profile, or rss_dbm together with transmit_power_dbm")
         return self
@@ -565,7 +671,14 @@ class ToaBoundRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
+            # the SNR, or a link with the channel's gain, not both
+            "anyOf": [{"required": ["snr_db"], "properties": {"snr_db": {"type": "number"}}},
+                      {"required": ["link", "path_gain_db"],
+                       "properties": {"link": {"type": "object"}, "path_gain_db": {"type": "number"}}}],
+            "not": {"required": ["snr_db", "link"],
+                    "properties": {"snr_db": {"type": "number"}, "link": {"type": "object"}}},
             "examples": [
                 {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30, "relative_permittivity": 27.9}
             ]
@@ -574,7 +687,7 @@ class ToaBoundRequest(Strict):
     carrier_hz: float = Field(ge=1.0, le=1e12, description="Tone frequency [Hz].")
     duration_s: float = Field(ge=1e-15, le=1.0, description="Observation time T0 [s].")
     bandwidth_hz: float = Field(ge=1.0, le=1e12, description="Receiver (noise) bandwidth W [Hz].")
-    snr_db: float | None = Field(None, ge=-100.0, le=200.0, description="Signal-to-noise ratio [dB] (or give `link` "
+    snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="Signal-to-noise ratio [dB] (or give `link` "
                                  "and `path_gain_db`).")
     relative_permittivity: float = Field(27.9, ge=1.0, le=1000.0, description="Relative permittivity [-].")
     delay_s: float = Field(0.0, ge=0.0, le=1.0, description="True delay tau [s].")
@@ -587,7 +700,14 @@ class PdoaBoundRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
+            # the SNR, or a link with the channel's gain, not both
+            "anyOf": [{"required": ["snr_db"], "properties": {"snr_db": {"type": "number"}}},
+                      {"required": ["link", "path_gain_db"],
+                       "properties": {"link": {"type": "object"}, "path_gain_db": {"type": "number"}}}],
+            "not": {"required": ["snr_db", "link"],
+                    "properties": {"snr_db": {"type": "number"}, "link": {"type": "object"}}},
             "examples": [
                 {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "duration_s": 50e-9, "relative_permittivity": 27.9}
             ]
@@ -595,7 +715,7 @@ class PdoaBoundRequest(Strict):
     )
     center_hz: float = Field(ge=1.0, le=1e12, description="Centre frequency f0 [Hz].")
     tone_spacing_hz: float = Field(ge=1e-3, le=1e12, description="Tone spacing W [Hz] (< 2 center_hz).")
-    snr_db: float | None = Field(None, ge=-100.0, le=200.0, description="In-band signal-to-noise ratio [dB] (or "
+    snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="In-band signal-to-noise ratio [dB] (or "
                                  "give `link` and `path_gain_db`).")
     duration_s: float | None = Field(
         None, ge=1e-15, le=1.0, description="Observation time T0 [s] (default 1 / tone_spacing_hz, i.e. W T0 = 1)."
@@ -611,6 +731,7 @@ class RssBoundRequest(Strict):
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={"examples": [{"shadowing_db": 2.236, "path_loss_exponent": 3.0, "distance_m": 0.1}]},
     )
     shadowing_db: float = Field(ge=0.0, le=100.0, description="Shadowing standard deviation sigma [dB].")
@@ -699,20 +820,24 @@ class ScenariosResponse(Out):
     scenarios: list[ScenarioOut]
 
 
-class ManifestOrgan(Strict):
-    tissue: str | None = Field(None, max_length=64, description="Gabriel 1996 tissue name (GET /v1/tissues).")
-    relative_permittivity: float | None = Field(None, ge=1.0, le=1000.0, description="Explicit medium eps_r' [-].")
-    conductivity_s_per_m: float | None = Field(None, ge=0.0, le=1000.0, description="Explicit medium conductivity [S/m].")
+class ManifestTissue(Strict):
+    tissue: Literal[TISSUE_NAMES] = Field(  # type: ignore[valid-type]
+        description="Gabriel 1996 tissue (GET /v1/tissues)."
+    )
 
-    @model_validator(mode="after")
-    def _one(self) -> "ManifestOrgan":
-        if (self.tissue is None) == (self.relative_permittivity is None):
-            raise ValueError("give either tissue or relative_permittivity (+ conductivity_s_per_m)")
-        return self
+
+class ManifestMedium(Strict):
+    relative_permittivity: float = Field(ge=1.0, le=gltf.MAX_PERMITTIVITY, description="Explicit medium eps_r' [-].")
+    conductivity_s_per_m: float = Field(
+        0.0, ge=0.0, le=gltf.MAX_CONDUCTIVITY_S_PER_M, description="Explicit medium conductivity [S/m]."
+    )
 
 
 class ManifestSite(Strict):
-    kind: Literal["capsule", "sensor"] | None = Field(None, description="Default: sensor in air, else capsule.")
+    kind: Literal["capsule", "sensor"] | None = Field(
+        None, description="Required for a site inside tissue (capsule, or a contact sensor in the skin); "
+        "without it a site in air is a sensor."
+    )
     position_m: Vec3 = Field(description="Position [m] (always metres, whatever `units`).")
 
 
@@ -727,11 +852,16 @@ class ManifestCentreline(Strict):
 
 
 class Manifest(Strict):
-    """The JSON part of an upload (docs/api.md "POST /v1/phantoms"); checked again, strictly, by the loader."""
+    """The JSON part of an upload (docs/api.md "POST /v1/phantoms").
+
+    This model documents the manifest in the API schema; the one validator is
+    ``raytrace.body.gltf.validate_manifest`` (with the loader's checks against the
+    mesh), whose constants these bounds are."""
 
     model_config = ConfigDict(
         extra="forbid",
         allow_inf_nan=False,
+        strict=True,
         json_schema_extra={
             "examples": [
                 {
@@ -741,20 +871,29 @@ class Manifest(Strict):
                         "body": {"tissue": "muscle"},
                         "organ": {"relative_permittivity": 11.6, "conductivity_s_per_m": 0.08},
                     },
-                    "sites": {"capsule": [0.0, 0.0, 0.01], "sensor": {"kind": "sensor", "position_m": [0.0, -0.15, 0.0]}},
+                    "sites": {
+                        "capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.01]},
+                        "sensor": [0.0, -0.15, 0.0],
+                    },
                 }
             ]
         },
     )
 
-    name: str = Field(min_length=1, max_length=128, description="Human name of the phantom.")
-    description: str = Field("", max_length=2000)
-    units: Literal["m", "mm"] = Field(description="Unit of the mesh coordinates (and of `[x, y, z]` sites).")
-    organs: dict[Name, ManifestOrgan] = Field(min_length=1, max_length=256, description="Mesh node name -> medium.")
+    name: str = Field(min_length=1, max_length=gltf.MAX_NAME_CHARS, description="Human name of the phantom.")
+    description: str = Field("", max_length=gltf.MAX_DESCRIPTION_CHARS)
+    units: Literal[tuple(gltf.UNITS)] = Field(  # type: ignore[valid-type]
+        description=f"Unit of the mesh coordinates (and of `[x, y, z]` sites); the mesh's largest extent in "
+        f"metres must lie in {gltf.MIN_EXTENT_M:g}-{gltf.MAX_EXTENT_M:g} m."
+    )
+    organs: dict[Name, ManifestTissue | ManifestMedium] = Field(
+        min_length=1, max_length=gltf.MAX_ORGANS, description="Mesh node name -> medium (a tissue, or an explicit one)."
+    )
     sites: dict[Name, Vec3 | ManifestSite] = Field(
         default_factory=dict,
-        max_length=1024,
-        description="Site name -> [x, y, z] in `units`, or {kind, position_m} with the position in metres.",
+        max_length=gltf.MAX_SITES,
+        description="Site name -> [x, y, z] in `units` (a site in air: a sensor), or {kind, position_m} with the "
+        "position in metres (kind required inside tissue).",
     )
     centrelines: dict[Name, ManifestCentreline] = Field(
         default_factory=dict,

@@ -9,9 +9,10 @@ below); a setting can lower a limit, never raise it above its schema ceiling
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
-from pydantic import Field, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from raytrace.solver.config import TracerConfig
 
@@ -22,6 +23,11 @@ MAX_RECEIVERS = 64
 MAX_BAND_POINTS = 201
 MAX_TRIALS = 10_000
 MAX_PROFILE_PATHS = 10_000
+
+#: Shortest accepted API key (characters): a key is a bearer secret, not a password.
+MIN_API_KEY_CHARS = 16
+
+CommaList = Annotated[list[str], NoDecode]
 
 
 class Settings(BaseSettings):
@@ -52,6 +58,18 @@ class Settings(BaseSettings):
     )
     max_trials: int = Field(
         MAX_TRIALS, ge=1, le=MAX_TRIALS, description="Max Monte Carlo `trials` per ranging request."
+    )
+    max_ranging_samples: int = Field(
+        20_000_000,
+        ge=1,
+        description="Work bound of one TOA request, refused (422) before it starts beyond it: samples per "
+        "trial x trials, and samples per trial x paths (synthesis) [-].",
+    )
+    max_json_body_bytes: int = Field(
+        256 * 1024, ge=1024, description="Max JSON body of channel and bounds requests [bytes]; beyond it: 413."
+    )
+    max_ranging_body_bytes: int = Field(
+        16 * 1024 * 1024, ge=1024, description="Max JSON body of ranging requests (a profile) [bytes]; beyond it: 413."
     )
     max_ray_segments: int = Field(
         50_000_000,
@@ -113,6 +131,42 @@ class Settings(BaseSettings):
         20_000, ge=1, le=100_000, description="Max traces (capsule positions x frequencies) of one sweep."
     )
 
+    # Access (docs/service.md, "Security").
+    api_keys: CommaList = Field(
+        default_factory=list,
+        repr=False,
+        description=f"Comma-separated API keys (each >= {MIN_API_KEY_CHARS} characters). Empty: uploads and "
+        "deletes are open. Set: they need header `X-API-Key`, and only the key that uploaded a phantom deletes it.",
+    )
+    cors_origins: CommaList = Field(
+        default_factory=list,
+        description="Comma-separated origins (`https://host:port`) whose web pages may call the API "
+        "(CORS). Empty: none; writes carrying any other `Origin` are refused (403).",
+    )
+
+    @field_validator("api_keys", "cors_origins", mode="before")
+    @classmethod
+    def _split(cls, value):
+        if isinstance(value, str):
+            return [part.strip() for part in value.split(",") if part.strip()]
+        return value
+
+    @field_validator("api_keys")
+    @classmethod
+    def _long_keys(cls, keys: list[str]) -> list[str]:
+        for key in keys:
+            if len(key) < MIN_API_KEY_CHARS or not key.isprintable() or " " in key:
+                raise ValueError(f"each API key needs >= {MIN_API_KEY_CHARS} printable characters and no spaces")
+        return keys
+
+    @field_validator("cors_origins")
+    @classmethod
+    def _origins(cls, origins: list[str]) -> list[str]:
+        for origin in origins:
+            if not origin.startswith(("http://", "https://")) or origin.count("/") != 2:
+                raise ValueError(f"a CORS origin is scheme://host[:port] without a path, got {origin!r}")
+        return [o.lower() for o in origins]
+
     @model_validator(mode="after")
     def _resolve(self) -> "Settings":
         self.data_dir = Path(self.data_dir).expanduser()
@@ -129,6 +183,6 @@ def settings_table_markdown() -> str:
     """The settings as a Markdown table (for the README)."""
     lines = ["| Variable | Default | Meaning |", "|---|---|---|"]
     for name, f in Settings.model_fields.items():
-        default = f.default
+        default = f.default if f.default_factory is None else (", ".join(f.default_factory()) or "(none)")
         lines.append(f"| `CAPSULE_RT_{name.upper()}` | `{default}` | {f.description} |")
     return "\n".join(lines)

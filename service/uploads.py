@@ -17,7 +17,7 @@ except ImportError:  # python-multipart < 0.0.13 named its module `multipart`
     from multipart.multipart import MultipartParser, parse_options_header  # type: ignore[no-redef]
 from starlette.requests import ClientDisconnect, Request
 
-from service.errors import Unprocessable, UploadTooLarge
+from service.errors import InvalidMesh, Unprocessable, UploadTooLarge
 
 GLB_MAGIC = b"glTF"
 MULTIPART_OVERHEAD_BYTES = 16 * 1024
@@ -99,18 +99,19 @@ async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes:
                 )
             parts[part.name] = part
 
-    parser = MultipartParser(
-        params[b"boundary"],
-        {
-            "on_part_begin": on_part_begin,
-            "on_header_field": on_header_field,
-            "on_header_value": on_header_value,
-            "on_header_end": on_header_end,
-            "on_headers_finished": on_headers_finished,
-            "on_part_data": on_part_data,
-            "on_part_end": on_part_end,
-        },
-    )
+    callbacks = {
+        "on_part_begin": on_part_begin,
+        "on_header_field": on_header_field,
+        "on_header_value": on_header_value,
+        "on_header_end": on_header_end,
+        "on_headers_finished": on_headers_finished,
+        "on_part_data": on_part_data,
+        "on_part_end": on_part_end,
+    }
+    try:  # python-multipart refuses e.g. a boundary over 256 characters (RFC 2046 allows 70)
+        parser = MultipartParser(params[b"boundary"], callbacks)
+    except Exception as exc:
+        raise Unprocessable(f"malformed multipart header: {exc}", loc=["header", "content-type"]) from exc
     received = 0
     try:
         async for chunk in request.stream():
@@ -144,12 +145,8 @@ async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes:
         if name not in parts:
             raise Unprocessable(f"missing part '{name}'", loc=["body", name])
     mesh = parts["mesh"]
-    if mesh.filename is not None and not mesh.filename.lower().endswith(".glb"):
-        raise Unprocessable(
-            f"only binary glTF (.glb) meshes are accepted, got file name {mesh.filename!r}", loc=["body", "mesh"]
-        )
     if bytes(mesh.data[:4]) != GLB_MAGIC:
-        raise Unprocessable(
+        raise InvalidMesh(
             "the mesh is not a binary glTF (.glb): it does not start with the magic bytes 'glTF'",
             loc=["body", "mesh"],
         )

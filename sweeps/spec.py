@@ -32,6 +32,7 @@ centreline) is checked when the sweep is planned (:mod:`sweeps.plan`), before an
 
 from __future__ import annotations
 
+import dataclasses
 import copy
 import hashlib
 import json
@@ -421,6 +422,11 @@ class SweepSpec:
                 raise err from None
             except TypeError as exc:
                 raise _fail(str(exc), "channel") from None
+        # unset knobs are at most the limits (as the service's channel requests); set ones are refused above
+        lowered = {key: cap for key, cap in (("rays", limits.max_rays), ("max_interactions", limits.max_interactions))
+                   if key not in knobs and getattr(spec, key) > cap}
+        if lowered:
+            spec = dataclasses.replace(spec, **lowered)
         if spec.rays > limits.max_rays:
             raise _fail(f"{spec.rays} exceeds the limit of {limits.max_rays}", "channel.rays")
         if spec.max_interactions > limits.max_interactions:
@@ -435,7 +441,7 @@ class SweepSpec:
 
         out["ranging"] = _ranging(data.get("ranging"), tuple(freqs), limits)
         out["localization"] = localization.validate(data.get("localization"), out["ranging"], "localization")
-        out["trials"] = _int(data.get("trials", 100), "trials", 1, limits.max_trials)
+        out["trials"] = _int(data.get("trials", min(100, limits.max_trials)), "trials", 1, limits.max_trials)
         seed = data.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
             raise _fail(f"must be an integer in [0, 2^63), got {seed!r}", "seed")

@@ -150,7 +150,7 @@ def phantom_manifest(**overrides) -> dict:
         "name": "test box",
         "units": "m",
         "organs": {"body": {"tissue": "muscle"}, "organ": {"relative_permittivity": 11.6, "conductivity_s_per_m": 0.08}},
-        "sites": {"capsule": [0.0, 0.0, 0.01], "sensor": [0.0, -0.15, 0.0]},
+        "sites": {"capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.01]}, "sensor": [0.0, -0.15, 0.0]},
     }
     manifest.update(overrides)
     return manifest

@@ -13,21 +13,35 @@ mesh nodes are named after organs, and a manifest::
      "centrelines": {"gi_tract": {"pieces": [{"organ": "<node name>",      # optional
                                               "points": [[x, y, z], ...]}, ...]}}}   # in `units`
 
-Site kinds: the bare-list form has no kind; it is inferred from where the
-point lies: in air -> ``sensor`` (a skin-worn receiver), inside any organ ->
-``capsule``. The object form states it (``kind`` optional there too, same
-inference) and, as its field name says, is always in metres. Names of
-organs and sites match ``^[A-Za-z0-9_.-]{1,64}$``; unknown keys anywhere in
-the manifest are rejected. Centrelines (``raytrace.body.centreline``; the GI
-tract is named ``gi_tract``) are chains of polyline pieces, each inside the
-organ it names: every point, sampled every millimetre, must lie in that
-organ's medium, or the upload is refused naming the piece.
+Site kinds: the object form may state ``kind``; without it (and always for
+the bare-list form) the kind is inferred only where that is unambiguous: a
+site in air is a ``sensor`` (an off-body receiver). A site inside tissue may
+be a capsule or a contact sensor worn in the skin, so it must state its kind
+(``{"kind": "sensor", "position_m": [...]}``), or the upload is refused. The
+object form is always in metres, as its field name says. Every site obeys
+the rules of a channel request's antenna (inside the phantom's bounds grown
+by half their diagonal, off every organ surface), so a site that uploads is
+a site the channel endpoint accepts. Names of organs and sites match
+:data:`NAME_PATTERN`; unknown keys anywhere in the manifest are rejected.
+
+Units are checked against the mesh: its largest extent must lie between
+:data:`MIN_EXTENT_M` and :data:`MAX_EXTENT_M` once scaled (a body, an organ
+phantom, a room-sized test scene), so a millimetre mesh declared in metres,
+or the reverse, is refused with a message naming the units.
+
+This module holds the one validator of the manifest; the service's
+``Manifest`` model only documents it in the API schema.
+Centrelines (``raytrace.body.centreline``; the GI tract is named ``gi_tract``) are
+chains of polyline pieces, each inside the organ it names: every point, sampled every
+millimetre, must lie in that organ's medium, or the upload is refused naming the piece.
 
 Loading is all-or-nothing: any defect raises
 :class:`~raytrace.errors.PhantomValidationError` (or
 :class:`~raytrace.errors.UnknownTissueError`, both ``InputError``) whose
-``field`` names the manifest entry, organ or mesh node and whose message
-says what is wrong; no partially built phantom escapes.
+``field`` starts with ``manifest`` (the manifest's entries and the organs it
+names, e.g. ``("manifest", "organs", "liver")``) or ``mesh`` (the .glb
+container, e.g. ``mesh.nodes[3].name``) and whose message says what is
+wrong; no partially built phantom escapes.
 
 The .glb is decoded here, not by ``trimesh.load``: the container and every
 accessor are bounds-checked against the byte and triangle caps *before*
@@ -62,7 +76,7 @@ import trimesh
 
 from raytrace.body.centreline import Centreline
 from raytrace.body.phantom import AIR_INDEX, Material, Organ, Phantom, Site
-from raytrace.errors import InputError, InvalidGeometryError, PhantomValidationError, UnknownTissueError
+from raytrace.errors import Field, InputError, InvalidGeometryError, PhantomValidationError, UnknownTissueError
 
 __all__ = [
     "DEFAULT_MAX_BYTES",
@@ -73,6 +87,7 @@ __all__ = [
     "export_glb",
     "export_manifest",
     "load_phantom",
+    "parse_manifest",
     "validate_manifest",
 ]
 
@@ -81,10 +96,18 @@ DEFAULT_MAX_TRIANGLES = 2_000_000
 MAX_ORGANS = 256
 MAX_SITES = 1024
 MAX_CENTRELINES = 16
+MAX_NAME_CHARS = 128
+MAX_DESCRIPTION_CHARS = 2000
 MAX_PERMITTIVITY = 1000.0
 MAX_CONDUCTIVITY_S_PER_M = 1000.0
-NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
-_UNITS = {"m": 1.0, "mm": 1e-3}
+#: Organ, site (and mesh node) names: also what a channel request may name as a ``site``.
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+UNITS = {"m": 1.0, "mm": 1e-3}
+#: Largest extent of an uploaded mesh, in metres after applying ``units``: below a
+#: centimetre no body nor test scene exists; beyond 20 m neither (a room of a few metres,
+#: how users compare with other ray tracers, stays valid).
+MIN_EXTENT_M = 0.01
+MAX_EXTENT_M = 20.0
 
 _GLB_MAGIC = b"glTF"
 _CHUNK_JSON = 0x4E4F534A
@@ -94,11 +117,32 @@ _DTYPES = {5121: np.dtype("<u1"), 5123: np.dtype("<u2"), 5125: np.dtype("<u4"), 
 _TRIANGLES = 4
 
 
-def _fail(reason: str, field: str) -> PhantomValidationError:
+def _fail(reason: str, field: Field) -> PhantomValidationError:
     return PhantomValidationError(reason, field=field)
 
 
+def _brief(value: Any) -> str:
+    """A short repr of a user value for a message (never echo a megabyte back)."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
 # ================================================================ manifest
+def parse_manifest(text: bytes | str) -> Any:
+    """The manifest's JSON text -> Python value. Refuses (``field`` "manifest") text that is
+    not UTF-8 JSON, nests too deeply for the parser, or holds an integer too long to read."""
+    try:
+        if isinstance(text, bytes):
+            text = text.decode("utf-8")
+        return json.loads(text)
+    except UnicodeDecodeError as exc:
+        raise _fail(f"the manifest is not UTF-8 text: {exc}", "manifest") from None
+    except RecursionError:
+        raise _fail("the manifest nests too deeply to be parsed", "manifest") from None
+    except ValueError as exc:  # JSONDecodeError, and Python's limit on the digits of an integer
+        raise _fail(f"the manifest is not valid JSON: {_brief(str(exc))}", "manifest") from None
+
+
 def validate_manifest(manifest: Any) -> dict:
     """Check a manifest strictly and return a normalised copy.
 
@@ -109,21 +153,21 @@ def validate_manifest(manifest: Any) -> dict:
     if not isinstance(manifest, Mapping):
         raise _fail("the manifest must be a JSON object", "manifest")
     allowed = {"name", "description", "units", "organs", "sites", "centrelines"}
-    unknown = sorted(set(manifest) - allowed)
+    unknown = sorted(str(k) for k in set(manifest) - allowed)
     if unknown:
-        raise _fail(f"unknown key {unknown[0]!r}; allowed: {', '.join(sorted(allowed))}",
-                    f"manifest.{unknown[0]}")
+        raise _fail(f"unknown key {_brief(unknown[0])}; allowed: {', '.join(sorted(allowed))}",
+                    ("manifest", unknown[0]))
     name = manifest.get("name")
-    if not isinstance(name, str) or not 1 <= len(name) <= 128 or not name.isprintable():
-        raise _fail("required: a name of 1-128 printable characters", "manifest.name")
+    if not isinstance(name, str) or not 1 <= len(name) <= MAX_NAME_CHARS or not name.isprintable():
+        raise _fail(f"required: a name of 1-{MAX_NAME_CHARS} printable characters", "manifest.name")
     description = manifest.get("description", "")
-    if not isinstance(description, str) or len(description) > 2000:
-        raise _fail("must be a string of at most 2000 characters", "manifest.description")
+    if not isinstance(description, str) or len(description) > MAX_DESCRIPTION_CHARS:
+        raise _fail(f"must be a string of at most {MAX_DESCRIPTION_CHARS} characters", "manifest.description")
     if "units" not in manifest:
         raise _fail("required: the unit of the mesh coordinates, 'm' or 'mm'", "manifest.units")
     units = manifest["units"]
-    if not isinstance(units, str) or units not in _UNITS:
-        raise _fail(f"must be 'm' or 'mm', got {units!r}", "manifest.units")
+    if not isinstance(units, str) or units not in UNITS:
+        raise _fail(f"must be 'm' or 'mm', got {_brief(units)}", "manifest.units")
 
     organs_in = manifest.get("organs")
     if not isinstance(organs_in, Mapping) or not organs_in:
@@ -132,7 +176,7 @@ def validate_manifest(manifest: Any) -> dict:
         raise _fail(f"{len(organs_in)} organs exceed the cap of {MAX_ORGANS}", "manifest.organs")
     organs: dict[str, Material] = {}
     for organ_name, spec in organs_in.items():
-        where = f"manifest.organs.{organ_name}"
+        where = ("manifest", "organs", organ_name)
         _check_name(organ_name, where)
         organs[organ_name] = _material(spec, where)
 
@@ -143,22 +187,22 @@ def validate_manifest(manifest: Any) -> dict:
         raise _fail(f"{len(sites_in)} sites exceed the cap of {MAX_SITES}", "manifest.sites")
     sites: dict[str, tuple[str | None, np.ndarray | None, np.ndarray | None]] = {}
     for site_name, spec in sites_in.items():
-        where = f"manifest.sites.{site_name}"
+        where = ("manifest", "sites", site_name)
         _check_name(site_name, where)
         if isinstance(spec, Mapping):
-            extra = sorted(set(spec) - {"kind", "position_m"})
+            extra = sorted(str(k) for k in set(spec) - {"kind", "position_m"})
             if extra:
-                raise _fail(f"unknown key {extra[0]!r}; allowed: kind, position_m", f"{where}.{extra[0]}")
+                raise _fail(f"unknown key {_brief(extra[0])}; allowed: kind, position_m", (*where, extra[0]))
             kind = spec.get("kind")
             if kind is not None and kind not in ("capsule", "sensor"):
-                raise _fail(f"must be 'capsule' or 'sensor', got {kind!r}", f"{where}.kind")
+                raise _fail(f"must be 'capsule' or 'sensor', got {_brief(kind)}", (*where, "kind"))
             if "position_m" not in spec:
-                raise _fail("required: [x, y, z] in metres", f"{where}.position_m")
-            sites[site_name] = (kind, None, _vec3(spec["position_m"], f"{where}.position_m"))
+                raise _fail("required: [x, y, z] in metres", (*where, "position_m"))
+            sites[site_name] = (kind, None, _vec3(spec["position_m"], (*where, "position_m")))
         else:
             sites[site_name] = (None, _vec3(spec, where), None)
     return {"name": name, "description": description, "units": units, "organs": organs, "sites": sites,
-            "centrelines": _centrelines(manifest.get("centrelines", {}), _UNITS[units])}
+            "centrelines": _centrelines(manifest.get("centrelines", {}), UNITS[units])}
 
 
 def _centrelines(spec: Any, scale: float) -> dict[str, Centreline]:
@@ -177,52 +221,58 @@ def _centrelines(spec: Any, scale: float) -> dict[str, Centreline]:
     return out
 
 
-def _check_name(name: Any, where: str) -> None:
+def _check_name(name: Any, where: Field) -> None:
     if not isinstance(name, str) or not NAME_PATTERN.match(name):
-        raise _fail(f"name {name!r} must match {NAME_PATTERN.pattern}", where)
+        raise _fail(f"name {_brief(name)} must match {NAME_PATTERN.pattern}", where)
 
 
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise _fail(f"must be a finite number, got {value!r}", where)
-    return float(value)
+def _number(value: Any, where: Field) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _fail(f"must be a finite number, got {_brief(value)}", where)
+    try:
+        out = float(value)
+    except OverflowError:  # an integer beyond the float range
+        out = math.inf
+    if not math.isfinite(out):
+        raise _fail(f"must be a finite number, got {_brief(value)}", where)
+    return out
 
 
-def _vec3(value: Any, where: str) -> np.ndarray:
+def _vec3(value: Any, where: Field) -> np.ndarray:
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise _fail(f"must be [x, y, z] (three numbers), got {value!r}", where)
+        raise _fail(f"must be [x, y, z] (three numbers), got {_brief(value)}", where)
     return np.array([_number(v, where) for v in value])
 
 
-def _material(spec: Any, where: str) -> Material:
+def _material(spec: Any, where: tuple) -> Material:
     if not isinstance(spec, Mapping):
         raise _fail('must be {"tissue": name} or {"relative_permittivity": x, '
                     '"conductivity_s_per_m": y}', where)
-    keys = set(spec)
+    keys = {str(k) for k in spec}
     if "tissue" in keys:
         if keys != {"tissue"}:
             extra = sorted(keys - {"tissue"})[0]
             raise _fail("give either tissue or relative_permittivity (+ conductivity_s_per_m), not both",
-                        f"{where}.{extra}")
+                        (*where, extra))
         tissue = spec["tissue"]
         if not isinstance(tissue, str):
-            raise _fail(f"must be a tissue name (string), got {tissue!r}", f"{where}.tissue")
+            raise _fail(f"must be a tissue name (string), got {_brief(tissue)}", (*where, "tissue"))
         try:
             return Material(tissue=tissue)
         except UnknownTissueError as exc:
-            raise UnknownTissueError(exc.reason, field=f"{where}.tissue") from None
+            raise UnknownTissueError(exc.reason, field=(*where, "tissue")) from None
     extra = sorted(keys - {"relative_permittivity", "conductivity_s_per_m"})
     if extra:
-        raise _fail(f"unknown key {extra[0]!r}", f"{where}.{extra[0]}")
+        raise _fail(f"unknown key {_brief(extra[0])}", (*where, extra[0]))
     if "relative_permittivity" not in keys:
         raise _fail("required: tissue, or relative_permittivity (+ conductivity_s_per_m)", where)
-    eps = _number(spec["relative_permittivity"], f"{where}.relative_permittivity")
-    sigma = _number(spec.get("conductivity_s_per_m", 0.0), f"{where}.conductivity_s_per_m")
+    eps = _number(spec["relative_permittivity"], (*where, "relative_permittivity"))
+    sigma = _number(spec.get("conductivity_s_per_m", 0.0), (*where, "conductivity_s_per_m"))
     if not 1.0 <= eps <= MAX_PERMITTIVITY:
-        raise _fail(f"must be in [1, {MAX_PERMITTIVITY:g}], got {eps:g}", f"{where}.relative_permittivity")
+        raise _fail(f"must be in [1, {MAX_PERMITTIVITY:g}], got {eps:g}", (*where, "relative_permittivity"))
     if not 0.0 <= sigma <= MAX_CONDUCTIVITY_S_PER_M:
         raise _fail(f"must be in [0, {MAX_CONDUCTIVITY_S_PER_M:g}], got {sigma:g}",
-                    f"{where}.conductivity_s_per_m")
+                    (*where, "conductivity_s_per_m"))
     return Material(relative_permittivity=eps, conductivity_s_per_m=sigma)
 
 
@@ -253,8 +303,10 @@ def _split_glb(data: bytes) -> tuple[dict, bytes]:
         raise _fail("the first chunk must be the JSON chunk", "mesh")
     try:
         document = json.loads(chunks[0][1].decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise _fail(f"the JSON chunk is not valid JSON: {exc}", "mesh") from None
+    except RecursionError:
+        raise _fail("the JSON chunk nests too deeply to be parsed", "mesh") from None
+    except ValueError as exc:  # bad UTF-8 or JSON, or an integer with too many digits
+        raise _fail(f"the JSON chunk is not valid JSON: {_brief(str(exc))}", "mesh") from None
     if not isinstance(document, dict):
         raise _fail("the JSON chunk must be an object", "mesh")
     binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == _CHUNK_BIN else b""
@@ -504,27 +556,34 @@ def load_phantom(
     if not isinstance(glb_bytes, (bytes, bytearray, memoryview)):
         raise _fail("the mesh must be the bytes of a .glb file", "mesh")
     spec = validate_manifest(manifest)
-    scale = _UNITS[spec["units"]]
+    scale = UNITS[spec["units"]]
     decoded = _decode(bytes(glb_bytes), max_bytes=max_bytes, max_triangles=max_triangles)
     missing = [n for n in spec["organs"] if n not in decoded]
     if missing:
         raise _fail(f"organ {missing[0]!r} is in the manifest but the .glb has no mesh node of "
                     f"that name (mesh nodes: {', '.join(sorted(decoded)) or 'none'})",
-                    f"manifest.organs.{missing[0]}")
+                    ("manifest", "organs", missing[0]))
     extra = [n for n in decoded if n not in spec["organs"]]
     if extra:
         raise _fail(f"mesh node {extra[0]!r} ({decoded[extra[0]][2]}) is not named in the "
                     "manifest's organs; every mesh node must be an organ", "manifest.organs")
+    _check_extent(decoded, spec["units"])
     organs = []
     for name, material in spec["organs"].items():
         vertices, faces, _ = decoded[name]
         # process=True merges identical positions (split vertices of exporters).
         mesh = trimesh.Trimesh(vertices * scale, faces, process=True, validate=False)
         organs.append(Organ(name, material, mesh))
-    phantom = Phantom.build(spec["name"], organs, sites={}, description=spec["description"],
-                            max_triangles=max_triangles)
-    if check_crossings:
-        _check_no_crossings(phantom)
+    try:
+        phantom = Phantom.build(spec["name"], organs, sites={}, description=spec["description"],
+                                max_triangles=max_triangles)
+        if check_crossings:
+            _check_no_crossings(phantom)
+    except PhantomValidationError as exc:  # Phantom.build names "organs.<name>": the manifest's organs
+        field = exc.field
+        if isinstance(field, str) and (field == "organs" or field.startswith("organs.")):
+            field = ("manifest", *field.split(".", 1))
+        raise PhantomValidationError(exc.reason, field=field) from None
     _add_sites(phantom, spec["sites"], scale)
     for name, line in spec["centrelines"].items():
         line.check_inside(phantom, field=f"manifest.centrelines.{name}")
@@ -533,20 +592,38 @@ def load_phantom(
     return phantom
 
 
-def _add_sites(phantom: Phantom, sites: dict, scale: float) -> None:
-    if not sites:
+def _check_extent(decoded: dict, units: str) -> None:
+    """Refuse a mesh whose size, read in ``units``, is no body or test scene (module doc)."""
+    lo = np.min([v.min(axis=0) for v, _, _ in decoded.values() if len(v)], axis=0)
+    hi = np.max([v.max(axis=0) for v, _, _ in decoded.values() if len(v)], axis=0)
+    extent_m = float(np.max(hi - lo)) * UNITS[units]
+    if MIN_EXTENT_M <= extent_m <= MAX_EXTENT_M:
         return
-    names = list(sites)
-    points = np.array([s[2] if s[2] is not None else s[1] * scale for s in sites.values()])
-    media = np.empty(len(names), dtype=np.int64)
-    for k, name in enumerate(names):  # one lookup per site names the offending one
-        try:
-            media[k] = phantom.medium_index(points[k][None, :], field=f"manifest.sites.{name}")[0]
+    hint = ""
+    for other, scale in UNITS.items():
+        if other != units and MIN_EXTENT_M <= extent_m / UNITS[units] * scale <= MAX_EXTENT_M:
+            hint = f"; if the coordinates are in {'metres' if other == 'm' else 'millimetres'}, declare units {other!r}"
+    raise _fail(f"with units {units!r} the mesh spans {extent_m:.3g} m along its largest axis, outside "
+                f"{MIN_EXTENT_M:g}-{MAX_EXTENT_M:g} m (no body or test scene has that size){hint}",
+                "manifest.units")
+
+
+def _add_sites(phantom: Phantom, sites: dict, scale: float) -> None:
+    for name, (kind, in_units, in_metres) in sites.items():
+        where = ("manifest", "sites", name)
+        point = in_metres if in_metres is not None else in_units * scale
+        try:  # the rules of a channel request's antenna: within bounds, off every surface
+            medium = phantom.antenna_medium(point, field=where)
         except InvalidGeometryError as exc:
             raise PhantomValidationError(exc.reason, field=exc.field) from None
-    for k, name in enumerate(names):
-        kind = sites[name][0] or ("sensor" if media[k] == AIR_INDEX else "capsule")
-        phantom.sites[name] = Site(name, kind, points[k].copy(), phantom.medium_name(int(media[k])))
+        if kind is None:
+            if medium != AIR_INDEX:
+                raise _fail(f"the site lies inside {phantom.medium_name(medium)!r}, where it may be a capsule "
+                            'or a contact sensor: give its kind, {"kind": "capsule" | "sensor", '
+                            '"position_m": [x, y, z]} (position in metres); only a site in air is '
+                            "taken as a sensor without one", where)
+            kind = "sensor"
+        phantom.sites[name] = Site(name, kind, np.array(point, dtype=float), phantom.medium_name(medium))
 
 
 def _check_no_crossings(phantom: Phantom) -> None:
@@ -581,7 +658,7 @@ def _check_no_crossings(phantom: Phantom) -> None:
             if crossing.any():
                 raise _fail(f"surface of organ {other.name!r} intersects organ {target.name!r} "
                             f"({int(crossing.sum())} of its edges cross it); organs must nest "
-                            "or be disjoint, never touch", f"organs.{other.name}")
+                            "or be disjoint, never touch", ("manifest", "organs", other.name))
 
 
 # ================================================================ export

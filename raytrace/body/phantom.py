@@ -26,7 +26,8 @@ from typing import Literal, Mapping, Sequence
 import numpy as np
 import trimesh
 
-from raytrace.errors import AmbiguousPositionError, InvalidGeometryError, PhantomValidationError
+from raytrace.body.selfintersect import self_intersections
+from raytrace.errors import AmbiguousPositionError, Field, InvalidGeometryError, PhantomValidationError
 from raytrace.physics.materials import AIR, Material  # noqa: F401 (AIR re-exported for phantom users)
 
 AIR_INDEX = -1
@@ -34,6 +35,10 @@ AIR_NAME = "air"
 
 #: Points closer than this to an organ surface have an ambiguous medium [m].
 SURFACE_TOLERANCE_M = 1e-6
+
+#: An antenna must lie inside the phantom's bounding box grown by this fraction of its
+#: diagonal: farther out, no path of interest exists and the launch wastes every ray.
+ANTENNA_BOUNDS_MARGIN_FRACTION = 0.5
 
 # Fixed, "irrational" probe directions for the medium lookup: never parallel
 # to a coordinate plane, so axis-aligned meshes are not hit edge-on.
@@ -155,7 +160,7 @@ class Phantom:
                 )
             pos = np.asarray(position, float).reshape(3)
             try:
-                index = phantom.medium_index(pos[None, :], field=f"sites.{site_name}")[0]
+                index = phantom.antenna_medium(pos, field=f"sites.{site_name}")
             except InvalidGeometryError as exc:
                 raise PhantomValidationError(exc.reason, field=exc.field) from exc
             phantom.sites[site_name] = Site(site_name, kind, pos, phantom.medium_name(index))
@@ -209,7 +214,24 @@ class Phantom:
         return self.parent[self.face_organ[face_index]]
 
     # --------------------------------------------------------- medium lookup
-    def medium_index(self, points_m: np.ndarray, *, field: str = "position_m") -> np.ndarray:
+    def antenna_medium(self, position_m, *, field: Field = "position_m") -> int:
+        """Medium index at an antenna position, after the two rules every antenna (a channel
+        request's or a site of an upload) obeys: inside the bounding box grown by
+        :data:`ANTENNA_BOUNDS_MARGIN_FRACTION` of its diagonal (else
+        :class:`InvalidGeometryError`), and off every organ surface (else
+        :class:`AmbiguousPositionError`)."""
+        position = np.asarray(position_m, dtype=float).reshape(3)
+        lo, hi = self.bounds_m
+        margin = ANTENNA_BOUNDS_MARGIN_FRACTION * float(np.linalg.norm(hi - lo))
+        if not np.isfinite(position).all() or np.any(position < lo - margin) or np.any(position > hi + margin):
+            raise InvalidGeometryError(
+                f"position {position.tolist()} m is outside the phantom's bounds {lo.tolist()}..{hi.tolist()} m "
+                f"(grown by {margin:.3g} m)",
+                field=field,
+            )
+        return int(self.medium_index(position[None, :], field=field)[0])
+
+    def medium_index(self, points_m: np.ndarray, *, field: Field = "position_m") -> np.ndarray:
         """Medium index (organ, or -1 for air) of each point, vectorised.
 
         One first-hit ray per point and probe direction: hitting organ X's
@@ -283,6 +305,16 @@ def _validate_organ_mesh(organ: Organ) -> None:
     if mesh.volume <= 0.0:
         raise PhantomValidationError(
             "mesh is oriented inwards (negative volume); normals must point outwards",
+            field=where,
+        )
+    crossing = self_intersections(mesh.vertices, mesh.faces, limit=1000)
+    if len(crossing):
+        i, j = (int(k) for k in crossing[0])
+        where_m = np.round(np.asarray(mesh.triangles_center[i], float), 4).tolist()
+        raise PhantomValidationError(
+            f"mesh intersects itself: {len(crossing)}{'+' if len(crossing) == 1000 else ''} pairs of "
+            f"triangles that share no vertex cross each other (e.g. triangles {i} and {j}, near "
+            f"{where_m} m); an organ must be one closed surface that does not pass through itself",
             field=where,
         )
 

@@ -111,7 +111,7 @@ class TracerConfig:
     #: quadratically; flat seeds otherwise keep iterating up to max_iterations. Slow but steady
     #: seeds do converge late (one at iteration 35 after 24 iterations of ~1 % progress), so the
     #: rule only drops flat ones. Measured on the default torso, 6 capsules x (the 12 sensor sites
-    #: + the 12 uniform-belt positions of tests/test_tracer_torso.py), 2200 paths: none lost;
+    #: + the 12 uniform-belt positions of tests/raytrace/test_tracer_torso.py), 2200 paths: none lost;
     #: window 10 with factor 0.9 lost one (-37.5 dB under its receiver's strongest), window 6 / 0.9
     #: two, a cap of 12 iterations eleven (one 0.7 dB under the strongest).
     stall_window: int = 10

@@ -50,7 +50,7 @@ def _finite(values: dict[str, float]) -> dict[str, float]:
     response_model=ToaBoundResponse,
     operation_id="bound_toa",
     summary="TOA CRLB of a single tone (thesis Eq 4.16-4.17)",
-    responses=error_responses(400, 422),
+    responses=error_responses(400, 413, 422),
 )
 async def bound_toa(req: ToaBoundRequest) -> ToaBoundResponse:
     """sigma_tau^2 = Is / (2 SNR W T0 Itau) for A cos(w (t - tau)) observed for T0
@@ -66,7 +66,7 @@ async def bound_toa(req: ToaBoundRequest) -> ToaBoundResponse:
     response_model=PdoaBoundResponse,
     operation_id="bound_pdoa",
     summary="Two-tone PDOA CRLB (thesis Eq 5.16, E/N0 = SNR W T0)",
-    responses=error_responses(400, 422),
+    responses=error_responses(400, 413, 422),
 )
 async def bound_pdoa(req: PdoaBoundRequest) -> PdoaBoundResponse:
     """sigma_s = [8 pi^2 (f0^2 + W^2/4) E/N0]^(-1/2) (carrier ambiguity resolved) and the
@@ -92,7 +92,7 @@ async def bound_pdoa(req: PdoaBoundRequest) -> PdoaBoundResponse:
     response_model=RssBoundResponse,
     operation_id="bound_rss",
     summary="RSS CRLB under log-normal shadowing",
-    responses=error_responses(400, 422),
+    responses=error_responses(400, 413, 422),
 )
 async def bound_rss(req: RssBoundRequest) -> RssBoundResponse:
     """sigma_d >= ln(10) sigma d / (10 n)."""

@@ -20,7 +20,7 @@ router = APIRouter(prefix="/v1", tags=["channel"])
     response_model=ChannelResponse,
     operation_id="compute_channel",
     summary="Ray-trace the channel from a capsule to skin sensors",
-    responses=error_responses(400, 404, 422, 503, 504),
+    responses=error_responses(400, 404, 413, 422, 503, 504),
 )
 async def compute_channel(req: ChannelRequest, request: Request) -> Response:
     """Every path (reflections, refractions, total internal reflections up to

@@ -2,20 +2,18 @@
 
 from __future__ import annotations
 
-import json
-
 import anyio.to_thread
 from fastapi import APIRouter, Path, Request, Response
 from fastapi.responses import JSONResponse
-from pydantic import ValidationError
 
-from raytrace.body import gltf
+from raytrace.body.gltf import load_phantom, parse_manifest
 from raytrace.solver.budget import Budget
 from service.deps import state
-from service.errors import Conflict, NotFound, StorageFull, Unprocessable, error_responses
+from service.errors import Conflict, NotFound, StorageFull, error_responses
 from service.registry import describe_phantom
-from service.schemas import ID_PATTERN, Manifest, PhantomOut, PhantomsResponse, UploadResponse
-from service.storage import is_upload_id, new_upload_id
+from service.schemas import ID_PATTERN, PhantomOut, PhantomsResponse, UploadResponse
+from service.security import check_owner, writer
+from service.storage import Full, Missing, is_upload_id, new_upload_id
 from service.uploads import read_upload
 
 router = APIRouter(prefix="/v1/phantoms", tags=["phantoms"])
@@ -35,6 +33,7 @@ _UPLOAD_BODY = {
                 "schema": {
                     "type": "object",
                     "required": ["mesh", "manifest"],
+                    "additionalProperties": False,
                     "properties": {
                         "mesh": {
                             "type": "string",
@@ -119,15 +118,24 @@ async def get_phantom_manifest(request: Request, phantom_id: str = PhantomIdPath
     operation_id="delete_phantom",
     summary="Delete an uploaded phantom",
     response_class=Response,
-    responses=error_responses(404, 409, 422),
+    responses=error_responses(401, 403, 404, 409, 422),
 )
 async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> Response:
-    """Built-in phantoms cannot be deleted (409)."""
-    reg = state(request).registry
+    """Built-in phantoms cannot be deleted (409). When the server requires API keys, only
+    the key that uploaded a phantom deletes it (docs/service.md, "Security")."""
+    st = state(request)
+    reg = st.registry
+    requester = writer(request, st.settings)
     if phantom_id in reg.builtins:
         raise Conflict(f"phantom {phantom_id!r} is built in and cannot be deleted", loc=["path", "phantom_id"])
     if not is_upload_id(phantom_id):
         raise NotFound(reg.unknown_message(phantom_id), loc=["path", "phantom_id"])
+    if requester is not None:
+        try:
+            stored_owner = await anyio.to_thread.run_sync(reg.store.owner, phantom_id)
+        except Missing:
+            raise NotFound(reg.unknown_message(phantom_id), loc=["path", "phantom_id"]) from None
+        check_owner(stored_owner, requester, phantom_id)
     removed = await anyio.to_thread.run_sync(reg.store.delete, phantom_id)
     reg.forget(phantom_id)
     if not removed:
@@ -142,45 +150,39 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
     operation_id="upload_phantom",
     summary="Upload a phantom: multipart `mesh` (.glb) + `manifest` (JSON)",
     openapi_extra=_UPLOAD_BODY,
-    responses=error_responses(400, 413, 422, 503, 504, 507),
+    responses=error_responses(400, 401, 403, 413, 422, 503, 504, 507),
 )
 async def upload_phantom(request: Request) -> JSONResponse:
-    """Validated like a built-in (closed, outward-oriented, non-intersecting organs;
-    every manifest organ present as a mesh node and vice versa; size and triangle
-    caps) and stored atomically in the data directory: it survives a restart and
-    is never half-written. The body is read as a stream and refused (413) as soon
-    as it passes the size cap."""
+    """Validated like a built-in (closed, outward-oriented organs that neither cross each
+    other nor themselves; every manifest organ present as a mesh node and vice versa; a
+    mesh size that fits its units; sites a channel request accepts; size and triangle
+    caps) and stored atomically in the data directory: it survives a restart and is
+    never half-written. The body is read as a stream and refused (413) as soon as it
+    passes the size cap. Layers are nested solids: a fat layer under the skin is the
+    whole solid inside the skin surface, not a shell (docs/service.md, "Uploads")."""
     st = state(request)
     settings = st.settings
-    if st.registry.upload_count() >= settings.max_uploads:
+    owner = writer(request, settings)
+    if st.registry.upload_count() >= settings.max_uploads:  # cheap early answer; enforced at commit
         raise StorageFull(
             f"{settings.max_uploads} uploaded phantoms stored already (the cap); delete one first",
             loc=["body", "mesh"],
         )
     request.scope["capsule_rt.error_loc"] = "body"
     parts = await read_upload(request, settings.max_upload_bytes, settings.max_manifest_bytes)
-    try:
-        raw_manifest = json.loads(parts.manifest.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise Unprocessable(f"manifest is not valid JSON: {exc}", loc=["body", "manifest"]) from exc
-    try:
-        Manifest.model_validate(raw_manifest)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        raise Unprocessable(
-            f"manifest: {err['msg']}", loc=["body", "manifest", *err.get("loc", ())]
-        ) from exc
-    manifest_dict = raw_manifest  # the loader re-validates it strictly; stored as sent
 
     def build(budget: Budget):
-        phantom = gltf.load_phantom(
-            parts.mesh, manifest_dict, max_bytes=settings.max_upload_bytes, max_triangles=settings.max_triangles
+        manifest = parse_manifest(parts.manifest)
+        phantom = load_phantom(
+            parts.mesh, manifest, max_bytes=settings.max_upload_bytes, max_triangles=settings.max_triangles
         )
         budget.charge(0)
         phantom_id = new_upload_id()
         info = describe_phantom(phantom_id, phantom, builtin=False)
-        try:
-            st.registry.store.save(phantom_id, parts.mesh, manifest_dict, info)
+        try:  # stored as sent: GET .../manifest gives it back
+            st.registry.store.save(phantom_id, parts.mesh, manifest, info, max_count=settings.max_uploads, owner=owner)
+        except Full as exc:
+            raise StorageFull(f"{exc}; delete one first", loc=["body", "mesh"]) from None
         except OSError as exc:  # disk full, permissions...: nothing was left behind (see storage.save)
             raise StorageFull(f"could not store the phantom: {exc.strerror or exc}", loc=["body", "mesh"]) from exc
         return phantom_id, phantom, info

@@ -6,19 +6,22 @@ from fastapi import APIRouter, Request
 
 from raytrace.solver.budget import Budget
 from service import ranging as ops
+from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
 from service.schemas import PdoaRequest, RangingResponse, RssRequest, ToaRequest
 
-router = APIRouter(prefix="/v1/ranging", tags=["ranging"])
+router = APIRouter(prefix="/v1/ranging", tags=["ranging"], route_class=ThreadedJsonRoute)
 
-_ERRORS = error_responses(400, 422, 503, 504)
+_ERRORS = error_responses(400, 413, 422, 503, 504)
 
 
 async def _run(request: Request, fn, req) -> RangingResponse:
     st = state(request)
+    # the budget reaches the estimators' loops: past the deadline (504), or once the client
+    # has gone (the gate cancels it), they stop at their next chunk
     out = await st.gate.run(
-        lambda budget: fn(req, st.settings),
+        lambda budget: fn(req, st.settings, budget),
         Budget(deadline_s=st.settings.request_deadline_s),
         disconnected=request.is_disconnected,
     )

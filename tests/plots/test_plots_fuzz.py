@@ -1,6 +1,6 @@
 """Schemathesis over the plot routes (in-process ASGI): valid and invalid bodies generated from each
 kind's schema never get a 5xx, and every answer is a declared status with a declared content type
-(an image for 200, the error JSON otherwise). Fewer examples than tests/test_service_fuzz.py uses
+(an image for 200, the error JSON otherwise). Fewer examples than tests/service/test_fuzz.py uses
 for the other routes, and no coverage phase (its ~1100 boundary cases draw ~320 figures, ~100 s;
 the caps it probes are tested one by one in test_plots_figures.py / test_plots_service.py), because
 each valid example draws a whole figure (0.1-7 s). ``CAPSULE_RT_PLOT_FUZZ_COVERAGE=1`` turns the

@@ -19,7 +19,7 @@ import trimesh
 
 from raytrace.body.gltf import export_glb, export_manifest, load_phantom
 from raytrace.body.library import builtin_phantoms
-from raytrace.errors import InputError, PhantomValidationError, UnknownTissueError
+from raytrace.errors import InputError, PhantomValidationError, UnknownTissueError, field_text
 
 
 def sphere(center, radius, subdivisions=2) -> trimesh.Trimesh:
@@ -44,7 +44,7 @@ def two_organs() -> tuple[bytes, dict]:
         "units": "m",
         "organs": {"body": {"tissue": "muscle"},
                    "organ": {"relative_permittivity": 50.0, "conductivity_s_per_m": 0.5}},
-        "sites": {"inside": [0.02, 0.0, 0.0], "outside": [0.0, -0.2, 0.0]},
+        "sites": {"inside": {"kind": "capsule", "position_m": [0.02, 0.0, 0.0]}, "outside": [0.0, -0.2, 0.0]},
     }
     return glb, manifest
 
@@ -67,7 +67,7 @@ def join(document: dict, binary: bytes) -> bytes:
 def rejected(glb: bytes, manifest: dict, field: str, *words: str, error=PhantomValidationError, **kw):
     with pytest.raises(error) as info:
         load_phantom(glb, manifest, **kw)
-    assert info.value.field is not None and info.value.field.startswith(field), info.value.field
+    assert info.value.field is not None and field_text(info.value.field).startswith(field), info.value.field
     message = str(info.value).lower()
     for word in words:
         assert word.lower() in message, (word, message)
@@ -86,7 +86,7 @@ def test_valid_upload_builds_with_materials_and_sites() -> None:
     assert phantom.organs[1].material.relative_permittivity == 50.0
     assert phantom.organs[1].material.conductivity_s_per_m == 0.5
     assert phantom.medium_name(int(phantom.parent[1])) == "body"
-    # Bare-list sites: kind inferred from the medium (air -> sensor, else capsule).
+    # The kind as stated; a bare-list site in air is a sensor.
     assert (phantom.sites["inside"].kind, phantom.sites["inside"].medium) == ("capsule", "organ")
     assert (phantom.sites["outside"].kind, phantom.sites["outside"].medium) == ("sensor", "air")
 
@@ -122,13 +122,13 @@ def test_millimetre_units_are_applied() -> None:
     glb = glb_of({"body": sphere([0, 0, 0], 100.0), "organ": sphere([20, 0, 0], 30.0)})
     manifest = {"name": "mm", "units": "mm",
                 "organs": {"body": {"tissue": "muscle"}, "organ": {"tissue": "liver"}},
-                "sites": {"a": [20.0, 0.0, 0.0],  # manifest units (mm)
+                "sites": {"a": [0.0, -150.0, 0.0],  # manifest units (mm)
                           "b": {"position_m": [0.0, -0.2, 0.0]},  # metres, always
                           "c": {"kind": "sensor", "position_m": [-0.05, 0.0, 0.0]}}}
     phantom = load_phantom(glb, manifest)
     np.testing.assert_allclose(phantom.bounds_m, [[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]], atol=1e-9)
-    np.testing.assert_allclose(phantom.sites["a"].position_m, [0.02, 0.0, 0.0])
-    assert phantom.sites["a"].medium == "organ"
+    np.testing.assert_allclose(phantom.sites["a"].position_m, [0.0, -0.15, 0.0])
+    assert (phantom.sites["a"].kind, phantom.sites["a"].medium) == ("sensor", "air")
     assert (phantom.sites["b"].kind, phantom.sites["b"].medium) == ("sensor", "air")
     assert (phantom.sites["c"].kind, phantom.sites["c"].medium) == ("sensor", "body")
 
@@ -187,14 +187,14 @@ def test_non_watertight_mesh_rejected_naming_the_organ() -> None:
     holed = trimesh.Trimesh(body.vertices, body.faces[1:], process=False)
     glb = glb_of({"body": holed})
     rejected(glb, {"name": "h", "units": "m", "organs": {"body": {"tissue": "muscle"}}},
-             "organs.body", "watertight")
+             "manifest.organs.body", "watertight")
 
 
 def test_inward_mesh_rejected() -> None:
     body = sphere([0, 0, 0], 0.1)
     inverted = trimesh.Trimesh(body.vertices, body.faces[:, ::-1], process=False)
     rejected(glb_of({"body": inverted}), {"name": "i", "units": "m", "organs": {"body": {"tissue": "muscle"}}},
-             "organs.body", "inward")
+             "manifest.organs.body", "inward")
 
 
 def test_manifest_node_mismatch_rejected() -> None:
@@ -211,8 +211,9 @@ def test_manifest_node_mismatch_rejected() -> None:
 
 def test_intersecting_spheres_rejected_naming_both() -> None:
     glb = glb_of({"a": sphere([0, 0, 0], 0.05), "b": sphere([0.06, 0, 0], 0.05)})
-    manifest = {"name": "x", "units": "m", "organs": {"a": {"tissue": "muscle"}, "b": {"tissue": "fat_not_infiltrated"}}}
-    error = rejected(glb, manifest, "organs.", "intersects")
+    manifest = {"name": "x", "units": "m",
+                "organs": {"a": {"tissue": "muscle"}, "b": {"tissue": "fat_not_infiltrated"}}}
+    error = rejected(glb, manifest, "manifest.organs.", "intersects")
     assert "'a'" in str(error) and "'b'" in str(error)
 
 
@@ -223,7 +224,7 @@ def test_crossing_without_any_vertex_inside_rejected() -> None:
     b = trimesh.creation.box(extents=[0.02, 0.2, 0.021])
     assert not a.contains(b.vertices).any() and not b.contains(a.vertices).any()
     manifest = {"name": "x", "units": "m", "organs": {"a": {"tissue": "muscle"}, "b": {"tissue": "liver"}}}
-    error = rejected(glb_of({"a": a, "b": b}), manifest, "organs.", "intersects")
+    error = rejected(glb_of({"a": a, "b": b}), manifest, "manifest.organs.", "intersects")
     assert "edges cross" in str(error)
 
 
@@ -256,7 +257,7 @@ def test_bad_manifests_rejected(mutate, field, words) -> None:
     mutate(manifest)
     with pytest.raises(PhantomValidationError) as info:
         load_phantom(glb, manifest)
-    assert info.value.field == field
+    assert field_text(info.value.field) == field
     assert any(w in str(info.value) for w in words), str(info.value)
 
 
@@ -320,3 +321,110 @@ def test_index_out_of_range_and_nan_vertices_rejected() -> None:
     struct.pack_into("<f", patched, position_view.get("byteOffset", 0), float("nan"))
     rejected(join(document, bytes(patched)), manifest, "mesh.meshes[0].primitives[0].attributes.POSITION",
              "non-finite")
+
+
+# ------------------------------------------------------------------ units, site kinds and sites (issue 25)
+def test_units_are_checked_against_the_mesh_extent() -> None:
+    glb, manifest = two_organs()  # a 0.2 m body
+    manifest["sites"] = {}
+    as_mm = dict(manifest, units="mm")  # would be a 0.2 mm body
+    error = rejected(glb, as_mm, "manifest.units", "'mm'", "0.0002 m", "declare units 'm'")
+    assert "metres" in error.reason
+    # the same body written in millimetres but declared in metres: a 200 m body
+    big = glb_of({"body": sphere([0, 0, 0], 100.0), "organ": sphere([20, 0, 0], 30.0)})
+    rejected(big, manifest, "manifest.units", "200 m", "declare units 'mm'")
+    # a room of a few metres, how users compare with other ray tracers, stays valid
+    room = trimesh.creation.box(extents=[6.0, 4.0, 3.0])
+    load_phantom(glb_of({"room": room}), {"name": "room", "units": "m", "organs": {"room": {"tissue": "air"}}})
+
+
+def test_a_site_inside_tissue_must_state_its_kind() -> None:
+    glb, manifest = two_organs()
+    for spec in ([0.0, 0.095, 0.0], {"position_m": [0.0, 0.095, 0.0]}):  # in the body, 5 mm under its surface
+        manifest["sites"] = {"belt": spec}
+        error = rejected(glb, manifest, "manifest.sites.belt", "inside 'body'", "capsule", "sensor")
+        assert error.field == ("manifest", "sites", "belt")
+    manifest["sites"] = {"belt": {"kind": "sensor", "position_m": [0.0, 0.095, 0.0]}}
+    assert load_phantom(glb, manifest).sites["belt"].kind == "sensor"
+    manifest["sites"] = {"off_body": [0.0, -0.2, 0.0]}  # in air: a sensor, no kind needed
+    assert load_phantom(glb, manifest).sites["off_body"].kind == "sensor"
+
+
+def test_a_site_the_channel_endpoint_would_refuse_is_refused_at_upload() -> None:
+    glb, manifest = two_organs()
+    phantom = load_phantom(glb, manifest)
+    far = [5.0, 5.0, 5.0]
+    with pytest.raises(InputError, match="outside the phantom's bounds"):
+        phantom.antenna_medium(far)  # the rule a channel request's antenna obeys
+    manifest["sites"] = {"far": far}
+    rejected(glb, manifest, "manifest.sites.far", "outside the phantom's bounds")
+
+
+def test_names_with_dots_keep_their_place_in_the_field() -> None:
+    glb, manifest = two_organs()
+    manifest["sites"] = {"Sphere.001": [0.0, 0.0, 0.0]}  # inside 'organ' without a kind
+    error = rejected(glb, manifest, "manifest.sites.Sphere.001", "inside")
+    assert error.field == ("manifest", "sites", "Sphere.001")  # one name, not two path parts
+
+
+def test_unreadable_manifest_and_json_chunk_text_is_refused() -> None:
+    from raytrace.body.gltf import parse_manifest
+
+    for text in ("[" * 100_000 + "]" * 100_000,          # nests past the parser's recursion limit
+                 '{"name": ' + "9" * 5000 + "}",          # past Python's limit on integer digits
+                 b"\xff\xfe{}", "{not json"):
+        with pytest.raises(PhantomValidationError) as info:
+            parse_manifest(text)
+        assert info.value.field == "manifest"
+    glb, manifest = two_organs()
+    document, binary = split(glb)
+    for patch in ('"scene": ' + "1" * 5000, '"scene": ' + "[" * 100_000 + "]" * 100_000):
+        js = json.dumps(document)
+        broken = js[:-1] + ", " + patch + "}"
+        text = broken.encode() + b" " * (-len(broken) % 4)
+        binary_padded = binary + b"\x00" * (-len(binary) % 4)
+        total = 12 + 8 + len(text) + 8 + len(binary_padded)
+        data = (struct.pack("<4sII", b"glTF", 2, total) + struct.pack("<II", len(text), 0x4E4F534A) + text
+                + struct.pack("<II", len(binary_padded), 0x004E4942) + binary_padded)
+        rejected(data, manifest, "mesh", "json")
+
+
+def test_huge_integers_in_the_manifest_are_refused_by_name() -> None:
+    glb, manifest = two_organs()
+    manifest["organs"]["organ"] = {"relative_permittivity": 10**400}  # parses, but is no float
+    rejected(glb, manifest, "manifest.organs.organ.relative_permittivity", "finite number")
+
+
+def test_mutated_json_chunks_only_ever_give_validation_errors() -> None:
+    """Replace values of the glTF JSON chunk by hostile ones (types, huge numbers, nesting): the
+    loader answers PhantomValidationError, never another exception (which the service would turn
+    into a 500). Deterministic: a seeded generator over every value of the document."""
+    glb, manifest = two_organs()
+    document, binary = split(glb)
+    hostile = [None, True, -1, 2**64, 10**400, 1e308, -0.0, "x", [], {}, [[[]]], {"a": {"b": {}}},
+               [0] * 17, [1e308] * 16, "glTF"]
+    paths = []
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, path + [k])
+        elif isinstance(node, list):
+            for i, v in enumerate(node):
+                walk(v, path + [i])
+        if path:
+            paths.append(path)
+
+    walk(document, [])
+    rng = np.random.default_rng(25)
+    for _ in range(400):
+        doc = copy.deepcopy(document)
+        path = paths[rng.integers(len(paths))]
+        target = doc
+        for key in path[:-1]:
+            target = target[key]
+        target[path[-1]] = hostile[rng.integers(len(hostile))]
+        try:
+            load_phantom(join(doc, binary), manifest)
+        except PhantomValidationError:
+            pass

@@ -13,6 +13,8 @@
 from __future__ import annotations
 
 import json
+import os
+import re
 import shutil
 import subprocess
 import sys
@@ -99,3 +101,79 @@ def test_dockerfiles_have_the_required_structure():
     assert "HEALTHCHECK" in server and "/readyz" in server
     assert 'CMD ["capsule-rt", "serve"]' in server
     assert "CAPSULE_RT_URL" in client and '"-m", "e2e"' in client
+
+
+# ------------------------------------------------------------------ the client image's file set
+def _copy_lines(dockerfile: Path) -> list[tuple[list[str], str]]:
+    """(sources, destination) of every COPY instruction (flags such as --chown ignored)."""
+    out = []
+    for line in dockerfile.read_text().splitlines():
+        words = line.split()
+        if words and words[0] == "COPY":
+            args = [w for w in words[1:] if not w.startswith("--")]
+            out.append((args[:-1], args[-1]))
+    return out
+
+
+def _ignored(relative: str, patterns: list[str]) -> bool:
+    """Does a .dockerignore pattern exclude this path (or one of its parent directories)?"""
+    import fnmatch
+
+    parts = relative.split("/")
+    prefixes = ["/".join(parts[: i + 1]) for i in range(len(parts))]
+    for pattern in patterns:
+        bare = pattern.removeprefix("**/")
+        for prefix in prefixes:
+            name = prefix if not pattern.startswith("**/") else prefix.rsplit("/", 1)[-1]
+            if fnmatch.fnmatch(name, bare) or fnmatch.fnmatch(prefix, pattern):
+                return True
+    return False
+
+
+def build_file_set(dockerfile: Path, root: Path, into: Path) -> None:
+    """Copy what ``dockerfile``'s COPY lines copy from the build context ``root`` into ``into``
+    (its WORKDIR), honouring ``<dockerfile>.dockerignore`` as BuildKit does."""
+    ignore_file = dockerfile.with_name(dockerfile.name + ".dockerignore")
+    patterns = [p.strip() for p in ignore_file.read_text().splitlines() if p.strip() and not p.startswith("#")]
+    for sources, destination in _copy_lines(dockerfile):
+        for source in sources:
+            matches = sorted(root.glob(source))
+            assert matches, f"COPY source {source} matches nothing"
+            for match in matches:
+                target = into / destination
+                if destination.endswith("/") or len(sources) > 1 or len(matches) > 1:
+                    target = target / match.name
+                files = [match] if match.is_file() else [p for p in match.rglob("*") if p.is_file()]
+                for f in files:
+                    relative = f.relative_to(root).as_posix()
+                    if _ignored(relative, patterns):
+                        continue
+                    out = target if match.is_file() else target / f.relative_to(match)
+                    out.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copy2(f, out)
+
+
+def test_the_client_image_file_set_runs_its_entry_point(live_url, tmp_path):
+    """The client container's files, exactly as client.Dockerfile copies them, run its entry point
+    against a live server: the end-to-end suite must collect and pass without anything else of the
+    repository (it once stopped at collection for want of bench/)."""
+    dockerfile = DOCKER / "client.Dockerfile"
+    text = dockerfile.read_text()
+    build_file_set(dockerfile, ROOT, tmp_path)
+    assert not (tmp_path / "bench").exists() and (tmp_path / "tests" / "conftest.py").exists()
+    entry = json.loads(re.search(r"^ENTRYPOINT (\[.*\])$", text, flags=re.M).group(1))
+    assert entry[:3] == ["python", "-m", "pytest"]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST")}
+    env["CAPSULE_RT_URL"] = live_url
+    # the full entry point; CMD (-q) replaced, as `docker run IMAGE ARGS` would, by a quick subset
+    cmd = [sys.executable, *entry[1:], "-q", "-k", "operations or tissues or bounds or curl_examples"]
+    out = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    assert "error" not in out.stdout.lower().split("passed")[-1], out.stdout[-2000:]
+    assert re.search(r"\d+ passed", out.stdout), out.stdout[-2000:]
+    # it collected every end-to-end module (the -k filter deselects, it does not skip collection)
+    collected = subprocess.run([sys.executable, *entry[1:], "--collect-only", "-q"], cwd=tmp_path, env=env,
+                               capture_output=True, text=True, timeout=300)
+    assert collected.returncode == 0, collected.stdout[-3000:]
+    modules = {line.split("::")[0] for line in collected.stdout.splitlines() if "::" in line}
+    assert modules == {f"tests/e2e/{p.name}" for p in (ROOT / "tests" / "e2e").glob("test_*.py")}

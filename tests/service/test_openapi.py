@@ -103,7 +103,7 @@ def test_upload_manifest_schema_is_documented():
     manifest = schema["components"]["schemas"]["Manifest"]
     assert set(manifest["required"]) == {"name", "units", "organs"}
     assert manifest["additionalProperties"] is False and manifest["examples"]
-    assert "ManifestOrgan" in schema["components"]["schemas"]
+    assert {"ManifestTissue", "ManifestMedium", "ManifestSite"} <= set(schema["components"]["schemas"])
     body = schema["paths"]["/v1/phantoms"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
     assert body["required"] == ["mesh", "manifest"]
 
@@ -112,3 +112,21 @@ def test_docs_settings_table_is_current():
     from service.settings import settings_table_markdown
 
     assert settings_table_markdown() in (ROOT / "README.md").read_text(), "regenerate the settings table in README.md (Configuration)"
+
+
+def test_schema_uses_only_json_schema_keywords_for_bounds():
+    """pydantic writes its internal `ge`/`le`/`gt`/`lt` into the schema for some optional fields;
+    no schema tool reads them, so a client (or the fuzzer) would send values the server refuses."""
+    found = []
+
+    def walk(node, where):
+        if isinstance(node, dict):
+            found.extend(f"{where}/{k}" for k in ("ge", "le", "gt", "lt") if k in node)
+            for key, value in node.items():
+                walk(value, f"{where}/{key}")
+        elif isinstance(node, list):
+            for i, value in enumerate(node):
+                walk(value, f"{where}/{i}")
+
+    walk(json.loads((ROOT / "openapi.json").read_text()), "")
+    assert not found, found
