@@ -147,7 +147,7 @@ def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
     for mesh in meshes.values():
         mesh.apply_scale(1000.0)  # a 200 mm box holding a 40 mm sphere, in millimetres
     manifest = phantom_manifest(name="browser box", units="mm", sites={
-        "capsule": [0.0, 0.0, 10.0], "side": {"kind": "sensor", "position_m": [0.099, 0.0, 0.0]}})
+        "capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.010]}, "side": {"kind": "sensor", "position_m": [0.099, 0.0, 0.0]}})
     r = httpx.post(f"{live_url}/v1/phantoms", timeout=60, files={
         "mesh": ("box.glb", glb_bytes(meshes), "model/gltf-binary"),
         "manifest": ("manifest.json", json.dumps(manifest), "application/json")})
