@@ -59,3 +59,29 @@ def test_estimators_import_neither_the_tracer_nor_the_service(module, path):
 def test_the_layer_table_knows_every_subpackage():
     parts = {p.stem for p in (ROOT / "raytrace").iterdir() if (p / "__init__.py").exists() or p.suffix == ".py"}
     assert parts - {"__init__", "scenarios"} <= set(LAYERS), parts - set(LAYERS)
+
+
+#: The packages above the physics and what each may import of the project (docs/architecture.md):
+#: none imports the service; a package not listed here must be added with its rule.
+LIBRARIES = {
+    "sweeps": {"raytrace", "estimators"},
+    "evaluation": {"raytrace", "estimators"},
+    "plots": {"estimators"},
+    "vision": {"raytrace"},
+    "fullwave": {"raytrace"},
+}
+PROJECT = {"raytrace", "estimators", "service", *LIBRARIES}
+
+
+@pytest.mark.parametrize("package", sorted(LIBRARIES))
+def test_libraries_import_only_what_the_architecture_allows(package):
+    allowed = LIBRARIES[package] | {package}
+    for module, path in _modules(package):
+        for imported in _imports(path):
+            root = imported.split(".")[0]
+            assert root not in PROJECT or root in allowed, f"{module} imports {imported}"
+
+
+def test_every_top_level_package_has_a_rule():
+    packages = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
+    assert packages - {"tests", "bench", "tools"} <= PROJECT, packages - PROJECT
