@@ -122,7 +122,8 @@ def make_plan(spec: SweepSpec, phantom: Phantom, phantom_id: str | None = None, 
         if a["start_m"] > line.length_m or stop > line.length_m * (1 + 1e-12):
             bad = "start_m" if a["start_m"] > line.length_m else "stop_m"
             raise SweepSpecError(f"beyond the centreline's length {line.length_m:.6g} m", field=f"{where}.{bad}")
-        n = int(np.floor((stop - a["start_m"]) / a["ds_m"] * (1 + 1e-12))) + 1
+        n_float = np.floor((stop - a["start_m"]) / a["ds_m"] * (1 + 1e-12)) + 1  # inf for a subnormal ds_m
+        n = int(min(n_float, limits.max_positions + 1))
         if n > limits.max_positions or n * len(spec["frequencies_hz"]) > limits.max_traces:
             raise SweepSpecError(f"{n} positions x {len(spec['frequencies_hz'])} frequencies exceed the limits "
                                  f"({limits.max_positions} positions, {limits.max_traces} traces); raise ds_m",

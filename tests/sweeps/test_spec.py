@@ -99,6 +99,11 @@ def test_size_limits():
     with pytest.raises(SweepSpecError) as info:
         make_plan(along, default_torso(), limits=Limits(max_positions=100))
     assert info.value.field == "capsule_positions.along_tract.ds_m"
+    # a subnormal spacing makes the count infinite: still the same refusal, not an OverflowError (a 500)
+    tiny = spec(capsule_positions={"along_tract": {"ds_m": 5e-324}})
+    with pytest.raises(SweepSpecError) as info:
+        make_plan(tiny, default_torso())
+    assert info.value.field == "capsule_positions.along_tract.ds_m"
 
 
 @pytest.mark.parametrize("changes,field,error", [
