@@ -209,7 +209,10 @@ def texture_for(organ: str | None, preset: str = "auto", fold_axis=None, seed: i
         axis = ORGAN_TEXTURES.get(organ or "", (None, None))[1]
     else:
         raise VisionInputError(f"must be auto or one of {', '.join(PRESETS)}, got {preset!r}", "texture.preset")
-    axis = axis if fold_axis is None else tuple(float(v) for v in fold_axis)
+    if fold_axis is not None:
+        axis = tuple(float(v) for v in np.asarray(fold_axis, float).reshape(-1))
+        if len(axis) != 3 or not np.isfinite(axis).all() or np.linalg.norm(axis) < 1e-12:
+            raise VisionInputError("must be a non-zero 3-vector", "texture.fold_axis")
     if preset == "stomach":
         return MucosaTexture.stomach(seed=seed)
     if preset == "default":

@@ -70,8 +70,10 @@ class PoseIn(Strict):
     direction of travel), or ``position_m`` with a view ``direction`` (exactly one of the two)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"oneOf": [
-        {"required": ["s_m"], "properties": {"position_m": False, "direction": False, "organ": False}},
-        {"required": ["position_m", "direction"], "properties": {"s_m": False}}]})
+        {"required": ["s_m"], "properties": {"s_m": {"type": "number"}, "position_m": False, "direction": False,
+                                             "organ": False}},
+        {"required": ["position_m", "direction"], "properties": {"position_m": {"type": "array"},
+                                                                 "direction": {"type": "array"}, "s_m": False}}]})
 
     s_m: _range(0.0, 100.0) | None = Field(
         None, description="Arc length along the phantom's GI-tract centreline [m] (GET /v1/phantoms/{id}: "
@@ -84,12 +86,11 @@ class PoseIn(Strict):
 
     @model_validator(mode="after")
     def _one(self) -> "PoseIn":
-        if (self.s_m is None) == (self.position_m is None):
+        given = self.model_fields_set  # a key present with null counts, as the schema's oneOf says
+        if self.s_m is not None and given & {"position_m", "direction", "organ"}:
+            raise ValueError("give s_m, or position_m with direction, not both (organ goes with position_m)")
+        if self.s_m is None and ("s_m" in given or self.position_m is None or self.direction is None):
             raise ValueError("give s_m, or position_m with direction (exactly one)")
-        if self.position_m is not None and self.direction is None:
-            raise ValueError("direction is required with position_m")
-        if self.s_m is not None and (self.direction is not None or self.organ is not None):
-            raise ValueError("direction and organ go with position_m, not with s_m")
         return self
 
 
