@@ -242,3 +242,17 @@ def test_motion_multipart_limits(client, colon_pair):
     assert r.status_code == 413 and r.json()["detail"][0]["loc"][:1] == ["body"]
     r = client.post("/v1/vision/motion", json={"reference": "x"})
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["header", "content-type"]
+
+
+def test_typed_client(client, colon_pair):
+    from service.client import Client
+    from service.routes.vision import MotionResponse, RenderResponse
+
+    a, b, geometry = colon_pair
+    api = Client("http://testserver", transport=client._transport)
+    frame = api.vision_render({"pose": {"s_m": S_COLON}, "camera": {"size_px": 192}})
+    assert isinstance(frame, RenderResponse) and base64.b64decode(frame.image_png_base64) == a
+    assert api.vision_render_png({"pose": {"s_m": S_COLON}, "camera": {"size_px": 192}}) == a
+    est = api.vision_motion(a, b, {"bins": 64}, geometry)
+    assert isinstance(est, MotionResponse) and abs(est.rotation_deg - 3.0) < 0.2
+    assert abs(est.advance_m - 0.002) < 0.1 * 0.002
