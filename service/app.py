@@ -25,7 +25,7 @@ from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
 from service.registry import Registry
-from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging, sweeps
+from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging, sweeps, vision
 from service.security import API_KEY_HEADER, OriginGuard
 from service.settings import Settings
 from service.storage import PhantomStore
@@ -53,6 +53,7 @@ TAGS = [
     {"name": "catalogue", "description": "Tissues and built-in scenarios."},
     {"name": "phantoms", "description": "Built-in and uploaded phantoms."},
     {"name": "plots", "description": "Figures of channels, bounds and ranging errors (PNG, SVG, PDF)."},
+    {"name": "vision", "description": "The capsule camera's frames and MI motion tracking (thesis Ch. 3)."},
     {"name": "sweeps", "description": "Sweep jobs: positions x receivers x frequencies, run in worker processes."},
     {"name": "operations", "description": "Health, readiness, metrics."},
 ]
@@ -100,7 +101,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     app.state.sweeps = sweep_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, bounds, plots, catalogue, phantoms, sweeps, ops):
+    for module in (channel, ranging, bounds, plots, catalogue, phantoms, sweeps, vision, ops):
         app.include_router(module.router)
     pages.install(app)
     # outermost last: request id and metrics see every answer, CORS answers its preflights,
@@ -112,7 +113,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                         ("/v1/channel", settings.max_json_body_bytes),
                                         ("/v1/bounds/", settings.max_json_body_bytes),
                                         ("/v1/plots/", settings.max_ranging_body_bytes),
-                                        ("/v1/sweeps", settings.max_json_body_bytes)])
+                                        ("/v1/sweeps", settings.max_json_body_bytes),
+                                        ("/v1/vision/render", settings.max_json_body_bytes)])
     app.add_middleware(OriginGuard, allowed_origins=settings.cors_origins)
     if settings.cors_origins:
         app.add_middleware(

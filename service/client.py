@@ -25,6 +25,7 @@ import httpx
 from pydantic import BaseModel
 
 from service import schemas as s
+from service.routes import vision as v
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -171,6 +172,26 @@ class _Endpoints:
     def bound_rss(req: s.RssBoundRequest | dict) -> _Call:
         return _Call("POST", "/v1/bounds/rss", s.RssBoundResponse, {"json": _body(s.RssBoundRequest, req)})
 
+    @staticmethod
+    def vision_render(req: v.RenderRequest | dict) -> _Call:
+        return _Call("POST", "/v1/vision/render", v.RenderResponse,
+                     {"json": _body(v.RenderRequest, req), "headers": {"Accept": "application/json"}})
+
+    @staticmethod
+    def vision_render_png(req: v.RenderRequest | dict) -> _Call:
+        return _Call("POST", "/v1/vision/render", None,
+                     {"json": _body(v.RenderRequest, req), "headers": {"Accept": "image/png"}}, raw=True)
+
+    @staticmethod
+    def vision_motion(reference_png: bytes, moving_png: bytes, options: v.MotionOptions | dict | None = None,
+                      geometry: v.RenderRequest | dict | None = None) -> _Call:
+        files: dict[str, Any] = {"reference": ("reference.png", reference_png, "image/png"),
+                                 "moving": ("moving.png", moving_png, "image/png")}
+        for name, model, value in (("options", v.MotionOptions, options), ("geometry", v.RenderRequest, geometry)):
+            if value is not None:
+                files[name] = (f"{name}.json", json.dumps(_body(model, value)), "application/json")
+        return _Call("POST", "/v1/vision/motion", v.MotionResponse, {"files": files})
+
 
 class Client:
     """Synchronous client. ``Client(base_url, timeout=..., transport=...)``; a context manager."""
@@ -189,7 +210,9 @@ class Client:
         self.close()
 
     def _do(self, call: _Call, headers: dict[str, str] | None = None):
-        return _parse(call, self._http.request(call.method, call.path, headers=headers, **call.kwargs))
+        kwargs = dict(call.kwargs)
+        headers = {**kwargs.pop("headers", {}), **(headers or {})} or None
+        return _parse(call, self._http.request(call.method, call.path, headers=headers, **kwargs))
 
     def healthz(self, *, headers: dict[str, str] | None = None) -> s.Health:
         return self._do(_Endpoints.healthz(), headers)
@@ -245,6 +268,20 @@ class Client:
     def bound_rss(self, req: s.RssBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.RssBoundResponse:
         return self._do(_Endpoints.bound_rss(req), headers)
 
+    def vision_render(self, req: v.RenderRequest | dict, *, headers: dict[str, str] | None = None) -> v.RenderResponse:
+        """The frame and its exact pose (JSON: ``.image_png_base64``, ``.pose``, ``.camera``)."""
+        return self._do(_Endpoints.vision_render(req), headers)
+
+    def vision_render_png(self, req: v.RenderRequest | dict, *, headers: dict[str, str] | None = None) -> bytes:
+        """The frame's PNG bytes only."""
+        return self._do(_Endpoints.vision_render_png(req), headers)
+
+    def vision_motion(self, reference_png: bytes, moving_png: bytes, options: v.MotionOptions | dict | None = None,
+                      geometry: v.RenderRequest | dict | None = None, *,
+                      headers: dict[str, str] | None = None) -> v.MotionResponse:
+        """Rotation, scale (and advance, with the reference's render request as ``geometry``)."""
+        return self._do(_Endpoints.vision_motion(reference_png, moving_png, options, geometry), headers)
+
 
 class AsyncClient:
     """Asynchronous client (same methods, awaitable)."""
@@ -263,7 +300,9 @@ class AsyncClient:
         await self.aclose()
 
     async def _do(self, call: _Call, headers: dict[str, str] | None = None):
-        return _parse(call, await self._http.request(call.method, call.path, headers=headers, **call.kwargs))
+        kwargs = dict(call.kwargs)
+        headers = {**kwargs.pop("headers", {}), **(headers or {})} or None
+        return _parse(call, await self._http.request(call.method, call.path, headers=headers, **kwargs))
 
     async def healthz(self, *, headers: dict[str, str] | None = None) -> s.Health:
         return await self._do(_Endpoints.healthz(), headers)
@@ -318,3 +357,20 @@ class AsyncClient:
 
     async def bound_rss(self, req: s.RssBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.RssBoundResponse:
         return await self._do(_Endpoints.bound_rss(req), headers)
+
+    async def vision_render(self, req: v.RenderRequest | dict, *,
+                            headers: dict[str, str] | None = None) -> v.RenderResponse:
+        """The frame and its exact pose (JSON: ``.image_png_base64``, ``.pose``, ``.camera``)."""
+        return await self._do(_Endpoints.vision_render(req), headers)
+
+    async def vision_render_png(self, req: v.RenderRequest | dict, *,
+                                headers: dict[str, str] | None = None) -> bytes:
+        """The frame's PNG bytes only."""
+        return await self._do(_Endpoints.vision_render_png(req), headers)
+
+    async def vision_motion(self, reference_png: bytes, moving_png: bytes,
+                            options: v.MotionOptions | dict | None = None,
+                            geometry: v.RenderRequest | dict | None = None, *,
+                            headers: dict[str, str] | None = None) -> v.MotionResponse:
+        """Rotation, scale (and advance, with the reference's render request as ``geometry``)."""
+        return await self._do(_Endpoints.vision_motion(reference_png, moving_png, options, geometry), headers)

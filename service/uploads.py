@@ -4,7 +4,8 @@ The request body is read chunk by chunk from the ASGI stream and fed to
 python-multipart's streaming parser; a running byte count stops the read
 (413) as soon as the body, or one part, passes its cap, so an oversized
 upload is never buffered whole. Only the two expected parts are kept
-(``mesh`` <= ``max_upload_bytes``, ``manifest`` <= ``max_manifest_bytes``).
+(``mesh`` <= ``max_upload_bytes``, ``manifest`` <= ``max_manifest_bytes``). The reader itself
+(:func:`read_parts`) serves every multipart operation (the vision frames too).
 """
 
 from __future__ import annotations
@@ -38,24 +39,27 @@ class UploadParts:
     manifest: bytes
 
 
-async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes: int) -> UploadParts:
-    """Read ``mesh`` and ``manifest`` parts from a multipart body (413 beyond the caps, 422 if malformed)."""
+def _listing(names) -> str:
+    quoted = [f"'{n}'" for n in names]
+    return quoted[0] if len(quoted) == 1 else ", ".join(quoted[:-1]) + " and " + quoted[-1]
+
+
+async def read_parts(request: Request, caps: dict[str, int], required: tuple[str, ...], usage: str) -> dict[str, _Part]:
+    """The parts named in ``caps`` (name -> max bytes) of a multipart body, read as a stream
+    (413 as soon as a part or the body passes its cap, 422 if malformed, a part is missing
+    from ``required``, given twice or unknown). ``usage`` says what the body must be."""
     ctype = request.headers.get("content-type", "")
     kind, params = parse_options_header(ctype)
     if kind != b"multipart/form-data" or b"boundary" not in params:
-        raise Unprocessable(
-            "the upload must be multipart/form-data with two parts, 'mesh' (.glb) and 'manifest' (JSON)",
-            loc=["header", "content-type"],
-        )
-    body_cap = max_mesh_bytes + max_manifest_bytes + MULTIPART_OVERHEAD_BYTES
+        raise Unprocessable(usage, loc=["header", "content-type"])
+    body_cap = sum(caps.values()) + MULTIPART_OVERHEAD_BYTES
+    limits = ", ".join(f"{name} <= {cap}" for name, cap in caps.items())
     declared = request.headers.get("content-length")
     if declared is not None and declared.isdigit() and int(declared) > body_cap:
         raise UploadTooLarge(
-            f"request body of {int(declared)} bytes exceeds the upload cap of {body_cap} bytes "
-            f"(mesh <= {max_mesh_bytes}, manifest <= {max_manifest_bytes})",
-            loc=["body", "mesh"],
+            f"request body of {int(declared)} bytes exceeds the upload cap of {body_cap} bytes ({limits})",
+            loc=["body", required[0]],
         )
-    caps = {"mesh": max_mesh_bytes, "manifest": max_manifest_bytes}
     parts: dict[str, _Part] = {}
     state: dict = {"part": None, "hname": bytearray(), "hvalue": bytearray(), "error": None}
 
@@ -117,11 +121,8 @@ async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes:
         async for chunk in request.stream():
             received += len(chunk)
             if received > body_cap:
-                raise UploadTooLarge(
-                    f"request body exceeds the upload cap of {body_cap} bytes "
-                    f"(mesh <= {max_mesh_bytes}, manifest <= {max_manifest_bytes})",
-                    loc=["body", "mesh"],
-                )
+                raise UploadTooLarge(f"request body exceeds the upload cap of {body_cap} bytes ({limits})",
+                                     loc=["body", required[0]])
             try:
                 parser.write(chunk)
             except Exception as exc:  # python-multipart raises its own MultipartParseError
@@ -139,11 +140,19 @@ async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes:
     unknown = sorted(set(parts) - set(caps))
     if unknown:
         raise Unprocessable(
-            f"unexpected part(s) {unknown}: only 'mesh' and 'manifest' are accepted", loc=["body", unknown[0]]
+            f"unexpected part(s) {unknown}: only {_listing(caps)} are accepted", loc=["body", unknown[0]]
         )
-    for name in ("mesh", "manifest"):
+    for name in required:
         if name not in parts:
             raise Unprocessable(f"missing part '{name}'", loc=["body", name])
+    return parts
+
+
+async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes: int) -> UploadParts:
+    """Read ``mesh`` and ``manifest`` parts from a multipart body (413 beyond the caps, 422 if malformed)."""
+    parts = await read_parts(
+        request, {"mesh": max_mesh_bytes, "manifest": max_manifest_bytes}, ("mesh", "manifest"),
+        "the upload must be multipart/form-data with two parts, 'mesh' (.glb) and 'manifest' (JSON)")
     mesh = parts["mesh"]
     if bytes(mesh.data[:4]) != GLB_MAGIC:
         raise InvalidMesh(

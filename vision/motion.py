@@ -342,12 +342,20 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     if not (MIN_SIZE_PX <= min(ref.shape) and max(ref.shape) <= MAX_SIZE_PX):
         raise VisionInputError(f"frames must be {MIN_SIZE_PX} to {MAX_SIZE_PX} pixels a side, got "
                                f"{ref.shape[1]} x {ref.shape[0]}", "reference")
-    if cutoff is not None:
-        ref, mov = butterworth_lowpass(ref, cutoff, order), butterworth_lowpass(mov, cutoff, order)
     max_radius = min(ref.shape) / 2.0 - 2.0
     radius = max_radius if radius_px is None else _positive(radius_px, "radius_px")
     if radius > max_radius or radius < 6.0:
         raise VisionInputError(f"must be in [6, {max_radius:g}] for these frames, got {radius_px!r}", "radius_px")
+    center = frame_center(ref.shape)
+    rr, cc = np.ogrid[:ref.shape[0], :ref.shape[1]]
+    disc = (rr - center[0]) ** 2 + (cc - center[1]) ** 2 <= radius**2
+    for frame, name in ((ref, "reference"), (mov, "moving")):
+        inside = frame[disc]
+        if inside.max() == inside.min():  # MI is 0 at every probe: no estimate exists
+            raise VisionInputError(f"is constant ({inside[0]:g}) inside the compared disc of radius {radius:g} "
+                                   "px: there is nothing to register", name)
+    if cutoff is not None:
+        ref, mov = butterworth_lowpass(ref, cutoff, order), butterworth_lowpass(mov, cutoff, order)
     coarse = int(coarse_size_px)
     if not 16 <= coarse <= MAX_SIZE_PX:
         raise VisionInputError(f"must be in [16, {MAX_SIZE_PX}], got {coarse_size_px!r}", "coarse_size_px")

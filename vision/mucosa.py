@@ -24,6 +24,7 @@ the reflectance and the bent normal of each wall point.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -186,10 +187,39 @@ class MucosaTexture:
         return albedo, bent
 
 
-_PERMS: dict[int, np.ndarray] = {}
+#: The mucosa of each GI organ of the default torso: its preset and the fixed axis its circular
+#: folds run across (the organ's long axis in the torso frame: x left-right, z head-ward).
+ORGAN_TEXTURES = {
+    "stomach": ("stomach", None),
+    "small_intestine": ("small_intestine", (1.0, 0.0, 0.0)),
+    "ascending_colon": ("colon", (0.0, 0.0, 1.0)),
+    "transverse_colon": ("colon", (1.0, 0.0, 0.0)),
+    "descending_colon": ("colon", (0.0, 0.0, 1.0)),
+}
+PRESETS = ("default", "small_intestine", "colon", "stomach")
 
 
+def texture_for(organ: str | None, preset: str = "auto", fold_axis=None, seed: int = 0) -> MucosaTexture:
+    """The texture of a named ``preset`` (one of PRESETS), or for ``preset="auto"`` the one of
+    ``organ`` in :data:`ORGAN_TEXTURES` (the plain default for any other organ). ``fold_axis``
+    overrides the preset's. Fixed per organ, never per pose, so frames of a sequence agree."""
+    if preset == "auto":
+        preset, axis = ORGAN_TEXTURES.get(organ or "", ("default", None))
+    elif preset in PRESETS:
+        axis = ORGAN_TEXTURES.get(organ or "", (None, None))[1]
+    else:
+        raise VisionInputError(f"must be auto or one of {', '.join(PRESETS)}, got {preset!r}", "texture.preset")
+    if fold_axis is not None:
+        axis = tuple(float(v) for v in np.asarray(fold_axis, float).reshape(-1))
+        if len(axis) != 3 or not np.isfinite(axis).all() or np.linalg.norm(axis) < 1e-12:
+            raise VisionInputError("must be a non-zero 3-vector", "texture.fold_axis")
+    if preset == "stomach":
+        return MucosaTexture.stomach(seed=seed)
+    if preset == "default":
+        return MucosaTexture(seed=seed, fold_axis=axis)
+    return getattr(MucosaTexture, preset)(fold_axis=axis, seed=seed)
+
+
+@functools.lru_cache(maxsize=64)  # bounded: a service renders with its callers' seeds
 def _perm(seed: int) -> np.ndarray:
-    if seed not in _PERMS:
-        _PERMS[seed] = permutation(seed)
-    return _PERMS[seed]
+    return permutation(seed)

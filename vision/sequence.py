@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from raytrace import InputError
+
 from .camera import FisheyeCamera, Pose, rotate_about
 from .errors import VisionInputError
 from .render import Frame, Lighting, render_frame
@@ -133,3 +135,48 @@ def render_sequence(phantom, path: Path, frames: int, advance_m, roll_deg, camer
         exposure = frame.metadata["exposure"]
         out.append(frame)
     return Sequence(frames=out, truth=truth, metadata={"exposure": exposure})
+
+
+#: The phantoms' GI-tract centreline (raytrace.body.centreline.GI_TRACT).
+GI_TRACT = "gi_tract"
+
+
+def _centreline(phantom, name: str, field_name: str):
+    line = getattr(phantom, "centrelines", {}).get(name)
+    if line is None:
+        raise VisionInputError(f"phantom {phantom.name!r} has no {name!r} centreline: give position_m and direction",
+                               field_name)
+    return line
+
+
+def centreline_pose(phantom, s_m: float, roll_deg: float = 0.0, *, centreline: str = GI_TRACT) -> tuple[Pose, str]:
+    """The pose at arc length ``s_m`` along the phantom's centreline (on the line, looking along
+    the direction of travel, rolled by ``roll_deg`` from the default up, module doc of
+    :mod:`vision.camera`) and the organ whose lumen holds it."""
+    line = _centreline(phantom, centreline, "pose.s_m")
+    try:
+        position, tangent, organ = line.point_m(s_m), line.tangent(s_m), line.organ_at(s_m)
+    except InputError as exc:
+        raise VisionInputError(exc.reason, "pose.s_m") from None
+    return Pose(position, tangent, roll_deg), str(organ)
+
+
+def centreline_path(phantom, start_m: float, length_m: float, *,
+                    centreline: str = GI_TRACT) -> tuple[Path, float, str]:
+    """The polyline of the centreline piece (one organ's lumen) holding arc lengths ``start_m``
+    to ``start_m + length_m``, the start's arc length along that polyline, and the organ. A run
+    that would cross into the next organ (the centreline jumps there) is refused."""
+    line = _centreline(phantom, centreline, "start_m")
+    try:
+        organ = str(line.organ_at(start_m))
+    except InputError as exc:
+        raise VisionInputError(exc.reason, "start_m") from None
+    starts = np.concatenate([[0.0], line.junctions_s_m])
+    k = int(np.searchsorted(starts, start_m, side="right") - 1)
+    piece = line.pieces[k]
+    path = Path(piece.points_m)
+    offset = float(start_m - starts[k])
+    if not 0.0 <= offset + length_m <= path.length_m + 1e-12:
+        raise VisionInputError(f"the sequence leaves the {organ} piece of the centreline (arc lengths "
+                               f"{starts[k]:.6g} to {starts[k] + path.length_m:.6g} m)", "advance_m")
+    return path, offset, organ

@@ -39,6 +39,8 @@ OPERATIONS = {
     ("post", "/v1/plots/cfr"): "plot_cfr",
     ("post", "/v1/plots/crlb"): "plot_crlb",
     ("post", "/v1/plots/ranging_errors"): "plot_ranging_errors",
+    ("post", "/v1/vision/render"): "vision_render",
+    ("post", "/v1/vision/motion"): "vision_motion",
 }
 
 
