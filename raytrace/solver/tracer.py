@@ -39,9 +39,10 @@ Design choices (where this departs from or sharpens ``docs/tracer.md``):
   a colon's limb), or when its only solutions pass a critical angle within a
   launch sliver narrower than the search resolves at the requested ``rays``
   (more rays find them; they are ~50 dB under the strongest path).
-* Several seeds per signature (distinct face sequences) are refined, and
-  converged duplicates are merged only when delay *and* launch direction
-  agree: the walls of one organ share a signature but are distinct paths.
+* The walls of one organ share a signature but are distinct paths: the shot
+  candidates of a (receiver, signature) are clustered by launch direction and
+  every cluster is refined (:func:`_select_seeds`), and converged duplicates
+  are merged only when the launch direction agrees too.
 * Fresnel coefficients for rays leaving a lossy tissue use the forward
   branch of the complex ``cos_t`` (:func:`raytrace.physics.em.cos_transmitted`).
 * Shooting runs in launch batches (bounded memory, no culling of branches).
