@@ -70,10 +70,20 @@ class TracerConfig:
     curvature_margin: float = 2.0
 
     # --- seeds of the shooting (raytrace.solver.tracer)
-    #: Candidate seeds refined per (receiver, signature) group, at most.
-    seeds_per_signature: int = 6
-    #: Seeds of one group must be this many launch spacings apart. With the curvature-widened
-    #: reception tubes a group holds many neighbouring candidates that converge to one path: 6
+    #: The candidates of one (receiver, signature) group are clustered by launch direction: two
+    #: candidates closer than this many launch spacings are one cluster (single linkage), and
+    #: each cluster is one distinct path to refine (docs/tracer.md, "Seeds"). The faces of one
+    #: organ share a signature (a box room's six walls, a concave organ's two specular points), so
+    #: a group may hold any number of distinct paths; candidates of one path lie within about one
+    #: spacing of each other. It must be at least seed_separation (then the clusters' seeds are
+    #: a superset of a per-group greedy pick).
+    cluster_link: float = 3.0
+    #: Candidate seeds refined per cluster, at most (the closest first, seed_separation apart):
+    #: retries for one distinct path whose closest candidate's Newton fails, not a cap on paths.
+    #: The number of clusters is not capped: the refinement charges the request's work Budget.
+    seeds_per_cluster: int = 6
+    #: Seeds of one cluster must be this many launch spacings apart. With the curvature-widened
+    #: reception tubes a cluster holds many neighbouring candidates that converge to one path: 6
     #: seeds 3 spacings apart found the same strong paths as 16 seeds 1 spacing apart on the
     #: default torso (within 20 dB of the strongest, 24 of 267 missed against 1e6 rays by both) in
     #: about 25 % less time; 4 seeds lost one of two symmetric walls' paths (tests).
@@ -143,5 +153,8 @@ class TracerConfig:
         if self.max_live_rays <= self.launch_batch:
             raise ValueError(f"TracerConfig.max_live_rays: must exceed launch_batch ({self.launch_batch}): the walk "
                              f"keeps one ray per launch, got {self.max_live_rays}")
+        if self.cluster_link < self.seed_separation:
+            raise ValueError(f"TracerConfig.cluster_link: must be at least seed_separation ({self.seed_separation}), "
+                             f"got {self.cluster_link}")
         if self.stall_factor > 1.0:
             raise ValueError(f"TracerConfig.stall_factor: must be at most 1, got {self.stall_factor}")

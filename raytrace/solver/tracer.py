@@ -39,9 +39,10 @@ Design choices (where this departs from or sharpens ``docs/tracer.md``):
   a colon's limb), or when its only solutions pass a critical angle within a
   launch sliver narrower than the search resolves at the requested ``rays``
   (more rays find them; they are ~50 dB under the strongest path).
-* Several seeds per signature (distinct face sequences) are refined, and
-  converged duplicates are merged only when delay *and* launch direction
-  agree: the walls of one organ share a signature but are distinct paths.
+* The walls of one organ share a signature but are distinct paths: the shot
+  candidates of a (receiver, signature) are clustered by launch direction and
+  every cluster is refined (:func:`_select_seeds`), and converged duplicates
+  are merged only when the launch direction agrees too.
 * Fresnel coefficients for rays leaving a lossy tissue use the forward
   branch of the complex ``cos_t`` (:func:`raytrace.physics.em.cos_transmitted`).
 * Shooting runs in launch batches (bounded memory, no culling of branches).
@@ -62,6 +63,9 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from raytrace.body.library import get_phantom
 from raytrace.body.phantom import Phantom
@@ -416,22 +420,58 @@ def _pad(a: np.ndarray, width: int) -> np.ndarray:
 
 
 def _select_seeds(c, config: TracerConfig):
-    """Seeds to refine: per (receiver, signature), candidates in order of closeness, each
-    kept only if its launch direction is at least ``config.seed_separation`` launch spacings
-    from the seeds already kept (neighbouring rays converge to the same path; distinct walls
-    of one organ sharing the signature are far apart), up to ``config.seeds_per_signature``.
-    Vectorised ranking (one stable sort by receiver, signature, closeness); the greedy pass
-    is :func:`raytrace.engine.kernels.spread_picks`."""
+    """Seeds to refine: one or more per distinct path of each (receiver, signature) group.
+
+    The faces of one organ share a signature (a box room's six walls, the two specular points
+    of a concave organ), so a group holds as many distinct paths as the geometry has. Its
+    candidates are clustered by launch direction (:func:`_clusters`: single linkage at
+    ``config.cluster_link`` launch spacings): the rays near one exact path are neighbours on the
+    launch sphere, distinct paths are apart. Per cluster, candidates in order of closeness,
+    each kept only if its launch direction is at least ``config.seed_separation`` spacings from
+    the cluster's seeds already kept, up to ``config.seeds_per_cluster`` (retries of one path,
+    the closest first: :func:`raytrace.engine.kernels.spread_picks`). The number of clusters is
+    not capped; the refinement charges the request's :class:`Budget` instead. Since
+    ``cluster_link >= seed_separation``, candidates of two clusters are always farther apart
+    than the separation, so each cluster's seeds start with what a greedy pick over the whole
+    group would have kept there. Seeds are returned in candidate order."""
     if len(c.receiver) == 0:
         return c.receiver, c.codes, c.nint, c.launch_dir
+    spacing = np.sqrt(4.0 * np.pi / max(c.rays_launched, 1))
     key = np.concatenate([c.receiver[:, None], c.codes], axis=1)
-    order = np.lexsort((c.closeness, *key.T[::-1]))
-    k = key[order]
-    starts = np.flatnonzero(np.r_[True, (k[1:] != k[:-1]).any(axis=1), True])
-    min_cos = np.cos(config.seed_separation * np.sqrt(4.0 * np.pi / max(c.rays_launched, 1)))
+    _, group = np.unique(key, axis=0, return_inverse=True)
+    cluster = _clusters(group.ravel(), c.launch_dir, config.cluster_link * spacing)
+    order = np.lexsort((c.closeness, cluster))
+    k = cluster[order]
+    starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1], True])
+    min_cos = np.cos(config.seed_separation * spacing)
     chosen = np.flatnonzero(kernels.spread_picks(order, starts, np.ascontiguousarray(c.launch_dir, float), min_cos,
-                                                 config.seeds_per_signature))
+                                                 config.seeds_per_cluster))
+    # the group's first picks in order of closeness come first (then the rest, each part in
+    # candidate order): of several seeds converging to one path the first is kept
+    # (_unique_paths), so a path found before clustering keeps its seed, bit for bit
+    by_group = chosen[np.lexsort((c.closeness[chosen], group.ravel()[chosen]))]
+    g = group.ravel()[by_group]
+    first = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    rank = np.arange(len(g)) - np.repeat(first, np.diff(np.r_[first, len(g)]))
+    early = np.zeros(len(c.receiver), bool)
+    early[by_group[rank < config.seeds_per_cluster]] = True
+    chosen = np.concatenate([chosen[early[chosen]], chosen[~early[chosen]]])
     return c.receiver[chosen], c.codes[chosen], c.nint[chosen], c.launch_dir[chosen]
+
+
+def _clusters(group: np.ndarray, dirs: np.ndarray, link_rad: float) -> np.ndarray:
+    """Cluster label (0..) of each candidate: the connected components of the graph linking two
+    candidates of the same ``group`` whose unit launch directions ``dirs`` are within ``link_rad``
+    of each other (chord length). Groups are kept apart by shifting each one's directions by
+    ``3 * group`` along x in a single k-d tree (unit vectors of two groups are then at least 1
+    apart, far beyond any link). Deterministic: labels follow the smallest candidate index."""
+    n = len(group)
+    pts = np.asarray(dirs, float).copy()
+    pts[:, 0] += 3.0 * group
+    pairs = cKDTree(pts).query_pairs(float(link_rad), output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return labels.astype(np.int64)
 
 
 def _unique_paths(rx_idx, codes, dirs, config: TracerConfig):
