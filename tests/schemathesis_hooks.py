@@ -37,6 +37,8 @@ CROSS_FIELD_RULES = [
       for kind in ("invalid_geometry", "ambiguous_position")),
     *(("compute_channel", ["body", part], "frequency_out_of_range", "a frequency whose wavelength in the "
        "transmitter's tissue fits in the phantom (geometric optics' floor)") for part in ("frequency_hz", "band")),
+    ("compute_channel", ["body", "receivers"], "input", "receiver names distinct (uniqueItems cannot say it of "
+     "one property of the items)"),
     ("compute_channel", ["body", "outputs"], "invalid", "an impulse response's samples and taps (l_max - l_min + 1) "
      "within the output cap, and a band that holds the taps' bandwidth"),
     *((op, ["body", "link"], "estimator_input", "the SNR a link budget and the profile's path gain give within "
