@@ -140,7 +140,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
                           cell_size_m: float = DEFAULT_CELL_SIZE_M, rays: int = 100_000, max_interactions: int = 6,
                           waveform: Any = None, pdoa_band: dict | None = None, rss_model: Any = "cm2_deep_tissue",
                           loss: str = "soft_l1", near_field: bool = True,
-                          budget: Budget | None = None) -> LocalizationEvaluation:
+                          budget: Budget | None = None, config: rt.TracerConfig | None = None
+                          ) -> LocalizationEvaluation:
     """Run the pipeline of the module docstring.
 
     capsule: site name or position; sensors: site names and/or positions (>= 4; >= 5 for
@@ -152,7 +153,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     ``near_field``: the tracer's dipole near-field term on direct paths (ChannelSpec.near_field;
     its phase biases carrier-phase TOA at a few wavelengths, a physical effect).
     Raises EstimatorInputError (``capsule``, ``sensors[i]``, ``ranging``, ``methods[i]``,
-    ``trials``...) or the tracer's InputError; ``budget`` bounds the trace.
+    ``trials``...) or the tracer's InputError; ``budget`` bounds the trace and is checked
+    between sensors' fields and between trials; ``config`` is the tracer's (threads, batches).
     """
     if ranging not in RANGING:
         raise EstimatorInputError(f"unknown ranging {ranging!r} ({' | '.join(RANGING)})", "ranging")
@@ -176,11 +178,15 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         b = dict(DEFAULT_PDOA_BAND if pdoa_band is None else pdoa_band)
         band = rt.Band(float(b["start_hz"]), float(b["stop_hz"]), int(b["points"]))
 
+    def check() -> None:
+        if budget is not None:
+            budget.charge(0)
+
     t0 = time.perf_counter()
     spec = rt.ChannelSpec(rt.Antenna(x_true, name="capsule"), tuple(rt.Antenna(p, name=n) for p, n in zip(sens, names)),
                           phantom=phantom.name, frequency_hz=frequency_hz, band=band, rays=rays,
                           max_interactions=max_interactions, near_field=near_field)
-    result = rt.trace_channel(spec, phantom, budget=budget)
+    result = rt.trace_channel(spec, phantom, budget=budget, config=config)
     trace_s = time.perf_counter() - t0
     true_d = np.linalg.norm(sens - x_true, axis=1)
 
@@ -188,6 +194,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     ranges = np.empty((trials, len(sens)))
     sigma = np.empty(len(sens))
     for j, prof in enumerate(result.profiles):
+        check()
         if not prof.paths:
             raise EstimatorInputError("no propagation path reaches this sensor (geometric-optics shadow); "
                                       "move or drop it", f"sensors[{j}]")
@@ -214,7 +221,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
 
     fields = None
     if "model_based" in chosen:
-        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m)
+        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m, check=check)
     model = path_loss_model(rss_model) if ranging == "rss" else None
 
     stats = {}
@@ -224,6 +231,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         extra: dict = {}
         velocities = []
         for t in range(trials):
+            check()
             try:
                 if m == "linear":
                     fix = linear_fix(sens, ranges[t], sigma)
