@@ -137,6 +137,10 @@ _LIMITS = [
     ("Band", "points", "maximum", "max_band_points"),
     ("PdoaRequest", "frequencies_hz", "maxItems", "max_band_points"),
     *((name, "trials", "maximum", "max_trials") for name in ("ToaRequest", "PdoaRequest", "RssRequest")),
+    ("LocalizeEvaluateRequest", "rays", "maximum", "max_rays"),
+    ("LocalizeEvaluateRequest", "max_interactions", "maximum", "max_interactions"),
+    ("LocalizeEvaluateRequest", "sensors", "maxItems", "max_receivers"),
+    ("LocalizeEvaluateRequest", "trials", "maximum", "max_trials"),
 ]
 
 

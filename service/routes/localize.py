@@ -39,7 +39,7 @@ from estimators.localization import (
 from estimators.rss import CM2_MODELS
 from estimators.toa import METHODS as TOA_METHODS
 from raytrace import Budget, Phantom
-from raytrace.errors import InvalidGeometryError
+from raytrace.errors import InputError, InvalidGeometryError, field_text
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import Unprocessable, error_responses
@@ -351,6 +351,8 @@ def _with_sensor_loc(exc: EstimatorInputError, kind: str) -> EstimatorInputError
             return EstimatorInputError(exc.reason, f"sensors{field[len(prefix):]}.{leaf}")
         if field == prefix:
             return EstimatorInputError(exc.reason, f"sensors[0].{leaf}")
+    if not field.startswith("sensors"):  # the geometry as a whole (``fields``, ``position_m``, ...)
+        return EstimatorInputError(exc.reason, "sensors")
     return exc
 
 
@@ -443,11 +445,15 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
     band = None
     if req.ranging == "pdoa":
         band = {"start_hz": 400e6, "stop_hz": 420e6, "points": min(21, settings.max_band_points)}
-    result = evaluate_localization(
-        phantom, capsule, list(sensors), ranging=req.ranging, methods=methods, frequency_hz=req.frequency_hz,
-        snr_db=req.snr_db, trials=req.trials, seed=req.seed, relative_permittivity=req.relative_permittivity,
-        cell_size_m=CELL_SIZE_M, rays=rays, max_interactions=interactions, pdoa_band=band,
-        near_field=req.near_field, budget=budget, config=settings.tracer_config())
+    try:
+        result = evaluate_localization(
+            phantom, capsule, list(sensors), ranging=req.ranging, methods=methods, frequency_hz=req.frequency_hz,
+            snr_db=req.snr_db, trials=req.trials, seed=req.seed, relative_permittivity=req.relative_permittivity,
+            cell_size_m=CELL_SIZE_M, rays=rays, max_interactions=interactions, pdoa_band=band,
+            near_field=req.near_field, budget=budget, config=settings.tracer_config())
+    except InputError as exc:  # the tracer names its antennas transmitter / receivers[i]
+        field = field_text(exc.field).replace("transmitter", "capsule").replace("receivers", "sensors")
+        raise type(exc)(exc.reason, field=field) from exc
     names = [s.site or r for s, r in zip(req.sensors, result.sensor_names)]
     stats = []
     for m in result.methods.values():
