@@ -41,6 +41,9 @@ OPERATIONS = {
     ("post", "/v1/plots/cfr"): "plot_cfr",
     ("post", "/v1/plots/crlb"): "plot_crlb",
     ("post", "/v1/plots/ranging_errors"): "plot_ranging_errors",
+    ("post", "/v1/plots/localization_cdf"): "plot_localization_cdf",
+    ("post", "/v1/plots/tract_errors"): "plot_tract_errors",
+    ("post", "/v1/plots/path_loss"): "plot_path_loss",
 }
 
 
