@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -77,12 +77,16 @@ def index_grid(phantom: Phantom, frequency_hz: float, cell_size_m: float = DEFAU
 
 
 def sensor_fields(phantom: Phantom, sensors_m: Sequence, frequency_hz: float,
-                  cell_size_m: float = DEFAULT_CELL_SIZE_M, kind: str = "phase") -> TravelTimeFields:
-    """Travel-time fields of every sensor (cached), stacked for the model-based fix."""
+                  cell_size_m: float = DEFAULT_CELL_SIZE_M, kind: str = "phase",
+                  check: Callable[[], None] | None = None) -> TravelTimeFields:
+    """Travel-time fields of every sensor (cached), stacked for the model-based fix. ``check``
+    (e.g. a request budget's) is called before each field is built and may raise to stop."""
     grid, n = index_grid(phantom, frequency_hz, cell_size_m, kind)
     key = grid_fingerprint(n, grid.origin_m, grid.spacing_m)
     fields = []
     for i, s in enumerate(np.asarray(sensors_m, float).reshape(-1, 3)):
+        if check is not None:
+            check()
         try:
             fields.append(cached_travel_time_field(n, grid.origin_m, grid.spacing_m, s, fingerprint=key))
         except EstimatorInputError as exc:

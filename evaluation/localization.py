@@ -140,7 +140,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
                           cell_size_m: float = DEFAULT_CELL_SIZE_M, rays: int = 100_000, max_interactions: int = 6,
                           waveform: Any = None, pdoa_band: dict | None = None, rss_model: Any = "cm2_deep_tissue",
                           loss: str = "soft_l1", near_field: bool = True,
-                          budget: Budget | None = None) -> LocalizationEvaluation:
+                          budget: Budget | None = None, config: rt.TracerConfig | None = None
+                          ) -> LocalizationEvaluation:
     """Run the pipeline of the module docstring.
 
     capsule: site name or position; sensors: site names and/or positions (>= 4; >= 5 for
@@ -152,7 +153,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     ``near_field``: the tracer's dipole near-field term on direct paths (ChannelSpec.near_field;
     its phase biases carrier-phase TOA at a few wavelengths, a physical effect).
     Raises EstimatorInputError (``capsule``, ``sensors[i]``, ``ranging``, ``methods[i]``,
-    ``trials``...) or the tracer's InputError; ``budget`` bounds the trace.
+    ``trials``...) or the tracer's InputError; ``budget`` bounds the trace and is checked
+    between sensors' fields and between trials; ``config`` is the tracer's (threads, batches).
     """
     if ranging not in RANGING:
         raise EstimatorInputError(f"unknown ranging {ranging!r} ({' | '.join(RANGING)})", "ranging")
@@ -176,11 +178,15 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         b = dict(DEFAULT_PDOA_BAND if pdoa_band is None else pdoa_band)
         band = rt.Band(float(b["start_hz"]), float(b["stop_hz"]), int(b["points"]))
 
+    def check() -> None:
+        if budget is not None:
+            budget.charge(0)
+
     t0 = time.perf_counter()
     spec = rt.ChannelSpec(rt.Antenna(x_true, name="capsule"), tuple(rt.Antenna(p, name=n) for p, n in zip(sens, names)),
                           phantom=phantom.name, frequency_hz=frequency_hz, band=band, rays=rays,
                           max_interactions=max_interactions, near_field=near_field)
-    result = rt.trace_channel(spec, phantom, budget=budget)
+    result = rt.trace_channel(spec, phantom, budget=budget, config=config)
     trace_s = time.perf_counter() - t0
     true_d = np.linalg.norm(sens - x_true, axis=1)
 
@@ -188,6 +194,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     ranges = np.empty((trials, len(sens)))
     sigma = np.empty(len(sens))
     for j, prof in enumerate(result.profiles):
+        check()
         if not prof.paths:
             raise EstimatorInputError("no propagation path reaches this sensor (geometric-optics shadow); "
                                       "move or drop it", f"sensors[{j}]")
@@ -214,7 +221,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
 
     fields = None
     if "model_based" in chosen:
-        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m)
+        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m, check=check)
     model = path_loss_model(rss_model) if ranging == "rss" else None
 
     stats = {}
@@ -224,6 +231,7 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         extra: dict = {}
         velocities = []
         for t in range(trials):
+            check()
             try:
                 if m == "linear":
                     fix = linear_fix(sens, ranges[t], sigma)
@@ -316,6 +324,28 @@ def markdown_table(rows: Sequence[LocalizationEvaluation], names: Sequence[str])
     return "\n".join(out)
 
 
+def summary_table(rows: Sequence[LocalizationEvaluation]) -> str:
+    """Per method, every trial of every capsule site pooled: mean 3-D error, RMSE, CEP50, CEP90 [mm],
+    the position CRLB (RMS over the sites) and the ratio of the constant-velocity RMSE to the method's."""
+    mm = 1e3
+    out = ["| method | mean | RMSE | CEP50 | CEP90 | CRLB (RMS over sites) | RMSE / CRLB | const. RMSE / RMSE |",
+           "|" + "---|" * 8]
+    labels = {"nonlinear": "constant velocity (NLS, eps_r 27.9)", "joint_velocity": "joint velocity",
+              "model_based": "model-based (travel-time fields)"}
+    pooled = {}
+    for k in TABLE_METHODS:
+        err = np.concatenate([np.linalg.norm(r.methods[k].estimates_m - r.capsule_position_m, axis=1) for r in rows])
+        pooled[k] = err[np.isfinite(err)]
+    const = np.sqrt(np.mean(pooled["nonlinear"] ** 2))
+    for k in TABLE_METHODS:
+        e = pooled[k]
+        rmse = np.sqrt(np.mean(e**2))
+        bound = np.sqrt(np.mean([r.methods[k].crlb_m ** 2 for r in rows]))
+        out.append(f"| {labels[k]} | {e.mean() * mm:.1f} | {rmse * mm:.1f} | {np.percentile(e, 50) * mm:.1f} | "
+                   f"{np.percentile(e, 90) * mm:.1f} | {bound * mm:.3f} | {rmse / bound:.0f} | {const / rmse:.1f} |")
+    return "\n".join(out)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="Acceptance table of docs/localization.md: default torso, 6 capsule "
                                              "sites x 12 sensors, TOA at 402 MHz, 30 dB.")
@@ -331,6 +361,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     from raytrace.body.torso import default_torso
 
     names = [n for n, s in default_torso().sites.items() if s.kind == "capsule"]
+    print(summary_table(rows))
+    print()
     print(markdown_table(rows, names))
     lin = np.sqrt(np.mean([r.methods["linear"].rmse_m ** 2 for r in rows]))
     vel = [r.methods["joint_velocity"].extra["relative_permittivity"] for r in rows]

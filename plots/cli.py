@@ -23,7 +23,7 @@ _PROFILE_KINDS = ("pdp", "cfr")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plot", help="draw a figure (pdp, cfr, crlb, ranging_errors) from a JSON file",
+    p = sub.add_parser("plot", help="draw a figure (" + ", ".join(KINDS) + ") from a JSON file",
                        description=__doc__.split("\n\n", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("kind", choices=sorted(KINDS), help="; ".join(f"{k}: {v.summary}" for k, v in KINDS.items()))
     p.add_argument("input", help="JSON file: the POST /v1/plots/KIND body (or, for pdp/cfr, a channel response)")

@@ -16,6 +16,14 @@ from matplotlib.figure import Figure
 from plots.cfr import CfrRequest, frequency_response
 from plots.crlb import CrlbRequest, crlb_vs_frequency
 from plots.figure import PlotInputError, PlotRequest, figure_bytes
+from plots.localization import (
+    LocalizationCdfRequest,
+    PathLossRequest,
+    TractErrorsRequest,
+    localization_cdf,
+    path_loss,
+    tract_errors,
+)
 from plots.pdp import PdpRequest, power_delay_profile
 from plots.ranging_errors import RangingErrorsRequest, ranging_errors
 
@@ -39,6 +47,12 @@ KINDS: dict[str, PlotKind] = {
                  "Cramér-Rao bounds on the range against the carrier frequency (Figs 4.3, 5.3, 5.4)"),
         PlotKind("ranging_errors", ranging_errors, RangingErrorsRequest,
                  "Ranging error distributions per method: box plots and CDFs of |error|"),
+        PlotKind("localization_cdf", localization_cdf, LocalizationCdfRequest,
+                 "Localization error CDF per method: 3-D position error [mm] with CEP50/CEP90 and the CRLB"),
+        PlotKind("tract_errors", tract_errors, TractErrorsRequest,
+                 "Localization error along the GI tract: 3-D and along-tract error [mm] against s [m]"),
+        PlotKind("path_loss", path_loss, PathLossRequest,
+                 "Path loss against distance: a fitted log-distance model beside IEEE 802.15.6 CM2"),
     )
 }
 

@@ -25,7 +25,7 @@ from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
 from service.registry import Registry
-from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging, sweeps, vision
+from service.routes import bounds, catalogue, channel, localize, ops, pages, phantoms, plots, ranging, sweeps, vision
 from service.security import API_KEY_HEADER, OriginGuard
 from service.settings import Settings
 from service.storage import PhantomStore
@@ -49,6 +49,7 @@ worker threads; a saturated server answers 503 with `Retry-After` at once.
 TAGS = [
     {"name": "channel", "description": "Ray-traced channel impulse responses."},
     {"name": "ranging", "description": "Monte Carlo TOA / PDOA / RSS ranging over a channel profile."},
+    {"name": "localization", "description": "The capsule's position from several sensors, with position bounds."},
     {"name": "bounds", "description": "Closed-form Cramér-Rao bounds."},
     {"name": "catalogue", "description": "Tissues and built-in scenarios."},
     {"name": "phantoms", "description": "Built-in and uploaded phantoms."},
@@ -101,7 +102,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     app.state.sweeps = sweep_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, bounds, plots, catalogue, phantoms, sweeps, vision, ops):
+    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, vision, ops):
         app.include_router(module.router)
     pages.install(app)
     # outermost last: request id and metrics see every answer, CORS answers its preflights,
@@ -111,6 +112,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(AllowedMethods, openapi=lambda: app.openapi())  # the documented one, see _document
     app.add_middleware(BodyLimit, caps=[("/v1/ranging/", settings.max_ranging_body_bytes),
                                         ("/v1/channel", settings.max_json_body_bytes),
+                                        ("/v1/localize", settings.max_json_body_bytes),
                                         ("/v1/bounds/", settings.max_json_body_bytes),
                                         ("/v1/plots/", settings.max_ranging_body_bytes),
                                         ("/v1/sweeps", settings.max_json_body_bytes),
@@ -137,6 +139,10 @@ _LIMITS = [
     ("Band", "points", "maximum", "max_band_points"),
     ("PdoaRequest", "frequencies_hz", "maxItems", "max_band_points"),
     *((name, "trials", "maximum", "max_trials") for name in ("ToaRequest", "PdoaRequest", "RssRequest")),
+    ("LocalizeEvaluateRequest", "rays", "maximum", "max_rays"),
+    ("LocalizeEvaluateRequest", "max_interactions", "maximum", "max_interactions"),
+    ("LocalizeEvaluateRequest", "sensors", "maxItems", "max_receivers"),
+    ("LocalizeEvaluateRequest", "trials", "maximum", "max_trials"),
 ]
 
 

@@ -26,6 +26,7 @@ from pydantic import BaseModel
 
 from service import schemas as s
 from service.routes import vision as v
+from service.routes import localize as loc
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -161,6 +162,15 @@ class _Endpoints:
         return _Call("POST", "/v1/ranging/rss", s.RangingResponse, {"json": _body(s.RssRequest, req)})
 
     @staticmethod
+    def localize(req: loc.LocalizeRequest | dict) -> _Call:
+        return _Call("POST", "/v1/localize", loc.LocalizeResponse, {"json": _body(loc.LocalizeRequest, req)})
+
+    @staticmethod
+    def localize_evaluate(req: loc.LocalizeEvaluateRequest | dict) -> _Call:
+        return _Call("POST", "/v1/localize/evaluate", loc.LocalizeEvaluateResponse,
+                     {"json": _body(loc.LocalizeEvaluateRequest, req)})
+
+    @staticmethod
     def bound_toa(req: s.ToaBoundRequest | dict) -> _Call:
         return _Call("POST", "/v1/bounds/toa", s.ToaBoundResponse, {"json": _body(s.ToaBoundRequest, req)})
 
@@ -259,6 +269,16 @@ class Client:
     def ranging_rss(self, req: s.RssRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
         return self._do(_Endpoints.ranging_rss(req), headers)
 
+    def localize(self, req: loc.LocalizeRequest | dict, *,
+                 headers: dict[str, str] | None = None) -> loc.LocalizeResponse:
+        """POST /v1/localize: one position fix from the sensors' ranges, delays or received powers."""
+        return self._do(_Endpoints.localize(req), headers)
+
+    def localize_evaluate(self, req: loc.LocalizeEvaluateRequest | dict, *,
+                          headers: dict[str, str] | None = None) -> loc.LocalizeEvaluateResponse:
+        """POST /v1/localize/evaluate: trace, range and locate; error statistics beside the bound."""
+        return self._do(_Endpoints.localize_evaluate(req), headers)
+
     def bound_toa(self, req: s.ToaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.ToaBoundResponse:
         return self._do(_Endpoints.bound_toa(req), headers)
 
@@ -348,6 +368,16 @@ class AsyncClient:
 
     async def ranging_rss(self, req: s.RssRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
         return await self._do(_Endpoints.ranging_rss(req), headers)
+
+    async def localize(self, req: loc.LocalizeRequest | dict, *,
+                 headers: dict[str, str] | None = None) -> loc.LocalizeResponse:
+        """POST /v1/localize: one position fix from the sensors' ranges, delays or received powers."""
+        return await self._do(_Endpoints.localize(req), headers)
+
+    async def localize_evaluate(self, req: loc.LocalizeEvaluateRequest | dict, *,
+                          headers: dict[str, str] | None = None) -> loc.LocalizeEvaluateResponse:
+        """POST /v1/localize/evaluate: trace, range and locate; error statistics beside the bound."""
+        return await self._do(_Endpoints.localize_evaluate(req), headers)
 
     async def bound_toa(self, req: s.ToaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.ToaBoundResponse:
         return await self._do(_Endpoints.bound_toa(req), headers)

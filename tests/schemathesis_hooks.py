@@ -53,6 +53,11 @@ CROSS_FIELD_RULES = [
     *(("submit_sweep", ["body", part], "sweep_spec", "sites, positions and centrelines of the phantom; bands, "
        "methods and localizers consistent with each other (sweeps.spec)")
       for part in ("capsule_positions", "receivers", "frequencies_hz", "channel", "ranging", "localization")),
+    *((op, ["body", part], kind, "sensors (and a capsule) inside the phantom's body, off its surfaces, apart from "
+       "each other and not coplanar, of known sites; one measurement kind for every sensor and the method's, "
+       "sigmas for all or none; methods that suit the ranging; a frequency whose wavelength fits the phantom")
+      for op in ("localize", "localize_evaluate") for part in ("sensors", "capsule", "methods", "frequency_hz")
+      for kind in ("estimator_input", "invalid", "invalid_geometry", "ambiguous_position", "frequency_out_of_range")),
     ("upload_phantom", ["body", "manifest"], "phantom_validation",
      "the manifest part is JSON that names the mesh's nodes, sites inside the phantom's bounds..."),
     ("vision_render", ["body", "pose"], "vision_input", "a pose inside one of the phantom's GI lumens: s_m within "

@@ -16,6 +16,8 @@ OPERATIONS = {
     ("post", "/v1/ranging/toa"): "ranging_toa",
     ("post", "/v1/ranging/pdoa"): "ranging_pdoa",
     ("post", "/v1/ranging/rss"): "ranging_rss",
+    ("post", "/v1/localize"): "localize",
+    ("post", "/v1/localize/evaluate"): "localize_evaluate",
     ("post", "/v1/bounds/toa"): "bound_toa",
     ("post", "/v1/bounds/pdoa"): "bound_pdoa",
     ("post", "/v1/bounds/rss"): "bound_rss",
@@ -41,6 +43,9 @@ OPERATIONS = {
     ("post", "/v1/plots/ranging_errors"): "plot_ranging_errors",
     ("post", "/v1/vision/render"): "vision_render",
     ("post", "/v1/vision/motion"): "vision_motion",
+    ("post", "/v1/plots/localization_cdf"): "plot_localization_cdf",
+    ("post", "/v1/plots/tract_errors"): "plot_tract_errors",
+    ("post", "/v1/plots/path_loss"): "plot_path_loss",
 }
 
 
@@ -72,14 +77,16 @@ def test_operation_ids_are_stable_and_errors_declared():
             assert {"400", "422"} <= codes, op_id
         if path.startswith("/v1/phantoms/"):
             assert {"404", "422"} <= codes, op_id
-        if op_id in ("compute_channel", "ranging_toa", "ranging_pdoa", "ranging_rss", "upload_phantom"):
+        if op_id in ("compute_channel", "ranging_toa", "ranging_pdoa", "ranging_rss", "upload_phantom", "localize",
+                     "localize_evaluate"):
             assert {"503", "504"} <= codes, op_id
     assert "413" in schema["paths"]["/v1/phantoms"]["post"]["responses"]
 
 
 def test_request_models_are_strict_documented_and_have_examples():
     schema = json.loads((ROOT / "openapi.json").read_text())["components"]["schemas"]
-    for name in ("ChannelRequest", "ToaRequest", "PdoaRequest", "RssRequest", "ToaBoundRequest", "PdoaBoundRequest", "RssBoundRequest"):
+    for name in ("ChannelRequest", "ToaRequest", "PdoaRequest", "RssRequest", "ToaBoundRequest", "PdoaBoundRequest",
+                 "RssBoundRequest", "LocalizeRequest", "LocalizeEvaluateRequest"):
         model = schema[name]
         assert model["additionalProperties"] is False, name
         assert model.get("examples"), name

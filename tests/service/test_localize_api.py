@@ -1,0 +1,239 @@
+"""POST /v1/localize and /v1/localize/evaluate over the in-process HTTP client.
+
+Oracles: ranges and delays are computed here from a chosen position with math.dist (no
+project code), so a fix must return that position; the position bound of six sensors on
+the axes around the capsule is the closed form sigma_x = sigma sqrt(1/2) (H^T H = 2 I);
+on the homogeneous muscle sphere the model-based fix (eikonal fields through the phantom)
+must agree with the constant-velocity one at the sphere's own index, which the test derives
+from the tissue's permittivity and conductivity served by GET /v1/tissues (Re sqrt(eps_r*)).
+Every refusal must name the sensor's field in ``loc``.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+
+import pytest
+
+from tests.service.test_api import assert_field
+
+C0 = 299_792_458.0
+EPS0 = 8.8541878128e-12
+
+TRUE = (0.012, -0.021, 0.034)
+#: A non-degenerate 3-D layout (not coplanar, distances 0.1-0.2 m).
+LAYOUT = [(0.15, 0.02, 0.0), (-0.12, 0.05, 0.03), (0.01, -0.14, 0.06), (0.03, 0.11, -0.09),
+          (0.02, 0.01, 0.18), (-0.05, -0.06, -0.12)]
+
+
+def _sensors(layout=LAYOUT, *, kind="range_m", scale=1.0, sigma=None, truth=TRUE):
+    out = []
+    for s in layout:
+        item = {"position_m": list(s), kind: math.dist(s, truth) * scale}
+        if sigma is not None:
+            item["sigma_m"] = sigma
+        out.append(item)
+    return out
+
+
+@pytest.mark.parametrize("method", ["linear", "nonlinear"])
+def test_noiseless_ranges_give_the_true_position(api, method):
+    r = api.post("/v1/localize", json={"method": method, "sensors": _sensors(sigma=0.001)})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    # 1e-9 m: noiseless ranges determine the position exactly; closed form and NLS both reach it to round-off
+    assert math.dist(body["position_m"], TRUE) < 1e-9
+    assert max(abs(x) for x in body["residuals_m"]) < 1e-9
+    assert body["converged"] and body["method"] == method
+    assert body["crlb_m"] > 0 and body["gdop"] > 0 and len(body["covariance_m2"]) == 3
+
+
+def test_delays_are_converted_with_the_assumed_permittivity(api):
+    eps = 40.0
+    v = C0 / math.sqrt(eps)
+    r = api.post("/v1/localize", json={"method": "nonlinear", "relative_permittivity": eps,
+                                       "sensors": _sensors(kind="delay_s", scale=1.0 / v)})
+    assert r.status_code == 200, r.text
+    assert math.dist(r.json()["position_m"], TRUE) < 1e-9
+
+
+def test_joint_velocity_recovers_position_and_velocity(api):
+    v = C0 / math.sqrt(51.3)
+    r = api.post("/v1/localize", json={"method": "joint_velocity",
+                                       "sensors": _sensors(kind="delay_s", scale=1.0 / v)})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    # noiseless delays: position to 1e-9 m, velocity to 1e-9 relative (the solver's tolerance is 1e-12)
+    assert math.dist(body["position_m"], TRUE) < 1e-9
+    assert body["velocity_m_per_s"] == pytest.approx(v, rel=1e-9)
+    assert body["relative_permittivity"] == pytest.approx(51.3, rel=1e-8)
+    assert body["crlb_m"] is None  # no sigma_m given: no bound, only the DOPs
+
+
+def test_position_bound_of_six_sensors_on_the_axes_is_the_closed_form(api):
+    d, sigma = 0.1, 0.002
+    axes = [(d, 0, 0), (-d, 0, 0), (0, d, 0), (0, -d, 0), (0, 0, d), (0, 0, -d)]
+    r = api.post("/v1/localize", json={"method": "nonlinear",
+                                       "sensors": _sensors(axes, sigma=sigma, truth=(0.0, 0.0, 0.0))})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    # H^T H = 2 I: sigma_x = sigma sqrt(1/2) per axis, sqrt(3/2) sigma in 3-D, PDOP sqrt(3/2) (round-off only)
+    assert body["crlb_sigma_m"] == pytest.approx([sigma * math.sqrt(0.5)] * 3, rel=1e-9)
+    assert body["crlb_m"] == pytest.approx(sigma * math.sqrt(1.5), rel=1e-9)
+    assert body["pdop"] == pytest.approx(math.sqrt(1.5), rel=1e-9)
+    assert body["covariance_m2"][0][0] == pytest.approx(sigma**2 / 2, rel=1e-9)
+
+
+def test_rss_inverts_the_cm2_model(api):
+    # CM2 deep tissue (IEEE 802.15.6, thesis Eq 2.2, Table 2.2): PL(d) = 47.14 + 10 * 4.26 log10(d / 50 mm)
+    pt = -16.0
+    sensors = [{"position_m": list(s), "rss_dbm": pt - (47.14 + 42.6 * math.log10(math.dist(s, TRUE) / 0.05))}
+               for s in LAYOUT]
+    r = api.post("/v1/localize", json={"method": "rss", "transmit_power_dbm": pt, "sensors": sensors})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    # the model's own numbers, typed here: the inversion is exact up to the solver's tolerance
+    assert math.dist(body["position_m"], TRUE) < 1e-7
+    assert body["crlb_m"] > 0  # from the model's 7.85 dB shadowing
+
+
+def test_model_based_agrees_with_constant_velocity_on_the_homogeneous_sphere(api):
+    f = 402e6
+    tissues = {t["name"]: t for t in api.get("/v1/tissues", params={"frequency_hz": f}).json()["tissues"]}
+    muscle = tissues["muscle"]
+    eps = complex(muscle["relative_permittivity"], -muscle["conductivity_s_per_m"] / (2 * math.pi * f * EPS0))
+    n = cmath.sqrt(eps).real
+    truth = (0.01, -0.02, 0.015)
+    layout = [(0.07, 0.0, 0.0), (-0.06, 0.03, 0.01), (0.0, -0.07, 0.02), (0.02, 0.065, -0.03),
+              (0.0, 0.01, 0.075), (-0.03, -0.03, -0.06)]  # inside the 0.10 m sphere
+    sensors = _sensors(layout, kind="delay_s", scale=n / C0, sigma=0.001, truth=truth)
+    common = {"phantom": "homogeneous-sphere", "frequency_hz": f, "relative_permittivity": n * n, "sensors": sensors}
+    cv = api.post("/v1/localize", json={**common, "method": "nonlinear"})
+    mb = api.post("/v1/localize", json={**common, "method": "model_based"})
+    assert cv.status_code == 200 and mb.status_code == 200, (cv.text, mb.text)
+    assert math.dist(cv.json()["position_m"], truth) < 1e-9
+    # the fields' stated discretisation error is n h / c at h = 4 mm, i.e. 4 mm of range in this medium;
+    # the fix from six such ranges lies within that of the exact position
+    assert math.dist(mb.json()["position_m"], truth) < 0.004
+    assert mb.json()["inside_domain"] is True and mb.json()["crlb_m"] > 0
+
+
+def test_sites_resolve_through_the_phantom(api):
+    phantom = api.get("/v1/phantoms/torso").json()
+    sites = {name: s["position_m"] for name, s in phantom["sites"].items()}
+    names = ["belt_anterior", "belt_left", "belt_posterior", "upper_right", "upper_anterior_left", "upper_left"]
+    truth = sites["small_intestine_1"]
+    sensors = [{"site": n, "range_m": math.dist(sites[n], truth)} for n in names]
+    r = api.post("/v1/localize", json={"method": "nonlinear", "sensors": sensors})
+    assert r.status_code == 200, r.text
+    assert math.dist(r.json()["position_m"], truth) < 1e-9
+    assert r.json()["sensor_positions_m"][0] == pytest.approx(sites["belt_anterior"])
+
+
+# ----------------------------------------------------------------- refusals
+def test_too_few_sensors_named(api):
+    assert_field(api.post("/v1/localize", json={"sensors": _sensors()[:3]}), 422, "body", "sensors")
+    r = api.post("/v1/localize", json={"method": "joint_velocity",
+                                       "sensors": _sensors(LAYOUT[:4], kind="delay_s", scale=1e-8)})
+    assert_field(r, 422, "body", "sensors")
+    assert "at least 5" in r.text
+
+
+def test_duplicate_sensor_named(api):
+    sensors = _sensors()
+    sensors[4]["position_m"] = list(LAYOUT[1])
+    assert_field(api.post("/v1/localize", json={"sensors": sensors}), 422, "body", "sensors", 4, "position_m")
+
+
+def test_coplanar_sensors_named(api):
+    flat = [(0.1, 0.0, 0.0), (-0.1, 0.02, 0.0), (0.0, 0.1, 0.0), (0.03, -0.1, 0.0), (0.05, 0.05, 0.0)]
+    r = api.post("/v1/localize", json={"sensors": _sensors(flat)})
+    assert_field(r, 422, "body", "sensors")
+    assert "coplanar" in r.text
+
+
+def test_sensor_outside_the_phantom_named(api):
+    sensors = _sensors([(0.07, 0.0, 0.0), (-0.06, 0.03, 0.01), (0.0, -0.07, 0.02), (0.02, 0.065, -0.03),
+                        (0.0, 0.01, 0.15)], truth=(0.0, 0.0, 0.0))  # the last one in the air above the sphere
+    r = api.post("/v1/localize", json={"phantom": "homogeneous-sphere", "sensors": sensors})
+    assert_field(r, 422, "body", "sensors", 4, "position_m")
+    assert "outside" in r.text
+    sensors[4]["position_m"] = [0.0, 0.0, 5.0]  # beyond the bounds
+    assert_field(api.post("/v1/localize", json={"phantom": "homogeneous-sphere", "sensors": sensors}), 422,
+                 "body", "sensors", 4, "position_m")
+
+
+def test_nan_and_mixed_measurements_named(api):
+    raw = ('{"sensors": [{"position_m": [0.1, 0, 0], "range_m": NaN}, {"position_m": [0, 0.1, 0], "range_m": 0.1},'
+           '{"position_m": [0, 0, 0.1], "range_m": 0.1}, {"position_m": [-0.1, -0.1, -0.1], "range_m": 0.1}]}')
+    r = api.post("/v1/localize", content=raw, headers={"content-type": "application/json"})
+    assert_field(r, 422, "body", "sensors", 0, "range_m")
+    sensors = _sensors()
+    sensors[2] = {"position_m": list(LAYOUT[2]), "delay_s": 1e-9}
+    assert_field(api.post("/v1/localize", json={"sensors": sensors}), 422, "body", "sensors", 2, "delay_s")
+    sensors = _sensors()
+    sensors[1]["delay_s"] = 1e-9  # two measurements on one sensor
+    assert_field(api.post("/v1/localize", json={"sensors": sensors}), 422, "body", "sensors", 1)
+    sensors = _sensors(sigma=0.001)
+    del sensors[3]["sigma_m"]
+    assert_field(api.post("/v1/localize", json={"sensors": sensors}), 422, "body", "sensors", 3, "sigma_m")
+    r = api.post("/v1/localize", json={"method": "model_based", "sensors": _sensors()})
+    assert_field(r, 422, "body", "sensors", 0, "range_m")
+
+
+def test_unknown_site_and_phantom_named(api):
+    sensors = _sensors()
+    sensors[0] = {"site": "nowhere", "range_m": 0.1}
+    assert_field(api.post("/v1/localize", json={"sensors": sensors}), 422, "body", "sensors", 0, "site")
+    assert_field(api.post("/v1/localize", json={"phantom": "nope", "sensors": _sensors()}), 404, "body", "phantom")
+
+
+def test_too_many_sensors_refused_before_work(api):
+    many = [{"position_m": [0.001 * i, 0.0, 0.0], "range_m": 0.1} for i in range(65)]
+    assert_field(api.post("/v1/localize", json={"sensors": many}), 422, "body", "sensors")
+
+
+# ----------------------------------------------------------------- evaluation
+EVALUATE = {
+    "phantom": "torso",
+    "capsule": {"site": "small_intestine_1"},
+    "sensors": [{"site": s} for s in ("belt_anterior", "belt_left", "belt_posterior", "upper_right",
+                                      "upper_anterior_left", "upper_left")],
+    "methods": ["nonlinear", "joint_velocity"],
+    "trials": 4,
+    "seed": 3,
+    "rays": 5000,
+}
+
+
+def test_evaluate_reports_statistics_consistent_with_its_trials(api):
+    r = api.post("/v1/localize/evaluate", json=EVALUATE)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert [m["method"] for m in body["methods"]] == ["nonlinear", "joint_velocity"]
+    assert body["sensor_names"][0] == "belt_anterior" and body["trials"] == 4
+    for m in body["methods"]:
+        err = [e for e in m["errors_m"] if e is not None]
+        assert len(m["errors_m"]) == 4 and len(err) == 4 - m["failures"]
+        # the statistics are those of the listed per-trial errors (exact formulas, numpy-free here)
+        assert m["mean_error_m"] == pytest.approx(sum(err) / len(err), rel=1e-12)
+        assert m["rmse_m"] == pytest.approx(math.sqrt(sum(e * e for e in err) / len(err)), rel=1e-12)
+        assert min(err) <= m["cep50_m"] <= m["cep90_m"] <= max(err)
+        assert m["crlb_m"] > 0
+    # deterministic: the same seed gives the same answer
+    again = api.post("/v1/localize/evaluate", json=EVALUATE).json()
+    assert again == body
+
+
+def test_evaluate_refusals_named(api):
+    assert_field(api.post("/v1/localize/evaluate", json={**EVALUATE, "trials": 201}), 422, "body", "trials")
+    assert_field(api.post("/v1/localize/evaluate", json={**EVALUATE, "rays": 10_000}), 422, "body", "rays")
+    bad = {**EVALUATE, "sensors": [*EVALUATE["sensors"][:5], {"position_m": [0.0, 0.0, 3.0]}]}
+    assert_field(api.post("/v1/localize/evaluate", json=bad), 422, "body", "sensors", 5, "position_m")
+    assert_field(api.post("/v1/localize/evaluate", json={**EVALUATE, "capsule": {"site": "nowhere"}}), 422,
+                 "body", "capsule", "site")
+    assert_field(api.post("/v1/localize/evaluate", json={**EVALUATE, "ranging": "rss",
+                                                         "methods": ["model_based"]}), 422, "body", "methods", 0)
+    assert_field(api.post("/v1/localize/evaluate", json={**EVALUATE, "methods": ["linear", "linear"]}), 422,
+                 "body", "methods")
