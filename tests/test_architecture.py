@@ -59,3 +59,12 @@ def test_estimators_import_neither_the_tracer_nor_the_service(module, path):
 def test_the_layer_table_knows_every_subpackage():
     parts = {p.stem for p in (ROOT / "raytrace").iterdir() if (p / "__init__.py").exists() or p.suffix == ".py"}
     assert parts - {"__init__", "scenarios"} <= set(LAYERS), parts - set(LAYERS)
+
+
+@pytest.mark.parametrize("module, path", list(_modules("tracking")), ids=lambda v: str(v))
+def test_tracking_is_pure(module, path):
+    """The trackers work on plain arrays and a centreline: no service, no sweeps, evaluation, vision
+    or plots (the evaluation module composes those; docs/tracking.md)."""
+    for imported in _imports(path):
+        assert imported.split(".")[0] not in ("service", "sweeps", "evaluation", "vision", "plots"), \
+            f"{module} imports {imported}"
