@@ -18,6 +18,7 @@ from plots.crlb import CrlbRequest, crlb_vs_frequency
 from plots.figure import PlotInputError, PlotRequest, figure_bytes
 from plots.pdp import PdpRequest, power_delay_profile
 from plots.ranging_errors import RangingErrorsRequest, ranging_errors
+from plots.tracking import TrackingPlotRequest, tracking_trajectory
 
 
 @dataclass(frozen=True)
@@ -39,6 +40,8 @@ KINDS: dict[str, PlotKind] = {
                  "Cramér-Rao bounds on the range against the carrier frequency (Figs 4.3, 5.3, 5.4)"),
         PlotKind("ranging_errors", ranging_errors, RangingErrorsRequest,
                  "Ranging error distributions per method: box plots and CDFs of |error|"),
+        PlotKind("tracking", tracking_trajectory, TrackingPlotRequest,
+                 "Capsule trajectory along the GI tract: truth and trackers, and the error over time"),
     )
 }
 

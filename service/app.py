@@ -25,7 +25,7 @@ from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
 from service.registry import Registry
-from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging, sweeps
+from service.routes import bounds, catalogue, channel, ops, pages, phantoms, plots, ranging, sweeps, tracking
 from service.security import API_KEY_HEADER, OriginGuard
 from service.settings import Settings
 from service.storage import PhantomStore
@@ -100,7 +100,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     app.state.sweeps = sweep_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, bounds, plots, catalogue, phantoms, sweeps, ops):
+    for module in (channel, ranging, bounds, plots, catalogue, phantoms, sweeps, tracking, ops):
         app.include_router(module.router)
     pages.install(app)
     # outermost last: request id and metrics see every answer, CORS answers its preflights,

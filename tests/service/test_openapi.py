@@ -39,6 +39,9 @@ OPERATIONS = {
     ("post", "/v1/plots/cfr"): "plot_cfr",
     ("post", "/v1/plots/crlb"): "plot_crlb",
     ("post", "/v1/plots/ranging_errors"): "plot_ranging_errors",
+    ("post", "/v1/plots/tracking"): "plot_tracking",
+    ("post", "/v1/track"): "track",
+    ("post", "/v1/track/evaluate"): "track_evaluate",
 }
 
 
