@@ -191,7 +191,7 @@ class PathLossRequest(PlotRequest):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={"examples": [_PL_EXAMPLE]})
 
-    distances_m: list[Annotated[float, Field(gt=0.0, le=100.0)]] = Field(
+    distances_m: list[Annotated[float, Field(ge=1e-6, le=100.0)]] = Field(
         min_length=3, max_length=MAX_POINTS, description="Capsule-sensor distances [m].")
     path_loss_db: list[Annotated[float, Field(ge=-100.0, le=400.0)]] = Field(
         min_length=3, max_length=MAX_POINTS, description="Path loss of each link [dB] (-path_gain_db).")

@@ -26,6 +26,7 @@ from plots.localization import (
 )
 from plots.pdp import PdpRequest, power_delay_profile
 from plots.ranging_errors import RangingErrorsRequest, ranging_errors
+from plots.tracking import TrackingPlotRequest, tracking_trajectory
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,8 @@ KINDS: dict[str, PlotKind] = {
                  "Localization error along the GI tract: 3-D and along-tract error [mm] against s [m]"),
         PlotKind("path_loss", path_loss, PathLossRequest,
                  "Path loss against distance: a fitted log-distance model beside IEEE 802.15.6 CM2"),
+        PlotKind("tracking", tracking_trajectory, TrackingPlotRequest,
+                 "Capsule trajectory along the GI tract: truth and trackers, and the error over time"),
     )
 }
 

@@ -25,7 +25,8 @@ from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
 from service.registry import Registry
-from service.routes import bounds, catalogue, channel, localize, ops, pages, phantoms, plots, ranging, sweeps, vision
+from service.routes import (bounds, catalogue, channel, localize, ops, pages, phantoms, plots, ranging, sweeps,
+                            tracking, vision)
 from service.security import API_KEY_HEADER, OriginGuard
 from service.settings import Settings
 from service.storage import PhantomStore
@@ -102,7 +103,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     app.state.sweeps = sweep_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, vision, ops):
+    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, vision, tracking, ops):
         app.include_router(module.router)
     pages.install(app)
     # outermost last: request id and metrics see every answer, CORS answers its preflights,

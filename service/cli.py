@@ -536,6 +536,7 @@ def build_parser() -> argparse.ArgumentParser:
     from service import sweep_cli
 
     sweep_cli.add_parsers(sub)
+    __import__("service.routes.tracking", fromlist=["add_parser"]).add_parser(sub)
     f = sub.add_parser("fullwave", help="export a channel request to gprMax, run it and compare with the tracer")
     f.add_argument("file", help="JSON file with a POST /v1/channel body (ChannelSpec)")
     f.add_argument("--out", required=True, help="directory for the gprMax inputs, outputs and report.{json,md}")

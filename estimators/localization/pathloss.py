@@ -68,7 +68,11 @@ def fit_path_loss_model(distances_m: Any, path_loss_db: Any, *, reference_distan
     if not (np.isfinite(d).all() and np.isfinite(pl).all()) or np.any(d <= 0):
         raise EstimatorInputError("distances must be finite and > 0, path losses finite", "distances_m")
     d0 = finite_float(reference_distance_m, "reference_distance_m", positive=True)
-    x = 10.0 * np.log10(d / d0)
+    with np.errstate(divide="ignore"):
+        x = 10.0 * np.log10(d / d0)
+    if not np.isfinite(x).all():  # d / d0 under- or overflowed
+        raise EstimatorInputError("distances and reference_distance_m must be within a factor 1e300 of each "
+                                  "other", "distances_m")
     if np.ptp(x) <= 0.0:
         raise EstimatorInputError("distances must not all be equal", "distances_m")
     a = np.column_stack([np.ones_like(x), x])

@@ -46,6 +46,9 @@ OPERATIONS = {
     ("post", "/v1/plots/localization_cdf"): "plot_localization_cdf",
     ("post", "/v1/plots/tract_errors"): "plot_tract_errors",
     ("post", "/v1/plots/path_loss"): "plot_path_loss",
+    ("post", "/v1/plots/tracking"): "plot_tracking",
+    ("post", "/v1/track"): "track",
+    ("post", "/v1/track/evaluate"): "track_evaluate",
 }
 
 

@@ -141,6 +141,10 @@ def test_rss_fix_inverts_noiseless_path_losses_and_accepts_a_fitted_model():
     fitted = fit_path_loss_model(d, pl)
     assert fitted.path_loss_d0_db == pytest.approx(47.14, abs=1e-9)
     assert fitted.exponent == pytest.approx(4.26, abs=1e-9)
+    # a subnormal distance underflows d / d0 to 0: refused naming the field (was an SVD error, a 500)
+    with pytest.raises(EstimatorInputError) as info:
+        fit_path_loss_model([1.0, 1.0, 5e-324], [0.0, 0.0, 0.0], reference_distance_m=2.0)
+    assert info.value.field == "distances_m"
 
 
 @pytest.mark.parametrize("call, field", [

@@ -1,0 +1,255 @@
+"""POST /v1/track (measured sequences -> trajectory along the GI tract with uncertainty) and
+POST /v1/track/evaluate (the built-in journey experiment), docs/tracking.md. CPU work in a worker
+thread under the server's deadline; bounds checked before any work."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Request
+from pydantic import BaseModel, ConfigDict, Field
+
+from raytrace.solver.budget import Budget
+from service.deps import state
+from service.errors import error_responses
+
+router = APIRouter(prefix="/v1/track", tags=["tracking"])
+
+_ERRORS = error_responses(400, 404, 413, 422, 503, 504)
+#: Observations per request; particles x observations per request (work bound).
+MAX_OBSERVATIONS = 5000
+MAX_PARTICLE_STEPS = 20_000_000
+#: The evaluation's bounds: journey steps and rays per trace.
+MAX_EVALUATE_STEPS = 1000
+MAX_EVALUATE_RAYS = 50_000
+
+Vec3 = Annotated[list[Annotated[float, Field(ge=-10.0, le=10.0)]], Field(min_length=3, max_length=3)]
+Row3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class RfFixIn(_Strict):
+    position_m: Vec3 = Field(description="The RF position fix [m], phantom frame.")
+    covariance_m2: Annotated[list[Row3], Field(min_length=3, max_length=3)] = Field(
+        description="Its 3 x 3 covariance [m^2], symmetric positive definite (include the fix's bias).")
+
+
+class VisualIn(_Strict):
+    advance_m: float = Field(ge=-0.1, le=0.1, description="Advance along the lumen since the previous step [m].")
+    advance_sigma_m: float = Field(gt=0.0, le=0.1, description="Its standard deviation [m].")
+    roll_deg: float | None = Field(None, ge=-180.0, le=180.0, description="Roll increment [deg] (optional).")
+    roll_sigma_deg: float | None = Field(None, gt=0.0, le=180.0, description="Its standard deviation [deg].")
+
+
+class ObservationIn(_Strict):
+    t_s: float = Field(ge=0.0, le=1e7, description="Time [s]; strictly increasing.")
+    rf: RfFixIn | None = None
+    visual: VisualIn | None = Field(None, description="Frame-pair motion from the previous step (ignored at "
+                                                      "the first).")
+
+
+class TrackerConfigIn(_Strict):
+    accel_psd_m2_per_s3: float = Field(4e-6, gt=0.0, le=1.0)
+    roll_psd_deg2_per_s: float = Field(20.0, gt=0.0, le=1e5)
+    initial_s_m: float | None = Field(None, ge=0.0, le=100.0, description="Prior arc length [m]; null: anywhere.")
+    initial_s_sigma_m: float = Field(5e-3, gt=0.0, le=100.0)
+    initial_v_m_per_s: float = Field(0.0, ge=-1.0, le=1.0)
+    initial_v_sigma_m_per_s: float = Field(3e-3, gt=0.0, le=1.0)
+    gate_probability: float | None = Field(0.9999, gt=0.5, lt=1.0)
+    lateral_sigma_m: float = Field(0.0, ge=0.0, le=1.0)
+    particles: int = Field(2000, ge=10, le=100_000)
+    seed: int = Field(0, ge=0, le=2**63 - 1)
+
+
+class TrackRequest(_Strict):
+    """Measured sequences along a phantom's centreline."""
+
+    phantom: str = Field("torso", min_length=1, max_length=64)
+    centreline: str = Field("gi_tract", min_length=1, max_length=64)
+    tracker: Literal["kalman", "particle"] = "kalman"
+    config: TrackerConfigIn = Field(default_factory=TrackerConfigIn)
+    observations: list[ObservationIn] = Field(min_length=1, max_length=MAX_OBSERVATIONS)
+
+
+class TrackStep(BaseModel):
+    t_s: float
+    s_m: float
+    s_sigma_m: float
+    v_m_per_s: float
+    v_sigma_m_per_s: float
+    roll_deg: float
+    roll_sigma_deg: float
+    position_m: list[float]
+    position_cov_m2: list[list[float]]
+    rf_used: bool
+
+
+class TrackResponse(BaseModel):
+    tracker: str
+    steps: list[TrackStep]
+
+
+class JourneyIn(_Strict):
+    steps: int = Field(120, ge=2, le=MAX_EVALUATE_STEPS)
+    seed: int = Field(0, ge=0, le=2**63 - 1)
+    dt_s: float = Field(0.5, gt=0.0, le=60.0)
+    start_m: float = Field(0.20, ge=0.0, le=100.0)
+    mean_speed_m_per_s: float = Field(1.5e-3, ge=0.0, le=0.05)
+    peristalsis_amplitude_m: float = Field(1.5e-3, ge=0.0, le=0.05)
+    peristalsis_period_s: float = Field(8.0, ge=0.1, le=3600.0)
+    roll_step_deg: float = Field(3.0, ge=0.0, le=45.0)
+
+
+class EvaluateRequest(_Strict):
+    """The built-in journey experiment (docs/tracking.md, Evaluation)."""
+
+    phantom: Literal["torso"] = "torso"
+    journey: JourneyIn = Field(default_factory=JourneyIn)
+    trackers: list[Literal["rf", "video", "fused", "fused_pf"]] = Field(
+        default_factory=lambda: ["rf", "video", "fused"], min_length=1, max_length=4)
+    rays: int = Field(20_000, ge=1000, le=MAX_EVALUATE_RAYS)
+    max_interactions: int = Field(4, ge=0, le=6)
+    rf_grid_m: float = Field(5e-3, ge=1e-3, le=0.05)
+    include_trajectory: bool = Field(True, description="Return every tracker's trajectory, and the truth.")
+
+
+class EvaluateResponse(BaseModel):
+    rmse_m: dict[str, float] = Field(description="RMSE along the tract per tracker [m].")
+    rmse_3d_m: dict[str, float] = Field(description="RMSE of the 3-D point per tracker [m].")
+    rf_fix_rmse_3d_m: float
+    rf_positions_traced: int
+    truth: list[dict] = Field(description="Per step: t_s, s_m, position_m, roll_deg, organ.")
+    trajectory: dict[str, list[TrackStep]]
+
+
+def _track(req: TrackRequest, registry, budget: Budget) -> dict:
+    from tracking import (
+        Observation,
+        RfFix,
+        TrackerConfig,
+        TrackingInputError,
+        VisualMotion,
+        kalman_track,
+        particle_track,
+    )
+
+    if req.tracker == "particle" and req.config.particles * len(req.observations) > MAX_PARTICLE_STEPS:
+        raise TrackingInputError(f"particles x observations must be <= {MAX_PARTICLE_STEPS}", "config.particles")
+    phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
+    line = phantom.centrelines.get(req.centreline)
+    if line is None:
+        raise TrackingInputError(f"phantom {req.phantom!r} has no centreline {req.centreline!r}", "centreline")
+    obs = [Observation(o.t_s, None if o.rf is None else RfFix(o.rf.position_m, o.rf.covariance_m2),
+                       None if o.visual is None else VisualMotion(**o.visual.model_dump()))
+           for o in req.observations]
+    cfg = TrackerConfig(**req.config.model_dump())
+    budget.charge()
+    out = (particle_track if req.tracker == "particle" else kalman_track)(line, obs, cfg, name=req.tracker)
+    budget.charge()
+    return out.to_dict()
+
+
+def _evaluate(req: EvaluateRequest, registry, budget: Budget) -> dict:
+    from evaluation.tracking import evaluate_tracking
+    from tracking import JourneySpec
+
+    phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
+    ev = evaluate_tracking(JourneySpec(**req.journey.model_dump()), req.trackers, phantom=phantom,
+                           rf_grid_m=req.rf_grid_m, rays=req.rays, max_interactions=req.max_interactions,
+                           check=budget.charge)
+    j = ev.journey
+    truth = [{"t_s": float(j.t_s[k]), "s_m": float(j.s_m[k]), "position_m": j.position_m[k].tolist(),
+              "roll_deg": float(j.roll_deg[k]), "organ": j.organ[k]} for k in range(len(j.t_s))]
+    return {"rmse_m": ev.rmse_along_m, "rmse_3d_m": ev.rmse_3d_m, "rf_fix_rmse_3d_m": ev.rf_fix_rmse_3d_m,
+            "rf_positions_traced": ev.rf_positions_traced, "truth": truth if req.include_trajectory else [],
+            "trajectory": {n: t.to_dict()["steps"] for n, t in ev.tracks.items()} if req.include_trajectory else {}}
+
+
+@router.post("", response_model=TrackResponse, operation_id="track", summary="Track the capsule along the tract",
+             responses=_ERRORS)
+async def track(req: TrackRequest, request: Request) -> TrackResponse:
+    """RF position fixes (with covariance) and frame-pair motion (advance, roll) per time step in;
+    the trajectory along the centreline out: arc length, rate, roll and the 3-D point, each with its
+    uncertainty. `kalman`: state (s, ds/dt, roll), fixes projected onto the centreline; `particle`:
+    particles on the centreline weighted by the fixes' 3-D likelihood (keeps both loops where the
+    tract folds back)."""
+    st = state(request)
+    out = await st.gate.run(lambda budget: _track(req, st.registry, budget),
+                            Budget(deadline_s=st.settings.request_deadline_s), disconnected=request.is_disconnected)
+    return TrackResponse.model_validate(out)
+
+
+@router.post("/evaluate", response_model=EvaluateResponse, operation_id="track_evaluate",
+             summary="The journey experiment: RMSE per tracker", responses=_ERRORS)
+async def track_evaluate(req: EvaluateRequest, request: Request) -> EvaluateResponse:
+    """A seeded journey along the default torso's GI tract; RF fixes from the sweep engine and the
+    model-based fix (positions traced once per grid position and kept in memory), visual motion from
+    the MI estimator's measured error model; RMSE along the tract and in 3-D per tracker. Bounded:
+    at most 1000 steps and 200 traced grid positions, under the server's deadline (504 past it)."""
+    st = state(request)
+    out = await st.gate.run(lambda budget: _evaluate(req, st.registry, budget),
+                            Budget(deadline_s=st.settings.request_deadline_s), disconnected=request.is_disconnected)
+    return EvaluateResponse.model_validate(out)
+
+
+# ----------------------------------------------------------------------- CLI: capsule-rt track
+def _cmd_track(args) -> int:
+    import json
+    import sys
+    from pathlib import Path
+
+    from pydantic import ValidationError
+
+    from raytrace.errors import CapsuleRTError
+
+    try:
+        if args.evaluate:
+            from evaluation.tracking import evaluate_tracking, markdown_table
+            from tracking import JourneySpec
+
+            ev = evaluate_tracking(JourneySpec(steps=args.steps, seed=args.seed), rays=args.rays,
+                                   cache_dir=args.cache_dir)
+            print(markdown_table(ev))
+            if args.plot:
+                from plots.figure import figure_bytes
+                from plots.tracking import tracking_trajectory
+
+                series = [{"name": n, "s_m": t.s_m.tolist(), "s_sigma_m": t.s_sigma_m.tolist()}
+                          for n, t in ev.tracks.items()]
+                fig = tracking_trajectory(ev.journey.t_s.tolist(), ev.journey.s_m.tolist(), series)
+                Path(args.plot).write_bytes(figure_bytes(fig, Path(args.plot).suffix.lstrip(".") or "png"))
+            return 0
+        if not args.file:
+            print(json.dumps({"detail": [{"loc": ["file"], "msg": "give a POST /v1/track body, or --evaluate"}]}),
+                  file=sys.stderr)
+            return 2
+        from service.cli import _local_registry
+
+        req = TrackRequest.model_validate_json(Path(args.file).read_text())
+        print(json.dumps(_track(req, _local_registry(), Budget()), indent=1))
+        return 0
+    except ValidationError as exc:
+        print(json.dumps({"detail": [{"loc": ["body", *e["loc"]], "msg": e["msg"]} for e in exc.errors()]}),
+              file=sys.stderr)
+        return 2
+    except CapsuleRTError as exc:
+        print(json.dumps({"detail": [{"loc": ["body", *str(exc.field or "").split(".")], "msg": exc.reason}]}),
+              file=sys.stderr)
+        return 2
+
+
+def add_parser(sub) -> None:
+    """``capsule-rt track BODY.json`` (a POST /v1/track body, run locally) or ``--evaluate``."""
+    t = sub.add_parser("track", help="track the capsule from a POST /v1/track body, or run the journey evaluation")
+    t.add_argument("file", nargs="?", help="JSON file with a POST /v1/track body")
+    t.add_argument("--evaluate", action="store_true",
+                   help="run the default torso journey experiment (docs/tracking.md)")
+    t.add_argument("--steps", type=int, default=400, help="journey steps (with --evaluate)")
+    t.add_argument("--seed", type=int, default=0, help="journey seed (with --evaluate)")
+    t.add_argument("--rays", type=int, default=20_000, help="rays per RF trace (with --evaluate)")
+    t.add_argument("--cache-dir", default=None, help="keep traced RF grid positions here between runs")
+    t.add_argument("--plot", default=None, help="write the trajectory plot here (.png, .svg, .pdf)")
+    t.set_defaults(func=_cmd_track)

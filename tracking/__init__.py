@@ -1,0 +1,16 @@
+"""Tracking the capsule along the GI tract: a seeded journey, a Kalman filter and a particle filter on
+the centreline fusing RF position fixes with visual odometry (docs/tracking.md).
+
+Pure: imports raytrace's centreline (through the caller's object) and numpy/scipy, never the service.
+"""
+
+from .errors import TrackingInputError
+from .journey import Journey, JourneySpec, simulate_journey
+from .kalman import kalman_track
+from .measurements import Observation, RfFix, Track, TrackerConfig, VisualMotion
+from .metrics import nees, rmse_3d_m, rmse_along_m
+from .particle import particle_track
+
+__all__ = ["Journey", "JourneySpec", "Observation", "RfFix", "Track", "TrackerConfig", "TrackingInputError",
+           "VisualMotion", "kalman_track", "nees", "particle_track", "rmse_3d_m", "rmse_along_m",
+           "simulate_journey"]

@@ -1,0 +1,193 @@
+"""What the trackers measure and what they report (docs/tracking.md, "Measurements").
+
+Per time step an :class:`Observation`: the time ``t_s``, optionally an RF position fix
+(:class:`RfFix`: a 3-D position and its covariance, e.g. ``PositionResult.position_m`` /
+``covariance_m2`` of ``estimators.localization``, inflated by the fix's bias), and optionally the
+visual motion since the previous step (:class:`VisualMotion`: the advance along the lumen from the
+frame pair's MI scale, ``vision.advance.advance_for_scale``, and the roll about the optical axis,
+each with its standard deviation). A :class:`Track` is a tracker's answer per step: arc length and
+rate along the centreline, roll, the 3-D point with its covariance, each with an uncertainty.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from .errors import TrackingInputError
+
+__all__ = ["MAX_OBSERVATIONS", "Observation", "RfFix", "Track", "TrackerConfig", "VisualMotion", "check_observations"]
+
+#: Most observations one tracker call accepts (work bound).
+MAX_OBSERVATIONS = 20_000
+
+
+def _finite(value: Any, where: str, *, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+            or not math.isfinite(value):
+        raise TrackingInputError(f"must be a finite number, got {value!r}", where)
+    if positive and value <= 0:
+        raise TrackingInputError(f"must be > 0, got {value!r}", where)
+    return float(value)
+
+
+@dataclass(frozen=True)
+class RfFix:
+    """A 3-D position fix [m] and its 3 x 3 covariance [m^2] (symmetric positive definite)."""
+
+    position_m: np.ndarray
+    covariance_m2: np.ndarray
+
+    def checked(self, where: str) -> "RfFix":
+        p = np.asarray(self.position_m, dtype=float)
+        c = np.asarray(self.covariance_m2, dtype=float)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise TrackingInputError("must be three finite coordinates [m]", f"{where}.position_m")
+        if c.shape != (3, 3) or not np.isfinite(c).all():
+            raise TrackingInputError("must be a 3 x 3 matrix of finite numbers [m^2]", f"{where}.covariance_m2")
+        if not np.allclose(c, c.T, rtol=1e-9, atol=1e-18):
+            raise TrackingInputError("must be symmetric", f"{where}.covariance_m2")
+        if np.linalg.eigvalsh(0.5 * (c + c.T)).min() <= 0:
+            raise TrackingInputError("must be positive definite", f"{where}.covariance_m2")
+        return RfFix(p, 0.5 * (c + c.T))
+
+
+@dataclass(frozen=True)
+class VisualMotion:
+    """Motion since the previous step from a frame pair: ``advance_m`` along the lumen (negative:
+    backwards) with ``advance_sigma_m``; optionally the roll increment ``roll_deg`` about the
+    optical axis with ``roll_sigma_deg``."""
+
+    advance_m: float
+    advance_sigma_m: float
+    roll_deg: float | None = None
+    roll_sigma_deg: float | None = None
+
+    def checked(self, where: str) -> "VisualMotion":
+        adv = _finite(self.advance_m, f"{where}.advance_m")
+        sig = _finite(self.advance_sigma_m, f"{where}.advance_sigma_m", positive=True)
+        if (self.roll_deg is None) != (self.roll_sigma_deg is None):
+            missing = "roll_sigma_deg" if self.roll_sigma_deg is None else "roll_deg"
+            raise TrackingInputError("roll_deg and roll_sigma_deg go together", f"{where}.{missing}")
+        if self.roll_deg is None:
+            return VisualMotion(adv, sig)
+        return VisualMotion(adv, sig, _finite(self.roll_deg, f"{where}.roll_deg"),
+                            _finite(self.roll_sigma_deg, f"{where}.roll_sigma_deg", positive=True))
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One time step: ``t_s``, an optional RF fix, an optional visual motion from the previous step
+    (ignored at the first step, which has no previous frame)."""
+
+    t_s: float
+    rf: RfFix | None = None
+    visual: VisualMotion | None = None
+
+
+def check_observations(observations: Sequence[Observation], field_name: str = "observations") -> list[Observation]:
+    """Validated copies; times strictly increasing; at most :data:`MAX_OBSERVATIONS`."""
+    obs = list(observations)
+    if not obs:
+        raise TrackingInputError("give at least one observation", field_name)
+    if len(obs) > MAX_OBSERVATIONS:
+        raise TrackingInputError(f"at most {MAX_OBSERVATIONS} observations, got {len(obs)}", field_name)
+    out = []
+    last = -math.inf
+    for i, o in enumerate(obs):
+        where = f"{field_name}[{i}]"
+        t = _finite(o.t_s, f"{where}.t_s")
+        if t <= last:
+            raise TrackingInputError(f"times must increase strictly; {t!r} s follows {last!r} s", f"{where}.t_s")
+        last = t
+        out.append(Observation(t, None if o.rf is None else o.rf.checked(f"{where}.rf"),
+                               None if o.visual is None else o.visual.checked(f"{where}.visual")))
+    return out
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Motion model and prior shared by the trackers (docs/tracking.md, "Trackers").
+
+    The arc length moves with a continuous white-noise acceleration of power spectral density
+    ``accel_psd_m2_per_s3`` (Bar-Shalom, Li & Kirubarajan 2001, Sec 6.2.2: over dt the state (s, v)
+    gains the covariance q [[dt^3/3, dt^2/2], [dt^2/2, dt]]); the roll is a random walk of
+    ``roll_psd_deg2_per_s`` (variance q_r dt per step). Prior at the first step: s ~ N(initial_s_m,
+    initial_s_sigma_m^2), or, when ``initial_s_m`` is None, anywhere on the centreline (uniform for
+    the particle filter; the Kalman filter takes its mean and variance, L/2 and L^2/12);
+    v ~ N(initial_v_m_per_s, initial_v_sigma_m_per_s^2); roll starts at 0 +- initial_roll_sigma_deg.
+    ``gate_probability``: the Kalman filter ignores an RF fix whose normalised innovation squared
+    exceeds this quantile of chi-square(1) (None: never). ``lateral_sigma_m``: added isotropically
+    to every fix's covariance in the particle filter's 3-D likelihood (the capsule's offset from the
+    centreline inside the lumen)."""
+
+    accel_psd_m2_per_s3: float = 4e-6
+    roll_psd_deg2_per_s: float = 20.0
+    initial_s_m: float | None = None
+    initial_s_sigma_m: float = 5e-3
+    initial_v_m_per_s: float = 0.0
+    initial_v_sigma_m_per_s: float = 3e-3
+    initial_roll_sigma_deg: float = 1e-3
+    gate_probability: float | None = 0.9999
+    lateral_sigma_m: float = 0.0
+    particles: int = 2000
+    resample_fraction: float = 0.5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("accel_psd_m2_per_s3", "roll_psd_deg2_per_s", "initial_s_sigma_m", "initial_v_sigma_m_per_s",
+                     "initial_roll_sigma_deg"):
+            _finite(getattr(self, name), f"config.{name}", positive=True)
+        _finite(self.initial_v_m_per_s, "config.initial_v_m_per_s")
+        if self.initial_s_m is not None:
+            _finite(self.initial_s_m, "config.initial_s_m")
+        if self.gate_probability is not None:
+            g = _finite(self.gate_probability, "config.gate_probability")
+            if not 0.5 < g < 1.0:
+                raise TrackingInputError(f"must be in (0.5, 1), got {g!r}", "config.gate_probability")
+        if _finite(self.lateral_sigma_m, "config.lateral_sigma_m") < 0:
+            raise TrackingInputError("must be >= 0", "config.lateral_sigma_m")
+        if isinstance(self.particles, bool) or not isinstance(self.particles, (int, np.integer)) \
+                or not 10 <= self.particles <= 200_000:
+            raise TrackingInputError(f"must be an integer in [10, 200000], got {self.particles!r}", "config.particles")
+        if not 0.0 < _finite(self.resample_fraction, "config.resample_fraction") <= 1.0:
+            raise TrackingInputError("must be in (0, 1]", "config.resample_fraction")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise TrackingInputError(f"must be a non-negative integer, got {self.seed!r}", "config.seed")
+
+
+@dataclass(frozen=True)
+class Track:
+    """A tracker's estimate per step (arrays of the observations' length).
+
+    ``s_m`` / ``s_sigma_m``: arc length and its standard deviation; ``v_m_per_s`` / ``v_sigma_m_per_s``
+    its rate; ``roll_deg`` / ``roll_sigma_deg``; ``position_m`` (n, 3) and ``position_cov_m2``
+    (n, 3, 3): the 3-D point and its covariance (Kalman: the centreline point at s with
+    var(s) t t^T, t the tangent; particle: the particles' points' weighted mean and covariance);
+    ``rf_used``: whether the step's RF fix was used (False when absent or gated out);
+    ``extra``: tracker-specific arrays (the particle filter's ``ess`` per step)."""
+
+    tracker: str
+    t_s: np.ndarray
+    s_m: np.ndarray
+    s_sigma_m: np.ndarray
+    v_m_per_s: np.ndarray
+    v_sigma_m_per_s: np.ndarray
+    roll_deg: np.ndarray
+    roll_sigma_deg: np.ndarray
+    position_m: np.ndarray
+    position_cov_m2: np.ndarray
+    rf_used: np.ndarray
+    extra: dict = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: one entry per step."""
+        return {"tracker": self.tracker, "steps": [
+            {"t_s": float(self.t_s[k]), "s_m": float(self.s_m[k]), "s_sigma_m": float(self.s_sigma_m[k]),
+             "v_m_per_s": float(self.v_m_per_s[k]), "v_sigma_m_per_s": float(self.v_sigma_m_per_s[k]),
+             "roll_deg": float(self.roll_deg[k]), "roll_sigma_deg": float(self.roll_sigma_deg[k]),
+             "position_m": self.position_m[k].tolist(), "position_cov_m2": self.position_cov_m2[k].tolist(),
+             "rf_used": bool(self.rf_used[k])} for k in range(len(self.t_s))]}
