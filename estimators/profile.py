@@ -206,10 +206,15 @@ class PathProfile:
 
     @property
     def gain_scale(self) -> float:
-        """Largest |gain| over paths (and band gains): divide by it to work at unit scale."""
-        scale = float(np.max(np.abs(self.baseband_gains)))
+        """Largest |Re| or |Im| of a gain over paths (and band gains): divide by it to work at unit
+        scale. Within sqrt(2) of the largest |gain|, and finite for every finite gain (|1e308 +
+        1e308 j| is not)."""
+        def largest(g: np.ndarray) -> float:
+            return float(max(np.max(np.abs(g.real)), np.max(np.abs(g.imag))))
+
+        scale = largest(self.baseband_gains)
         if self.baseband_band_gains is not None:
-            scale = max(scale, float(np.max(np.abs(self.baseband_band_gains))))
+            scale = max(scale, largest(self.baseband_band_gains))
         return scale
 
     @property

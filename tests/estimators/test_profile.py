@@ -82,6 +82,21 @@ def test_invalid_profiles_raise_naming_the_field(kwargs, field):
     assert field in str(exc.value)
 
 
+def test_gains_whose_modulus_overflows_range_like_unit_gains():
+    """|1.5e308 (1 + 1j)| is not a float; TOA is scale-free, so the answer is that of (1 + 1j)."""
+    import warnings
+
+    from estimators import estimate_toa
+
+    huge = PathProfile([1.338e-9, 1.6e-9], np.array([1.0, 0.5]) * 1.5e308 * (1 + 1j))
+    unit = PathProfile([1.338e-9, 1.6e-9], np.array([1.0, 0.5]) * (1 + 1j))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = estimate_toa(huge, method="gcc", snr_db=30.0, trials=5, seed=1)[0]
+    ref = estimate_toa(unit, method="gcc", snr_db=30.0, trials=5, seed=1)[0]
+    assert got.distance_m == pytest.approx(ref.distance_m, rel=1e-9)
+
+
 @pytest.mark.parametrize("scale", [1e-300, 1e-150, 1.0, 1e150, 1e300])
 def test_extreme_gain_scales_neither_overflow_nor_underflow(scale):
     import warnings
