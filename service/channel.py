@@ -62,7 +62,7 @@ def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tupl
 def check_footprint(spec: ChannelSpec, settings: Settings) -> None:
     """Refuse (422, before any work) a request whose estimated shooting exceeds the work budget or
     whose estimated peak memory exceeds one computation's share of the memory ceiling
-    (:func:`raytrace.solver.footprint.estimate`, docs/service.md "Limits"); the loc names the
+    (:func:`raytrace.solver.footprint.estimate`, docs/service.md "Memory and work model"); the loc names the
     field whose term dominates, the message the estimate and every knob that shrinks it."""
     fp = estimate(spec, settings.tracer_config())
     knobs = (f"rays {spec.rays}, max_interactions {spec.max_interactions}, dynamic_range_db "

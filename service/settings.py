@@ -82,7 +82,7 @@ class Settings(BaseSettings):
         ge=64 * 1024**2,
         description="Memory ceiling of the heavy computations of one worker process together [bytes]; each of "
         "the `max_concurrency` running ones gets an equal share. A channel request whose estimated peak "
-        "(docs/service.md, \"Limits\") exceeds the share is refused before any work (422 naming the field to "
+        "(docs/service.md, \"Memory and work model of a channel request\") exceeds the share is refused before any work (422 naming the field to "
         "lower); the trace also counts its arrays as it allocates them and stops (503) past the share.",
     )
     request_deadline_s: float = Field(

@@ -10,7 +10,7 @@ arrays that grow with the request (the shooting's event logs, live rays and rece
 candidates, the paths' band gains) as it allocates them and :meth:`Budget.release` s
 them when it frees them; past ``max_bytes`` held at once the computation stops
 (kind ``"memory"``). This is the safety net behind the estimate made before the work
-(:mod:`raytrace.solver.footprint`, docs/service.md "Limits").
+(:mod:`raytrace.solver.footprint`, docs/service.md "Memory and work model of a channel request").
 """
 
 from __future__ import annotations
