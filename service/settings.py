@@ -82,8 +82,8 @@ class Settings(BaseSettings):
         ge=64 * 1024**2,
         description="Memory ceiling of the heavy computations of one worker process together [bytes]; each of "
         "the `max_concurrency` running ones gets an equal share. A channel request whose estimated peak "
-        "(docs/service.md, \"Memory and work model of a channel request\") exceeds the share is refused before any work (422 naming the field to "
-        "lower); the trace also counts its arrays as it allocates them and stops (503) past the share.",
+        "(docs/service.md, memory and work model) exceeds the share is refused before any work (422 naming "
+        "the field to lower); the trace also counts its arrays as it allocates them and stops (503) past it.",
     )
     request_deadline_s: float = Field(
         60.0, gt=0, le=3600, description="Wall-time budget of one computation [s]; beyond it: 504."

@@ -1,4 +1,6 @@
-"""What a trace will cost, estimated from its request before any work (docs/service.md, "Memory and work model of a channel request").
+"""What a trace will cost, estimated from its request before any work.
+
+docs/service.md, "Memory and work model of a channel request", derives and calibrates the model.
 
 The service refuses a channel request whose estimate does not fit its limits with a 422
 naming the field that makes it big, instead of starting a trace that would run out of its

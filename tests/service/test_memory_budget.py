@@ -1,5 +1,6 @@
 """Issue 25, item 1: a channel request's memory and work are estimated before any work, refused with a
-422 naming the field when they cannot fit, and counted while the trace runs (docs/service.md, "Limits")."""
+422 naming the field when they cannot fit, and counted while the trace runs (docs/service.md, "Memory
+and work model of a channel request")."""
 
 from __future__ import annotations
 
