@@ -62,9 +62,9 @@ class NotFoundError(CapsuleRTError, LookupError):
 
 
 class BudgetExceededError(CapsuleRTError):
-    """A request ran past its wall-time deadline or its work budget (HTTP 503/504).
+    """A request ran past its wall-time deadline, its work or its memory budget (HTTP 503/504).
 
-    ``kind`` is ``"deadline"`` or ``"work"``.
+    ``kind`` is ``"deadline"``, ``"work"``, ``"memory"`` or ``"cancelled"``.
     """
 
     def __init__(self, reason: str, kind: str = "deadline", field: Field | None = None) -> None:

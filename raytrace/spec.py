@@ -37,10 +37,6 @@ PATTERNS: tuple[str, ...] = ("isotropic", "dipole")
 
 #: Receivers closer than this to the transmitter are rejected [m].
 MIN_SEPARATION_M = 1e-4
-#: Antennas must lie inside the phantom's bounding box grown by this fraction of its diagonal:
-#: farther away is surely a unit mistake (millimetres typed as metres put it hundreds of
-#: diagonals away), while antennas in the air around a small test body stay valid.
-BOUNDS_MARGIN_FRACTION = 1.0
 #: Largest dynamic range [dB]: float64 resolves amplitude ratios down to its epsilon, 2.2e-16
 #: (-313 dB); a path weaker than the strongest by more cannot change any sum of their amplitudes.
 MAX_DYNAMIC_RANGE_DB = 300.0
@@ -348,11 +344,9 @@ class ChannelSpec:
     # ------------------------------------------------------------ against a phantom
     def resolve(self, phantom: Phantom) -> "ResolvedChannel":
         """The arrays the solver runs on, after the checks that need ``phantom``: sites
-        exist, every antenna lies inside the phantom's bounding box (grown by
-        :data:`BOUNDS_MARGIN_FRACTION` of its diagonal) and not on an organ surface, and
-        no receiver is within :data:`MIN_SEPARATION_M` of the transmitter."""
-        lo, hi = np.asarray(phantom.bounds_m[0], float), np.asarray(phantom.bounds_m[1], float)
-        margin = BOUNDS_MARGIN_FRACTION * float(np.linalg.norm(hi - lo))
+        exist, every antenna lies inside the phantom's bounding box (the phantom's one rule,
+        :meth:`~raytrace.body.phantom.Phantom.check_antenna_bounds`) and not on an organ surface,
+        and no receiver is within :data:`MIN_SEPARATION_M` of the transmitter."""
 
         def place(a: Antenna, where: str) -> np.ndarray:
             if a.site is not None:
@@ -363,10 +357,7 @@ class ChannelSpec:
                                         field=f"{where}.site")
                 return np.asarray(site.position_m, float).copy()
             p = np.asarray(a.position_m, float)
-            if np.any(p < lo - margin) or np.any(p > hi + margin):
-                raise InvalidGeometryError(
-                    f"position {p.tolist()} m is outside the phantom's bounds {lo.tolist()}..{hi.tolist()} m "
-                    f"(grown by {margin:.3g} m)", field=f"{where}.position_m")
+            phantom.check_antenna_bounds(p, [f"{where}.position_m"])
             return p
 
         def leaf(a: Antenna, where: str) -> str:

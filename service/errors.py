@@ -24,7 +24,7 @@ schema violation                   422
 ``UploadTooLarge``                  413
 ``ServerSaturated``                 503 + Retry-After
 ``BudgetExceededError`` deadline    504
-``BudgetExceededError`` work        503 + Retry-After (kind ``work`` is not
+``BudgetExceededError`` work/memory 503 + Retry-After (kind ``work`` is not
                                     transient: retrying the same request
                                     will fail the same way; the message says
                                     what to lower)
@@ -198,7 +198,7 @@ def core_error_response(exc: CapsuleRTError, where: str, retry: dict[str, str]) 
         loc = ["server", *field_to_loc(exc.field)]
         if exc.kind == "deadline":
             return JSONResponse(error_body(loc, exc.reason, "deadline_exceeded"), status_code=504)
-        typ = "work_budget_exceeded" if exc.kind == "work" else "cancelled"
+        typ = {"work": "work_budget_exceeded", "memory": "memory_budget_exceeded"}.get(exc.kind, "cancelled")
         return JSONResponse(error_body(loc, exc.reason, typ), status_code=503, headers=retry)
     if isinstance(exc, NotFoundError):
         return JSONResponse(error_body(loc, exc.reason, "not_found"), status_code=404)

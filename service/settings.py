@@ -74,7 +74,16 @@ class Settings(BaseSettings):
     max_ray_segments: int = Field(
         50_000_000,
         ge=1,
-        description="Work budget of one channel request: ray segments traced before it stops with 503.",
+        description="Work budget of one channel request: ray segments traced before it stops with 503. A request "
+        "whose estimated shooting alone exceeds it is refused before any work (422 naming `rays`).",
+    )
+    max_compute_memory_bytes: int = Field(
+        8 * 1024**3,
+        ge=64 * 1024**2,
+        description="Memory ceiling of the heavy computations of one worker process together [bytes]; each of "
+        "the `max_concurrency` running ones gets an equal share. A channel request whose estimated peak "
+        "(docs/service.md, memory and work model) exceeds the share is refused before any work (422 naming "
+        "the field to lower); the trace also counts its arrays as it allocates them and stops (503) past it.",
     )
     request_deadline_s: float = Field(
         60.0, gt=0, le=3600, description="Wall-time budget of one computation [s]; beyond it: 504."
@@ -143,6 +152,11 @@ class Settings(BaseSettings):
         description="Comma-separated origins (`https://host:port`) whose web pages may call the API "
         "(CORS). Empty: none; writes carrying any other `Origin` are refused (403).",
     )
+
+    @property
+    def compute_memory_share_bytes(self) -> int:
+        """Bytes one running computation may hold (the ceiling shared by ``max_concurrency``)."""
+        return self.max_compute_memory_bytes // self.max_concurrency
 
     @field_validator("api_keys", "cors_origins", mode="before")
     @classmethod

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from raytrace.body.phantom import Phantom
-from raytrace.errors import CapsuleRTError, InputError, InvalidGeometryError
-from raytrace.spec import BOUNDS_MARGIN_FRACTION, MIN_SEPARATION_M, Antenna, ChannelSpec
+from raytrace.errors import CapsuleRTError, InputError
+from raytrace.spec import MIN_SEPARATION_M, Antenna, ChannelSpec
 from sweeps.spec import LIMITS, Limits, SweepSpec, SweepSpecError
 
 __all__ = ["Plan", "make_plan"]
@@ -172,13 +172,7 @@ def make_plan(spec: SweepSpec, phantom: Phantom, phantom_id: str | None = None, 
         if missing.any():
             s_arr[missing] = line.project(pos[missing])
 
-    lo, hi = np.asarray(phantom.bounds_m[0], float), np.asarray(phantom.bounds_m[1], float)
-    margin = BOUNDS_MARGIN_FRACTION * float(np.linalg.norm(hi - lo))  # ChannelSpec.resolve's rule
-    outside = np.any((pos < lo - margin) | (pos > hi + margin), axis=1)
-    if outside.any():
-        k = int(np.argmax(outside))
-        raise InvalidGeometryError(f"position {pos[k].tolist()} m is outside the phantom's bounds {lo.tolist()}.."
-                                   f"{hi.tolist()} m (grown by {margin:.3g} m)", field=fields[k])
+    phantom.check_antenna_bounds(pos, fields)  # the rule of ChannelSpec.resolve and of upload sites
     # media: one lookup for all positions, then one by one to name the first bad one
     try:
         media_idx = phantom.medium_index(pos)

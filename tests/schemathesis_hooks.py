@@ -49,6 +49,10 @@ CROSS_FIELD_RULES = [
      "[-300, 200] dB"),
     ("ranging_pdoa", ["body", "band"], "value_error", "a band's stop above its start"),
     ("compute_channel", ["body", "band"], "value_error", "a band's stop above its start"),
+    ("compute_channel", ["body", "band"], "invalid", "channel outputs (cfr, cir, taps) need a band"),
+    *(("compute_channel", ["body", *part], "invalid", "a request whose estimated work and memory fit the server's "
+       "budget (docs/service.md, memory and work model)")
+      for part in (["rays"], ["max_interactions"], ["receivers"], ["band", "points"])),
     ("upload_phantom", ["body", "mesh"], "phantom_validation", "the mesh part is a valid binary glTF"),
     *(("submit_sweep", ["body", part], "sweep_spec", "sites, positions and centrelines of the phantom; bands, "
        "methods and localizers consistent with each other (sweeps.spec)")

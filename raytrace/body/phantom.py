@@ -37,8 +37,11 @@ AIR_NAME = "air"
 SURFACE_TOLERANCE_M = 1e-6
 
 #: An antenna must lie inside the phantom's bounding box grown by this fraction of its
-#: diagonal: farther out, no path of interest exists and the launch wastes every ray.
-ANTENNA_BOUNDS_MARGIN_FRACTION = 0.5
+#: diagonal: farther away is surely a unit mistake (millimetres typed as metres put it hundreds
+#: of diagonals away), while antennas in the air around a small test body stay valid. The one
+#: rule for every antenna: a channel request's (:meth:`raytrace.spec.ChannelSpec.resolve`), a
+#: sweep's positions and an upload's sites (:meth:`Phantom.check_antenna_bounds`).
+ANTENNA_BOUNDS_MARGIN_FRACTION = 1.0
 
 # Fixed, "irrational" probe directions for the medium lookup: never parallel
 # to a coordinate plane, so axis-aligned meshes are not hit edge-on.
@@ -218,18 +221,28 @@ class Phantom:
         """Medium index at an antenna position, after the two rules every antenna (a channel
         request's or a site of an upload) obeys: inside the bounding box grown by
         :data:`ANTENNA_BOUNDS_MARGIN_FRACTION` of its diagonal (else
-        :class:`InvalidGeometryError`), and off every organ surface (else
-        :class:`AmbiguousPositionError`)."""
+        :class:`InvalidGeometryError`, :meth:`check_antenna_bounds`), and off every organ surface
+        (else :class:`AmbiguousPositionError`)."""
         position = np.asarray(position_m, dtype=float).reshape(3)
-        lo, hi = self.bounds_m
-        margin = ANTENNA_BOUNDS_MARGIN_FRACTION * float(np.linalg.norm(hi - lo))
-        if not np.isfinite(position).all() or np.any(position < lo - margin) or np.any(position > hi + margin):
-            raise InvalidGeometryError(
-                f"position {position.tolist()} m is outside the phantom's bounds {lo.tolist()}..{hi.tolist()} m "
-                f"(grown by {margin:.3g} m)",
-                field=field,
-            )
+        self.check_antenna_bounds(position[None, :], [field])
         return int(self.medium_index(position[None, :], field=field)[0])
+
+    def check_antenna_bounds(self, points_m, fields: "list[Field]") -> None:
+        """Raise :class:`InvalidGeometryError` naming ``fields[k]`` for the first point ``k`` that is
+        not finite or lies outside the bounding box grown by :data:`ANTENNA_BOUNDS_MARGIN_FRACTION`
+        of its diagonal (vectorised: one call for all antennas of a request)."""
+        points = np.asarray(points_m, dtype=float).reshape(-1, 3)
+        lo, hi = (np.asarray(b, float) for b in self.bounds_m)
+        margin = ANTENNA_BOUNDS_MARGIN_FRACTION * float(np.linalg.norm(hi - lo))
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(points).all(axis=1) | np.any((points < lo - margin) | (points > hi + margin), axis=1)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InvalidGeometryError(
+                f"position {points[k].tolist()} m is outside the phantom's bounds {lo.tolist()}..{hi.tolist()} m "
+                f"(grown by {margin:.3g} m)",
+                field=fields[k],
+            )
 
     def medium_index(self, points_m: np.ndarray, *, field: Field = "position_m") -> np.ndarray:
         """Medium index (organ, or -1 for air) of each point, vectorised.

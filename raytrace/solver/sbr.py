@@ -221,7 +221,7 @@ def shoot(
         # culling branches; batches are independent (own event log and candidates)
         count = min(config.launch_batch, rays - first)
         launch = fibonacci_sphere(rays, np.arange(first, first + count))
-        log, found, segments = _Log(), _Found(), 0
+        log, found, segments, held = _Log(), _Found(), 0, 0
         state = build(
             ShotRays,
             o=np.broadcast_to(tx_c, (count, 3)).copy(),
@@ -250,9 +250,10 @@ def shoot(
             ]
             cast = sum(n for n, _c in bounced)
             segments += cast
+            state = _concat([c for _n, c in bounced if c is not None])
             if budget is not None:
                 budget.charge(cast)
-            state = _concat([c for _n, c in bounced if c is not None])
+                held = _hold(budget, held, log, found, state, records)
             if state is None:
                 break
             if len(state.o) > config.max_live_rays:
@@ -271,7 +272,9 @@ def shoot(
                 miss, n_ev, lambda rows, c: _signatures(entries, last[rows, c], n_ev[rows, c], max_events)[0], launch,
                 config.seeds_per_receiver)
         _resolve(found, log, entries, width)  # signatures of this batch's candidates; the log is freed
-        return found, segments, offers
+        if budget is not None:  # what this batch leaves behind: its candidates
+            held = _hold(budget, held, log, found, None, _NO_WALK)
+        return found, segments, offers, held
 
     firsts = list(range(0, rays, config.launch_batch))
     workers = min(config.threads, len(firsts))
@@ -285,14 +288,15 @@ def shoot(
     else:
         batches = [launch_batch(first) for first in firsts]
     found = _Found()
-    for part, _n, _o in batches:
+    for part, _n, _o, _h in batches:
         for name in ("rx", "n", "src", "close", "codes", "faces"):
             getattr(found, name).extend(getattr(part, name))
-    segments = sum(n for _f, n, _o in batches)
+    segments = sum(n for _f, n, _o, _h in batches)
+    batch_bytes = sum(h for _f, _n, _o, h in batches)
     walked = None
     if ctx.walk:
         walked = [[] for _ in range(n_rx)]
-        for _f, _n, offers in batches:
+        for _f, _n, offers, _h in batches:
             for pool, offer in zip(walked, offers):
                 pool.extend(offer)
     if not found.codes:
@@ -301,6 +305,9 @@ def shoot(
             faces=np.zeros((0, width), np.int64), nint=np.zeros(0, np.int64), launch_dir=np.zeros((0, 3)),
             closeness=np.zeros(0), rays_launched=rays, segments=segments, walk=walked,
         )
+    if budget is not None:  # the merged candidates replace the batches' parts (C rows of 6 + 2 K numbers)
+        budget.hold(sum(len(x) for x in found.rx) * (6 + 2 * width) * 8)
+        budget.release(batch_bytes)
     return Candidates(
         receiver=np.concatenate(found.rx),
         codes=np.concatenate(found.codes),
@@ -345,6 +352,20 @@ def _interactions_needed(media: MediaTable, rx_medium: np.ndarray) -> np.ndarray
         dist[nxt] = step
         frontier = nxt
     return dist[cls]
+
+
+def _nbytes(parts) -> int:
+    return sum(a.nbytes for a in parts)
+
+
+def _hold(budget: Budget, held: int, log: _Log, found: _Found, state: ShotRays | None, records) -> int:
+    """Tell ``budget`` what one launch batch holds now (event log, reception candidates, live
+    rays, walk records) given that ``held`` bytes were accounted before; returns the new figure."""
+    now = (_nbytes(log.parent) + _nbytes(log.code) + _nbytes(log.face)
+           + sum(_nbytes(getattr(found, name)) for name in ("rx", "hist", "n", "src", "close", "codes", "faces"))
+           + (0 if state is None else _nbytes(state)) + _nbytes(records[:3]))
+    budget.hold(now - held)
+    return now
 
 
 def _log_arrays(log: _Log) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

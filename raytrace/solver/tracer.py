@@ -242,6 +242,8 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
         refined.tube_m2_per_sr[conv], tx_pol, spec.transmitter.pattern, rx_pol[seed_rx[conv]],
         rx_pattern[seed_rx[conv]], near_field=spec.near_field,
     )
+    if budget is not None:
+        budget.hold(fields.gains.nbytes)  # every path's gain at every frequency (the band dominates)
     keep = rec.ok & np.isfinite(fields.gains).all(axis=1) & np.isfinite(fields.delay_s)
 
     # --- assemble profiles: per receiver, its rows above the dynamic-range floor in delay

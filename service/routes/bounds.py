@@ -8,6 +8,7 @@ from fastapi import APIRouter
 
 from estimators import bounds
 from estimators.link import LinkBudget
+from service.bodies import ThreadedJsonRoute
 from service.errors import Unprocessable, error_responses
 from service.schemas import (
     PdoaBoundRequest,
@@ -18,7 +19,7 @@ from service.schemas import (
     ToaBoundResponse,
 )
 
-router = APIRouter(prefix="/v1/bounds", tags=["bounds"])
+router = APIRouter(prefix="/v1/bounds", tags=["bounds"], route_class=ThreadedJsonRoute)
 
 
 def _snr_db(req: ToaBoundRequest | PdoaBoundRequest, bandwidth_hz: float) -> float:

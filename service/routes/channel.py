@@ -8,11 +8,12 @@ from fastapi import APIRouter, Request, Response
 
 from raytrace import Budget, trace_channel
 from service import channel as channel_ops
+from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
 from service.schemas import ChannelRequest, ChannelResponse
 
-router = APIRouter(prefix="/v1", tags=["channel"])
+router = APIRouter(prefix="/v1", tags=["channel"], route_class=ThreadedJsonRoute)
 
 
 @router.post(
@@ -45,7 +46,8 @@ async def compute_channel(req: ChannelRequest, request: Request) -> Response:
         # rather than send NaN), checked against the model in tests/service/test_api.py
         return out["stats"], json.dumps(out, allow_nan=False, separators=(",", ":")).encode()
 
-    budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments)
+    budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments,
+                    max_bytes=st.settings.compute_memory_share_bytes)
     stats, body = await st.gate.run(work, budget, disconnected=request.is_disconnected)
     st.metrics.rays.inc(stats["rays_launched"])
     st.metrics.segments.inc(stats["ray_segments_traced"])

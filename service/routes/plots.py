@@ -13,11 +13,12 @@ from fastapi.responses import JSONResponse
 from plots.figure import FORMATS, PlotInputError
 from plots.registry import KINDS, PlotKind, render
 from raytrace import Budget
+from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import ServiceError, Unprocessable, error_body, error_responses
 from service.schemas import ErrorResponse
 
-router = APIRouter(prefix="/v1/plots", tags=["plots"])
+router = APIRouter(prefix="/v1/plots", tags=["plots"], route_class=ThreadedJsonRoute)
 
 _WILDCARDS = {"*/*": "png", "image/*": "png", "application/*": "pdf"}
 _BY_MEDIA = {media: fmt for fmt, media in FORMATS.items()}

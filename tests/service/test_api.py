@@ -294,12 +294,18 @@ def test_channel_without_antennas_or_scenario(api):
     assert_field(api.post("/v1/channel", json={"transmitter": {"site": "stomach"}}), 422, "body", "receivers")
 
 
-def test_channel_work_budget_gives_503_with_advice(make_settings):
+def test_channel_work_budget_gives_503_with_advice(make_settings, monkeypatch):
     from fastapi.testclient import TestClient
 
+    import service.channel
+    from raytrace.solver.footprint import Footprint
     from service.app import create_app
 
     with TestClient(create_app(make_settings(max_ray_segments=100)), raise_server_exceptions=False) as api:
+        # a shooting estimated over the cap is refused before any work (deterministic: 422, not 503)
+        assert_field(api.post("/v1/channel", json=SMALL_CHANNEL), 422, "body", "rays")
+        # an estimate that was wrong (too low): the budget checked while tracing stops it
+        monkeypatch.setattr(service.channel, "estimate", lambda spec, config: Footprint(1, 0, 0, 0, 0))
         r = api.post("/v1/channel", json=SMALL_CHANNEL)
         assert r.status_code == 503 and "Retry-After" in r.headers
         assert r.json()["detail"][0]["type"] == "work_budget_exceeded"
