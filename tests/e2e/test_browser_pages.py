@@ -194,8 +194,25 @@ def check_locate(page, errors, external, channel: dict) -> None:
     assert state["fix"]["error_m"] == pytest.approx(error_m, rel=1e-12) and error_m < 0.020, error_m
     assert page.is_visible("#fix")
     assert page.inner_text("#fix .error-mm").startswith(f"{error_m * 1000:.1f} "), page.inner_text("#fix")
+    assert drawn["objects"] == 4  # ellipsoid, marker, true position, error vector
     after = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
     assert after["changed"] > 200, after  # marker, ellipsoid, ring and error vector over the scene
+
+    # again at a constant velocity and 1 sigma: the new fix replaces the old one
+    page.select_option("#locate-method", "nonlinear")
+    page.select_option("#locate-confidence", "sigma")
+    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/localize", timeout=60_000) as answered:
+        page.click("#locate")
+    state = wait_state(page, "window.viewerState.locates === 2 && !window.viewerState.locating", errors, external)
+    sent, fix, drawn = answered.value.request.post_data_json, answered.value.json(), state["fix"]["drawn"]
+    assert sent["method"] == "nonlinear" and sent["relative_permittivity"] == 27.9 and state["error"] is None
+    assert drawn["objects"] == 4 and np.allclose(drawn["marker_m"], fix["position_m"], rtol=0, atol=1e-12)
+    assert np.allclose(np.sort(drawn["ellipsoid_scale_m"]), np.sqrt(np.linalg.eigvalsh(fix["covariance_m2"])),
+                       rtol=1e-9, atol=0)
+    page.select_option("#locate-method", "model_based")  # the README's screenshot shows the model-based fix
+    page.select_option("#locate-confidence", "p95")
+    page.click("#locate")  # the fields are cached now
+    wait_state(page, "window.viewerState.locates === 3 && !window.viewerState.locating", errors, external)
 
 
 def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):

@@ -249,6 +249,7 @@ export class Scene3D {
       ellipsoid_matrix: [...ellipsoid.matrixWorld.elements],
       ellipsoid_scale_m: ellipsoid.scale.toArray(),
       ellipsoid_visible: ellipsoid.visible && ellipsoid.material.opacity > 0,
+      objects: this.fix.children.length,
     };
   }
 
