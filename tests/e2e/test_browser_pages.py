@@ -19,9 +19,11 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 import httpx
+import numpy as np
 import pytest
 from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from playwright.sync_api import sync_playwright
+from scipy.stats import chi2
 
 from tests.conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
 
@@ -114,7 +116,9 @@ def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
     assert page.locator("#capsule option").count() == 7 and page.locator("#sensors input:checked").count() == 12
 
     assert page.input_value("#rays") == "20000"  # the page's default
-    page.click("#trace")
+    assert not page.is_enabled("#locate")  # nothing to locate from before a trace
+    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/channel", timeout=120_000) as traced:
+        page.click("#trace")
     state = wait_state(page, "window.viewerState.traces === 1 && !window.viewerState.tracing "
                        "&& window.viewerState.pdp !== null", errors, external)
     assert state["error"] is None, state["error"]
@@ -135,10 +139,80 @@ def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
     rows.first.click()  # outline one path; must not disturb anything
     assert page.locator("#paths tbody tr.picked").count() == 1
 
+    check_locate(page, errors, external, traced.value.json())
+
     shot = Path(os.environ.get("CAPSULE_RT_VIEWER_SCREENSHOT") or tmp_path / "viewer.png")
     page.screenshot(path=str(shot))
     assert shot.stat().st_size > 20_000
     assert errors == [] and external == [], (errors, external)
+
+
+def check_locate(page, errors, external, channel: dict) -> None:
+    """Locate after the trace (model-based, the page's default; 95 % ellipsoid): the page posts every sensor's
+    first-path delay, and draws the API's answer: the marker at position_m, the ellipsoid's semi-axes the square
+    roots of the covariance's eigenvalues times the 95 % scale, turned onto its eigenvectors."""
+    assert page.is_enabled("#locate") and not page.is_visible("#fix")
+    assert page.input_value("#locate-method") == "model_based"
+    page.select_option("#locate-confidence", "p95")
+    page.evaluate(COUNT_PIXELS, list(BACKGROUND))  # the frame before: the fix must add to it
+    # the first model-based fix builds the 12 sensors' travel-time fields (docs/localization.md, ~5-20 s)
+    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/localize", timeout=180_000) as answered:
+        page.click("#locate")
+    state = wait_state(page, "window.viewerState.locates === 1 && !window.viewerState.locating", errors, external)
+    assert answered.value.status == 200 and state["error"] is None, (answered.value.status, state["error"])
+    fix = answered.value.json()
+
+    # what was asked: each sensor's earliest traced path (oracle: the /v1/channel answer itself)
+    sent = answered.value.request.post_data_json
+    assert sent["method"] == "model_based" and sent["phantom"] == "torso" and sent["frequency_hz"] == 402e6
+    profiles = [p for p in channel["profiles"] if p["paths"]]
+    assert [s["position_m"] for s in sent["sensors"]] == [p["position_m"] for p in profiles]
+    assert [s["delay_s"] for s in sent["sensors"]] == [min(q["delay_s"] for q in p["paths"]) for p in profiles]
+    assert all(s["sigma_m"] == pytest.approx(0.005) for s in sent["sensors"])  # the page's default 5 mm
+
+    # what was drawn, read back from the three.js objects. numpy's eigvalsh and scipy's chi-square quantile
+    # are the oracle (the page runs its own Jacobi rotations and a constant). Everything is float64 on both
+    # sides and the Jacobi sweeps stop at 1e-15 of the norm: 1e-9 relative leaves room for the conditioning.
+    drawn = state["fix"]["drawn"]
+    position = np.array(fix["position_m"])
+    truth = np.array(channel["transmitter"]["position_m"])
+    cov = np.array(fix["covariance_m2"])
+    k = np.sqrt(chi2.ppf(0.95, 3))
+    assert state["fix"]["scale"] == pytest.approx(k, rel=1e-12)
+    assert np.allclose(drawn["marker_m"], position, rtol=0, atol=1e-12)
+    assert np.allclose(drawn["ellipsoid_centre_m"], position, rtol=0, atol=1e-12)
+    assert np.allclose(drawn["truth_m"], truth, rtol=0, atol=1e-12)
+    axes = np.sort(drawn["ellipsoid_scale_m"])
+    assert np.allclose(axes, k * np.sqrt(np.linalg.eigvalsh(cov)), rtol=1e-9, atol=0), (axes, cov)
+    # orientation too: the matrix A taking the unit sphere to the ellipsoid has A A^T = k^2 C
+    a = np.array(drawn["ellipsoid_matrix"]).reshape(4, 4).T[:3, :3]
+    assert np.allclose(a @ a.T, k**2 * cov, rtol=0, atol=1e-9 * k**2 * np.abs(cov).max()), (a @ a.T, k**2 * cov)
+    assert drawn["ellipsoid_visible"]
+    # a sane fix of the stomach site: the model-based fix from exact first-path delays errs 4.8 mm there at
+    # 1e5 rays (docs/localization.md); 20 mm says the delays, positions and frames are wired right
+    error_m = float(np.linalg.norm(position - truth))
+    assert state["fix"]["error_m"] == pytest.approx(error_m, rel=1e-12) and error_m < 0.020, error_m
+    assert page.is_visible("#fix")
+    assert page.inner_text("#fix .error-mm").startswith(f"{error_m * 1000:.1f} "), page.inner_text("#fix")
+    assert drawn["objects"] == 4  # ellipsoid, marker, true position, error vector
+    after = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
+    assert after["changed"] > 200, after  # marker, ellipsoid, ring and error vector over the scene
+
+    # again at a constant velocity and 1 sigma: the new fix replaces the old one
+    page.select_option("#locate-method", "nonlinear")
+    page.select_option("#locate-confidence", "sigma")
+    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/localize", timeout=60_000) as answered:
+        page.click("#locate")
+    state = wait_state(page, "window.viewerState.locates === 2 && !window.viewerState.locating", errors, external)
+    sent, fix, drawn = answered.value.request.post_data_json, answered.value.json(), state["fix"]["drawn"]
+    assert sent["method"] == "nonlinear" and sent["relative_permittivity"] == 27.9 and state["error"] is None
+    assert drawn["objects"] == 4 and np.allclose(drawn["marker_m"], fix["position_m"], rtol=0, atol=1e-12)
+    assert np.allclose(np.sort(drawn["ellipsoid_scale_m"]), np.sqrt(np.linalg.eigvalsh(fix["covariance_m2"])),
+                       rtol=1e-9, atol=0)
+    page.select_option("#locate-method", "model_based")  # the README's screenshot shows the model-based fix
+    page.select_option("#locate-confidence", "p95")
+    page.click("#locate")  # the fields are cached now
+    wait_state(page, "window.viewerState.locates === 3 && !window.viewerState.locating", errors, external)
 
 
 def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
@@ -147,7 +221,8 @@ def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
     for mesh in meshes.values():
         mesh.apply_scale(1000.0)  # a 200 mm box holding a 40 mm sphere, in millimetres
     manifest = phantom_manifest(name="browser box", units="mm", sites={
-        "capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.010]}, "side": {"kind": "sensor", "position_m": [0.099, 0.0, 0.0]}})
+        "capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.010]},
+        "side": {"kind": "sensor", "position_m": [0.099, 0.0, 0.0]}})
     r = httpx.post(f"{live_url}/v1/phantoms", timeout=60, files={
         "mesh": ("box.glb", glb_bytes(meshes), "model/gltf-binary"),
         "manifest": ("manifest.json", json.dumps(manifest), "application/json")})

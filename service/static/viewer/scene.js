@@ -2,12 +2,16 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { errorEllipsoid } from './ellipsoid.js';
 import { gainColour, tissueColour } from './palette.js';
 
 export const BACKGROUND = 0x14171c;
 const CAPSULE = 0xff8c1a;
 const SENSOR = 0x3d8bfd;
 const IDLE = 0x5d6677;
+const ESTIMATE = 0x39e07a; // a localization's estimate and its error ellipsoid
+const ELLIPSOID_OPACITY = 0.45;
+const PATHS_UNDER_FIX = 0.2; // the paths' opacity while a fix is shown, so that it stands out
 const SHELL_OPACITY = 0.08; // organs that hold other organs (skin, fat, muscle wall...)
 const ORGAN_OPACITY = 0.4;
 
@@ -32,8 +36,11 @@ export class Scene3D {
     this.organs = new THREE.Group();
     this.sites = new THREE.Group();
     this.paths = new THREE.Group();
-    this.scene.add(this.organs, this.sites, this.paths);
+    this.fix = new THREE.Group(); // a localization: estimate, error ellipsoid, true position, error vector
+    this.scene.add(this.organs, this.sites, this.paths, this.fix);
     this.frames = 0;
+    this.pathOpacity = 1.0;
+    this.focused = null; // the receiver whose paths are in front
     new ResizeObserver(() => this.resize()).observe(container);
     this.resize();
   }
@@ -164,10 +171,8 @@ export class Scene3D {
 
   /** Fade every receiver's paths but the selected one's; outline one path of it in white (or none). */
   focus(receiver, path) {
-    for (const lines of this.paths.children) {
-      if (lines.userData.highlight) continue;
-      lines.material.opacity = receiver === null || lines.userData.receiver === receiver ? 1.0 : 0.25;
-    }
+    this.focused = receiver;
+    this.fadePaths();
     this.paths.children.filter((l) => l.userData.highlight).forEach((l) => { this.paths.remove(l); l.geometry.dispose(); });
     if (path) {
       const geometry = new THREE.BufferGeometry().setFromPoints(path.map((p) => new THREE.Vector3(...p)));
@@ -177,6 +182,84 @@ export class Scene3D {
       this.paths.add(line);
     }
     this.render();
+  }
+
+  /** Draw a position fix: a marker (an octahedron of radius `size_m`) at `estimate_m`, the error ellipsoid
+   *  x^T C^-1 x = scale^2 of its covariance C [m^2] around it (a unit sphere scaled by the semi-axes and turned
+   *  onto the eigenvectors, semi-transparent, drawn over everything so that an ellipsoid smaller than the marker
+   *  still shows), a ring at the true position `truth_m` and the error vector between them. */
+  setFix(estimate_m, covariance_m2, scale, truth_m, size_m) {
+    clear(this.fix);
+    const { axes_m, directions } = errorEllipsoid(covariance_m2, scale);
+    const ellipsoid = new THREE.Mesh(new THREE.SphereGeometry(1, 48, 24), new THREE.MeshLambertMaterial({
+      color: ESTIMATE, transparent: true, opacity: ELLIPSOID_OPACITY, depthWrite: false, depthTest: false,
+    }));
+    ellipsoid.position.fromArray(estimate_m);
+    const [u, v, w] = directions.map((d) => new THREE.Vector3(...d));
+    ellipsoid.quaternion.setFromRotationMatrix(new THREE.Matrix4().makeBasis(u, v, w));
+    ellipsoid.scale.fromArray(axes_m.map((a) => Math.max(a, 1e-9))); // a zero scale makes the matrix singular
+    ellipsoid.userData = { role: 'ellipsoid' };
+    ellipsoid.renderOrder = 6;
+    // its principal axes: unit segments in the sphere's frame, so the ellipsoid's scale makes them the semi-axes
+    const axes = new THREE.LineSegments(new THREE.BufferGeometry().setFromPoints(
+      [[1, 0, 0], [0, 1, 0], [0, 0, 1]].flatMap((e) => [new THREE.Vector3(...e).negate(), new THREE.Vector3(...e)])),
+    new THREE.LineBasicMaterial({ color: ESTIMATE, depthTest: false }));
+    axes.renderOrder = 6;
+    ellipsoid.add(axes);
+    const marker = new THREE.Mesh(new THREE.OctahedronGeometry(size_m),
+      new THREE.MeshBasicMaterial({ color: ESTIMATE, depthTest: false }));
+    marker.position.fromArray(estimate_m);
+    marker.userData = { role: 'estimate' };
+    marker.renderOrder = 5;
+    const truth = new THREE.Mesh(new THREE.SphereGeometry(1.6 * size_m, 16, 12),
+      new THREE.MeshBasicMaterial({ color: CAPSULE, wireframe: true, depthTest: false }));
+    truth.position.fromArray(truth_m);
+    truth.userData = { role: 'truth' };
+    truth.renderOrder = 5;
+    const vector = new THREE.Line(new THREE.BufferGeometry().setFromPoints([truth.position, marker.position]),
+      new THREE.LineBasicMaterial({ color: 0xffffff, depthTest: false }));
+    vector.userData = { role: 'error' };
+    vector.renderOrder = 6;
+    this.fix.add(ellipsoid, marker, truth, vector);
+    this.pathOpacity = PATHS_UNDER_FIX;
+    this.fadePaths();
+    this.render();
+    return axes_m;
+  }
+
+  clearFix() {
+    clear(this.fix);
+    this.pathOpacity = 1.0;
+    this.fadePaths();
+    this.render();
+  }
+
+  /** What the drawn fix's objects hold, read back from three.js (for the browser tests): the marker's and the
+   *  ellipsoid's world positions [m], the ellipsoid's world matrix (column-major 4x4: its upper 3x3 block A
+   *  maps the unit sphere onto the ellipsoid, so A A^T = scale^2 C) and its scale (the semi-axes) [m]. */
+  fixReadback() {
+    const role = (r) => this.fix.children.find((o) => o.userData.role === r);
+    const ellipsoid = role('ellipsoid');
+    if (!ellipsoid) return null;
+    this.fix.updateMatrixWorld(true);
+    return {
+      marker_m: role('estimate').getWorldPosition(new THREE.Vector3()).toArray(),
+      truth_m: role('truth').getWorldPosition(new THREE.Vector3()).toArray(),
+      ellipsoid_centre_m: ellipsoid.getWorldPosition(new THREE.Vector3()).toArray(),
+      ellipsoid_matrix: [...ellipsoid.matrixWorld.elements],
+      ellipsoid_scale_m: ellipsoid.scale.toArray(),
+      ellipsoid_visible: ellipsoid.visible && ellipsoid.material.opacity > 0,
+      objects: this.fix.children.length,
+    };
+  }
+
+  /** The paths' opacities: the focused receiver's (all when none) full, the others faint, all fainter under a fix. */
+  fadePaths() {
+    for (const lines of this.paths.children) {
+      if (lines.userData.highlight) continue;
+      const front = this.focused === null || lines.userData.receiver === this.focused;
+      lines.material.opacity = this.pathOpacity * (front ? 1.0 : 0.25);
+    }
   }
 
   /** Polylines drawn (one per path), over all receivers. */

@@ -1,5 +1,8 @@
 // The viewer page: pick a phantom, a capsule site and sensors, trace (POST /v1/channel), see the paths
-// in 3-D and the selected sensor's power-delay profile (POST /v1/plots/pdp). State for tests: window.viewerState.
+// in 3-D and the selected sensor's power-delay profile (POST /v1/plots/pdp); locate the capsule from the traced
+// first-path delays (POST /v1/localize) and draw the estimate and its error ellipsoid. State for tests:
+// window.viewerState.
+import { CONFIDENCE } from './ellipsoid.js';
 import { tissueColour } from './palette.js';
 import { Scene3D } from './scene.js';
 
@@ -12,7 +15,7 @@ const KIND_LETTER = { reflection: 'R', refraction: 'T', total_internal_reflectio
 
 const state = {
   phantom: null, ready: false, organs: 0, sites: 0, tracing: false, traces: 0, paths: 0, transmitter: null,
-  receivers: [], pdp: null, error: null,
+  receivers: [], pdp: null, error: null, locating: false, locates: 0, fix: null,
 };
 window.viewerState = state;
 const view = new Scene3D($('scene'));
@@ -20,6 +23,8 @@ let info = null; // GET /v1/phantoms/{id}
 let channel = null; // the last POST /v1/channel response
 let organMeshes = {};
 let pdpUrl = null;
+let siteSize = 1e-3; // the site markers' radius [m]
+let traced = null; // what the last trace was run with: {phantom, frequency_hz}
 
 async function api(path, options = {}) {
   const response = await fetch(path, options);
@@ -64,6 +69,7 @@ async function loadPhantoms() {
 async function loadPhantom(id) {
   Object.assign(state, { phantom: id, ready: false, paths: 0, receivers: [], pdp: null });
   channel = null;
+  clearFix();
   showResults();
   status(`Loading phantom ${id}…`);
   const [described, manifest, glb] = await Promise.all([
@@ -75,7 +81,8 @@ async function loadPhantom(id) {
   organMeshes = await view.loadOrgans(glb, info.organs, manifest.units === 'mm' ? 1e-3 : 1);
   view.clearPaths();
   const box = framingBox(info);
-  view.setSites(info.sites, markerSize(info, box));
+  siteSize = markerSize(info, box);
+  view.setSites(info.sites, siteSize);
   fillSites();
   fillLegend();
   view.fit(box);
@@ -175,6 +182,7 @@ async function trace() {
   };
   state.tracing = true;
   $('trace').disabled = true;
+  clearFix();
   status(`Tracing ${body.rays} rays to ${receivers.length} sensors…`);
   const started = performance.now();
   try {
@@ -182,6 +190,7 @@ async function trace() {
       method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body),
     });
     channel = await response.json();
+    traced = { phantom: body.phantom, frequency_hz: body.frequency_hz };
     const gains = channel.profiles.flatMap((p) => p.paths.map((q) => q.gain_db));
     const high = gains.length ? Math.max(...gains) : 0;
     view.setPaths(channel, high - GAIN_RANGE_DB, high);
@@ -200,7 +209,81 @@ async function trace() {
   } finally {
     state.tracing = false;
     $('trace').disabled = false;
+    $('locate').disabled = !channel;
   }
+}
+
+function clearFix() {
+  state.fix = null;
+  $('fix').hidden = true;
+  $('locate').disabled = true;
+  view.clearFix();
+}
+
+/** The traced sensors' first-path delays (the earliest path of each; sensors without a path are left out)
+ *  -> POST /v1/localize; the estimate, its error ellipsoid and the error against the traced capsule position. */
+async function locate() {
+  const method = $('locate-method').value;
+  const sigma_m = Number($('locate-sigma').value) / 1000;
+  const permittivity = Number($('locate-permittivity').value);
+  const confidence = CONFIDENCE[$('locate-confidence').value];
+  const seen = channel.profiles.filter((p) => p.paths.length);
+  const body = {
+    method, phantom: traced.phantom, frequency_hz: traced.frequency_hz, relative_permittivity: permittivity,
+    sensors: seen.map((p) => ({ position_m: p.position_m, delay_s: Math.min(...p.paths.map((q) => q.delay_s)), sigma_m })),
+  };
+  const left = channel.profiles.length - seen.length;
+  state.locating = true;
+  $('locate').disabled = true;
+  status(`Locating from ${seen.length} first-path delays (${method})…`);
+  try {
+    const fix = await (await api('/v1/localize', {
+      method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body),
+    })).json();
+    const truth = channel.transmitter.position_m;
+    const axes_m = view.setFix(fix.position_m, fix.covariance_m2, confidence.scale, truth, 0.6 * siteSize);
+    const delta = fix.position_m.map((x, k) => x - truth[k]);
+    const error_m = Math.hypot(...delta);
+    state.fix = {
+      method: fix.method, position_m: fix.position_m, covariance_m2: fix.covariance_m2, truth_m: truth, error_m,
+      sigma_m, confidence: $('locate-confidence').value, scale: confidence.scale, axes_m, sensors: seen.length,
+      converged: fix.converged, drawn: view.fixReadback(),
+    };
+    showFix(fix, truth, delta, axes_m, confidence, sigma_m, seen.length);
+    state.locates += 1;
+    status(`${method}: ${(error_m * 1000).toFixed(1)} mm from the true position, ${seen.length} sensors`
+      + `${left ? ` (${left} without a path left out)` : ''}.`);
+  } catch (error) {
+    status(`Locate failed: ${error.message}`, true);
+  } finally {
+    state.locating = false;
+    $('locate').disabled = !channel;
+  }
+}
+
+function showFix(fix, truth, delta, axes_m, confidence, sigma_m, sensors) {
+  const mm = (v) => v.map((x) => (x * 1000).toFixed(1)).join(', ');
+  const rms = Math.sqrt(fix.residuals_m.reduce((a, r) => a + r * r, 0) / fix.residuals_m.length);
+  const rows = [
+    ['method', `${fix.method}, ${sensors} sensors${fix.converged ? '' : ' (not converged)'}`],
+    ['estimate [mm]', mm(fix.position_m)],
+    ['true position [mm]', mm(truth)],
+    ['error [mm]', `${(Math.hypot(...delta) * 1000).toFixed(1)} (${mm(delta)})`, 'error-mm'],
+    [`ellipsoid semi-axes, ${confidence.label} [mm]`, axes_m.map((a) => (a * 1000).toFixed(2)).join(', ')],
+    ['range sigma [mm]', (sigma_m * 1000).toFixed(2)],
+    ['CRLB (3-D RMS) [mm]', fix.crlb_m === null ? '-' : (fix.crlb_m * 1000).toFixed(2)],
+    ['PDOP', fix.pdop.toFixed(2)],
+    ['RMS residual [mm]', (rms * 1000).toFixed(2)],
+  ];
+  if (fix.relative_permittivity !== null) rows.push(['fitted eps_r', fix.relative_permittivity.toFixed(1)]);
+  if (fix.inside_domain === false) rows.push(['note', 'the estimate lies outside the body']);
+  $('fix-table').tBodies[0].replaceChildren(...rows.map(([key, value, cls]) => {
+    const row = document.createElement('tr');
+    row.append(Object.assign(document.createElement('td'), { textContent: key }),
+      Object.assign(document.createElement('td'), { textContent: value, className: cls || '' }));
+    return row;
+  }));
+  $('fix').hidden = false;
 }
 
 function showResults() {
@@ -273,6 +356,8 @@ $('capsule').addEventListener('change', capsuleChanged);
 $('all-sensors').addEventListener('click', () => { $('sensors').querySelectorAll('input').forEach((b) => { b.checked = true; }); markSites(); });
 $('no-sensors').addEventListener('click', () => { $('sensors').querySelectorAll('input').forEach((b) => { b.checked = false; }); markSites(); });
 $('trace').addEventListener('click', trace);
+$('locate').addEventListener('click', locate);
+$('locate-confidence').replaceChildren(...Object.entries(CONFIDENCE).map(([key, c]) => new Option(c.label, key)));
 $('pdp-sensor').addEventListener('change', (e) => showProfile(e.target.value));
 
 loadPhantoms().catch((error) => status(`Loading failed: ${error.message}`, true));
