@@ -140,10 +140,11 @@ class Antenna:
         elif not isinstance(self.site, str) or not self.site:
             raise InputError(f"a site is a non-empty name, got {self.site!r}", field="site")
         pol = _vector(self.polarization, "polarization")
-        norm = float(np.linalg.norm(pol))
-        if norm == 0.0:
+        largest = float(np.max(np.abs(pol)))
+        if largest == 0.0:
             raise InvalidGeometryError("polarization must be a non-zero vector", field="polarization")
-        object.__setattr__(self, "polarization", _vector(pol / norm, "polarization"))
+        pol = pol / largest  # first to unit scale: |(1e200, 1e200, 0)| overflows, |(0, 0, 1e-320)| underflows
+        object.__setattr__(self, "polarization", _vector(pol / np.linalg.norm(pol), "polarization"))
         if self.pattern not in PATTERNS:
             raise InputError(f"pattern must be one of {', '.join(PATTERNS)}, got {self.pattern!r}", field="pattern")
         if not isinstance(self.name, str):
