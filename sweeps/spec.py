@@ -32,8 +32,8 @@ centreline) is checked when the sweep is planned (:mod:`sweeps.plan`), before an
 
 from __future__ import annotations
 
-import dataclasses
 import copy
+import dataclasses
 import hashlib
 import json
 import math
@@ -82,6 +82,10 @@ class Limits:
     max_band_points: int = 201
     max_trials: int = 10_000
     max_chunk_positions: int = 256
+    #: Work and memory caps of one trace (``raytrace.solver.footprint``: a trace whose estimate exceeds
+    #: either is refused before the sweep starts, naming the spec field to lower); None: not checked.
+    max_ray_segments: int | None = None
+    max_trace_bytes: int | None = None
 
 
 LIMITS = Limits()
@@ -517,6 +521,31 @@ def parse_text(text: str, suffix: str = ".yaml") -> Any:
         re.compile(r"^[-+]?(?:[0-9][0-9_]*)?(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
         list("-+0123456789."))
     try:
-        return yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader subclass
+        data = yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
         raise _fail(f"not valid YAML: {exc}", "spec") from None
+    _check_expanded_size(data)
+    return data
+
+
+#: Values a spec may hold once YAML's aliases are expanded: what JSON of ``Limits.max_spec_bytes``
+#: can hold (each value takes at least two bytes, ``0,``).
+MAX_SPEC_VALUES = LIMITS.max_spec_bytes // 2
+
+
+def _check_expanded_size(data: Any) -> None:
+    """Refuse a YAML document whose aliases expand it past :data:`MAX_SPEC_VALUES` values (ten
+    nested lists of ten aliases are 1e10 values in a few hundred bytes: validating, copying or
+    quoting them in an error would not end). Counts shared values once per reference, stops at the cap."""
+    count, stack = 0, [data]
+    while stack:
+        value = stack.pop()
+        count += 1
+        if count > MAX_SPEC_VALUES:
+            raise _fail(f"the spec expands to more than {MAX_SPEC_VALUES} values (YAML aliases repeat what "
+                        "they refer to): write it out, or use fewer aliases", "spec")
+        if isinstance(value, Mapping):
+            stack.extend(value.keys())
+            stack.extend(value.values())
+        elif isinstance(value, list):
+            stack.extend(value)
