@@ -136,7 +136,14 @@ def _number(value: Any, field: str, *, positive: bool = False, nonnegative: bool
     return x
 
 
+def _integral(value: Any) -> Any:
+    """JSON Schema's ``integer`` is any number without a fractional part: ``4.0`` (or YAML's ``4.0``)
+    counts as 4; a boolean or any other value is left to be refused."""
+    return int(value) if type(value) is float and value.is_integer() else value
+
+
 def _int(value: Any, field: str, lo: int, hi: int) -> int:
+    value = _integral(value)
     if isinstance(value, bool) or not isinstance(value, int):
         raise _fail(f"must be an integer, got {value!r}", field)
     if not lo <= value <= hi:
@@ -446,7 +453,7 @@ class SweepSpec:
         out["ranging"] = _ranging(data.get("ranging"), tuple(freqs), limits)
         out["localization"] = localization.validate(data.get("localization"), out["ranging"], "localization")
         out["trials"] = _int(data.get("trials", min(100, limits.max_trials)), "trials", 1, limits.max_trials)
-        seed = data.get("seed", 0)
+        seed = _integral(data.get("seed", 0))
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
             raise _fail(f"must be an integer in [0, 2^63), got {seed!r}", "seed")
         out["seed"] = int(seed)

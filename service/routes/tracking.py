@@ -10,10 +10,12 @@ from fastapi import APIRouter, Request
 from pydantic import BaseModel, ConfigDict, Field
 
 from raytrace.solver.budget import Budget
+from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
+from service.schemas import Int
 
-router = APIRouter(prefix="/v1/track", tags=["tracking"])
+router = APIRouter(prefix="/v1/track", tags=["tracking"], route_class=ThreadedJsonRoute)
 
 _ERRORS = error_responses(400, 404, 413, 422, 503, 504)
 #: Observations per request; particles x observations per request (work bound).
@@ -28,7 +30,7 @@ Row3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class RfFixIn(_Strict):
@@ -60,8 +62,8 @@ class TrackerConfigIn(_Strict):
     initial_v_sigma_m_per_s: float = Field(3e-3, gt=0.0, le=1.0)
     gate_probability: float | None = Field(0.9999, gt=0.5, lt=1.0)
     lateral_sigma_m: float = Field(0.0, ge=0.0, le=1.0)
-    particles: int = Field(2000, ge=10, le=100_000)
-    seed: int = Field(0, ge=0, le=2**63 - 1)
+    particles: Int = Field(2000, ge=10, le=100_000)
+    seed: Int = Field(0, ge=0, le=2**63 - 1)
 
 
 class TrackRequest(_Strict):
@@ -93,8 +95,8 @@ class TrackResponse(BaseModel):
 
 
 class JourneyIn(_Strict):
-    steps: int = Field(120, ge=2, le=MAX_EVALUATE_STEPS)
-    seed: int = Field(0, ge=0, le=2**63 - 1)
+    steps: Int = Field(120, ge=2, le=MAX_EVALUATE_STEPS)
+    seed: Int = Field(0, ge=0, le=2**63 - 1)
     dt_s: float = Field(0.5, gt=0.0, le=60.0)
     start_m: float = Field(0.20, ge=0.0, le=100.0)
     mean_speed_m_per_s: float = Field(1.5e-3, ge=0.0, le=0.05)
@@ -110,8 +112,8 @@ class EvaluateRequest(_Strict):
     journey: JourneyIn = Field(default_factory=JourneyIn)
     trackers: list[Literal["rf", "video", "fused", "fused_pf"]] = Field(
         default_factory=lambda: ["rf", "video", "fused"], min_length=1, max_length=4)
-    rays: int = Field(20_000, ge=1000, le=MAX_EVALUATE_RAYS)
-    max_interactions: int = Field(4, ge=0, le=6)
+    rays: Int = Field(20_000, ge=1000, le=MAX_EVALUATE_RAYS)
+    max_interactions: Int = Field(4, ge=0, le=6)
     rf_grid_m: float = Field(5e-3, ge=1e-3, le=0.05)
     include_trajectory: bool = Field(True, description="Return every tracker's trajectory, and the truth.")
 
