@@ -102,7 +102,7 @@ class JourneyIn(_Strict):
     start_m: float = Field(0.20, ge=0.0, le=100.0)
     mean_speed_m_per_s: float = Field(1.5e-3, ge=0.0, le=0.05)
     peristalsis_amplitude_m: float = Field(1.5e-3, ge=0.0, le=0.05)
-    peristalsis_period_s: float = Field(8.0, ge=0.1, le=3600.0)
+    peristalsis_period_s: float = Field(8.0, gt=0.1, le=3600.0)  # the journey refuses 0.1 itself
     roll_step_deg: float = Field(3.0, ge=0.0, le=45.0)
 
 
