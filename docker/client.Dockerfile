@@ -24,6 +24,7 @@ COPY evaluation ./evaluation
 COPY sweeps ./sweeps
 COPY vision ./vision
 COPY fullwave ./fullwave
+COPY tracking ./tracking
 # The local project with its test extra; versions are constrained in pyproject.toml.
 # hadolint ignore=DL3013
 RUN pip install --no-cache-dir ".[test]" \
@@ -32,7 +33,7 @@ RUN pip install --no-cache-dir ".[test]" \
 # Only the end-to-end suite (it imports the installed packages, never bench/ or the unit
 # tests' helpers): tests/service/test_docker.py builds exactly this file set and runs the
 # entry point below against a live server.
-COPY tests/__init__.py tests/conftest.py ./tests/
+COPY tests/__init__.py tests/conftest.py tests/schemathesis_hooks.py ./tests/
 COPY tests/e2e ./tests/e2e
 COPY docs ./docs
 

@@ -22,6 +22,7 @@ COPY evaluation ./evaluation
 COPY sweeps ./sweeps
 COPY vision ./vision
 COPY fullwave ./fullwave
+COPY tracking ./tracking
 # The warm-up compiles the tracer's numba kernels into the image, so a container's start does
 # not pay the ~17 s compile. numba only uses a cache directory it can write to: the cache is
 # handed to the service's user.

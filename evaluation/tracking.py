@@ -103,9 +103,10 @@ def _settings_key(settings: dict) -> str:
 
 
 def rf_links(phantom, s_grid_m: Sequence[float], *, rays: int, max_interactions: int, trials: int, seed: int,
-             cache_dir: str | Path | None = None) -> list[dict]:
+             cache_dir: str | Path | None = None, check: Callable[[], None] | None = None) -> list[dict]:
     """Per grid arc length: ``{"receivers": [...], "distance_m": [...], "std_m": [...]}`` (TOA GCC at
-    eps_r 27.9; NaN where a receiver has no path), from the sweep engine, cached per position."""
+    eps_r 27.9; NaN where a receiver has no path), from the sweep engine, cached per position.
+    ``check`` is called after every traced position (a budget's deadline, a disconnected client)."""
     from sweeps import load_spec, run_sweep
 
     settings = {"phantom": phantom.name, "rays": rays, "max_interactions": max_interactions, "trials": trials,
@@ -126,9 +127,12 @@ def rf_links(phantom, s_grid_m: Sequence[float], *, rays: int, max_interactions:
         spec = load_spec({"phantom": phantom.name, "capsule_positions": [{"s_m": float(s)} for s in missing],
                           "frequencies_hz": [FREQUENCY_HZ],
                           "channel": {"rays": rays, "max_interactions": max_interactions},
-                          "ranging": {"toa": {"methods": ["gcc"], "snr_db": 30.0}}, "trials": trials, "seed": seed})
+                          "ranging": {"toa": {"methods": ["gcc"], "snr_db": 30.0}}, "trials": trials, "seed": seed,
+                          "chunk_positions": 1})  # one position per task (the chunking never changes a number)
+        progress = None if check is None else (lambda _state: check())
         with tempfile.TemporaryDirectory() as tmp:
-            rows = run_sweep(spec, Path(tmp) / "sweep", phantom=phantom, workers=0).results.to_pylist()
+            rows = run_sweep(spec, Path(tmp) / "sweep", phantom=phantom, workers=0,
+                             on_progress=progress).results.to_pylist()
         for i, s in enumerate(missing):
             mine = sorted((r for r in rows if r["position_index"] == i), key=lambda r: r["receiver_index"])
             rec = {"receivers": [r["receiver"] for r in mine],
@@ -175,7 +179,7 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
             raise TrackingInputError(f"the journey visits {len(unique)} RF grid positions, at most "
                                      f"{MAX_RF_POSITIONS}; shorten it or widen rf_grid_m", "journey.steps")
         links = dict(zip(unique, rf_links(phantom, unique, rays=rays, max_interactions=max_interactions,
-                                          trials=trials, seed=spec.seed, cache_dir=cache_dir)))
+                                          trials=trials, seed=spec.seed, cache_dir=cache_dir, check=check)))
         traced = len(unique)
         check()
         names = links[unique[0]]["receivers"]

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from estimators.errors import EstimatorInputError
 from estimators.profile import PathProfile
-from plots.figure import PALETTE, PlotInputError, PlotRequest, new_figure
+from plots.figure import PALETTE, Int, PlotInputError, PlotRequest, new_figure
 from plots.profile import MAX_BAND_POINTS, ProfileData, band_gains, delays_s, gains
 
 _EXAMPLE = {
@@ -37,7 +37,7 @@ class BandSpec(BaseModel):
 
     start_hz: float = Field(gt=0.0, le=1e12, description="First frequency [Hz].")
     stop_hz: float = Field(gt=0.0, le=1e12, description="Last frequency [Hz] (> start_hz).")
-    points: int = Field(ge=2, le=MAX_BAND_POINTS, description="Equally spaced frequencies [-].")
+    points: Int = Field(ge=2, le=MAX_BAND_POINTS, description="Equally spaced frequencies [-].")
 
     @model_validator(mode="after")
     def _order(self) -> "BandSpec":

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from estimators import bounds
 from estimators.errors import EstimatorInputError
-from plots.figure import PALETTE, PlotInputError, PlotRequest, new_figure
+from plots.figure import PALETTE, Int, PlotInputError, PlotRequest, new_figure
 
 #: Most carriers per curve, and curves per kind.
 MAX_CARRIERS = 2000
@@ -39,7 +39,7 @@ class _Strict(BaseModel):
 class CarrierRange(_Strict):
     start_hz: float = Field(ge=1.0, le=1e12, description="Lowest carrier [Hz].")
     stop_hz: float = Field(ge=1.0, le=1e12, description="Highest carrier [Hz] (> start_hz).")
-    points: int = Field(200, ge=2, le=MAX_CARRIERS, description="Carriers on the grid [-].")
+    points: Int = Field(200, ge=2, le=MAX_CARRIERS, description="Carriers on the grid [-].")
     log: bool = Field(False, description="Log-spaced carriers and a log frequency axis.")
 
     @model_validator(mode="after")
@@ -73,7 +73,8 @@ class PdoaSeries(_Strict):
 
 
 class RssReference(_Strict):
-    shadowing_db: float = Field(ge=0.0, le=100.0, description="Shadowing standard deviation sigma [dB].")
+    shadowing_db: float = Field(gt=0.0, le=100.0, description="Shadowing standard deviation sigma [dB] (> 0: a "
+                                "zero one gives a zero bound, which the log axis cannot show).")
     path_loss_exponent: float = Field(ge=0.1, le=20.0, description="Path-loss exponent n [-].")
     distance_m: float = Field(ge=1e-6, le=100.0, description="True distance [m].")
     label: str | None = Field(None, max_length=100, description="Legend entry (default: the parameters).")

@@ -13,12 +13,12 @@ from __future__ import annotations
 import io
 import re
 import threading
-from typing import Any
+from typing import Annotated, Any
 
 from matplotlib import rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
 #: Output formats: name -> media type.
 FORMATS = {"png": "image/png", "svg": "image/svg+xml", "pdf": "application/pdf"}
@@ -57,6 +57,16 @@ class Data(BaseModel):
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False)
 
 
+def _integral(value: Any) -> Any:
+    """JSON Schema's ``integer`` is any number without a fractional part: ``150.0`` counts as 150
+    (the service validates bodies strictly, so without this a float would be refused)."""
+    return int(value) if type(value) is float and value.is_integer() else value
+
+
+#: An integer field of a plot body.
+Int = Annotated[int, BeforeValidator(_integral)]
+
+
 class PlotRequest(BaseModel):
     """Options every figure takes (the top level of a plot body forbids unknown fields)."""
 
@@ -65,7 +75,7 @@ class PlotRequest(BaseModel):
     title: str | None = Field(None, max_length=200, description="Figure title (default: one naming the data).")
     width_in: float = Field(8.0, ge=2.0, le=20.0, description="Figure width [in].")
     height_in: float = Field(4.5, ge=2.0, le=20.0, description="Figure height [in].")
-    dpi: int = Field(150, ge=50, le=300, description="Resolution of PNG output [dots per inch].")
+    dpi: Int = Field(150, ge=50, le=300, description="Resolution of PNG output [dots per inch].")
 
     @model_validator(mode="after")
     def _size(self) -> "PlotRequest":

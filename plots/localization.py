@@ -95,6 +95,9 @@ def localization_cdf(methods, *, title: str | None = None, width_in: float = 8.0
     values += [m.crlb_m * 1e3 for m in req.methods if m.crlb_m]
     if values and max(values) > 100.0 * min(values):
         ax.set_xscale("log")
+        # at most 12 decades shown: a subnormal error (5e-324 m) would put ticks at 1e-330, which
+        # underflow to 0 and break the tick labels
+        ax.set_xlim(left=max(min(values), max(values) * 1e-12))
     for level in (0.5, 0.9):
         ax.axhline(level, color="0.6", linewidth=0.7, linestyle=":")
     ax.set_ylim(0.0, 1.02)

@@ -5,7 +5,8 @@ A route of :class:`ThreadedJsonRoute` reads its body (within the route's
 thread: parses it, checks the length of every bounded list against its
 ``max_length`` *before* a single item is validated (pydantic validates all
 items of a list, then its length: a million-path profile would cost seconds
-before its refusal), and validates the model. FastAPI is handed the
+before its refusal), and validates the model in pydantic's strict mode (``true`` is not a
+number nor ``0`` a boolean, whatever the model's own config says). FastAPI is handed the
 validated model, which it accepts as is, so the event loop never walks a
 large body. Errors have the shape of FastAPI's own: 422 with
 ``loc = ["body", ...]``, and 400 for a body that is not JSON at all.
@@ -92,7 +93,7 @@ def decode(model: type[BaseModel], body: bytes) -> BaseModel:
         raise HTTPException(400, f"the body is not valid JSON: {str(exc)[:200]}") from None
     check_list_lengths(model, data)
     try:
-        return model.model_validate(data)
+        return model.model_validate(data, strict=True)  # a boolean or a numeric string is not a number
     except ValidationError as exc:
         errors = [{"type": e["type"], "loc": ("body", *e["loc"]), "msg": e["msg"], "input": None}
                   for e in exc.errors(include_url=False, include_input=False)]

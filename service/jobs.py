@@ -62,7 +62,8 @@ def limits_for(settings: Settings) -> Limits:
     return Limits(max_positions=LIMITS.max_positions, max_receivers=settings.max_receivers,
                   max_traces=settings.sweep_max_traces, max_rays=settings.max_rays,
                   max_interactions=settings.max_interactions, max_band_points=settings.max_band_points,
-                  max_trials=settings.max_trials)
+                  max_trials=settings.max_trials, max_ray_segments=settings.max_ray_segments,
+                  max_trace_bytes=settings.compute_memory_share_bytes)
 
 
 class SweepJobs:
@@ -275,7 +276,8 @@ class SweepJobs:
         watcher = threading.Thread(target=watch, name=f"sweep-watch-{sweep_id}", daemon=True)
         watcher.start()
         log.info("sweep started", extra={"sweep": sweep_id, "traces": plan.total_traces})
-        budget = {"deadline_s": self.settings.request_deadline_s, "max_ray_segments": self.settings.max_ray_segments}
+        budget = {"deadline_s": self.settings.request_deadline_s, "max_ray_segments": self.settings.max_ray_segments,
+                  "max_bytes": self.settings.compute_memory_share_bytes}
         try:
             if self._engine is None:  # one pool (or Dask client) for the runner's life: workers stay warm
                 self._engine = make_engine(self.settings.sweep_workers, self.settings.sweep_cluster)

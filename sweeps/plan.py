@@ -22,10 +22,11 @@ import numpy as np
 
 from raytrace.body.phantom import Phantom
 from raytrace.errors import CapsuleRTError, InputError
+from raytrace.solver.footprint import estimate
 from raytrace.spec import MIN_SEPARATION_M, Antenna, ChannelSpec
 from sweeps.spec import LIMITS, Limits, SweepSpec, SweepSpecError
 
-__all__ = ["Plan", "make_plan"]
+__all__ = ["Plan", "check_footprint", "make_plan"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,6 +105,40 @@ def _centreline(phantom: Phantom, name: str, field: str):
         raise SweepSpecError(f"phantom {phantom.name!r} has no centreline {name!r} (its centrelines: {have})",
                              field=field)
     return line
+
+
+#: The footprint's largest term (raytrace.solver.footprint.Footprint.largest_field) as a sweep spec field.
+_FOOTPRINT_FIELDS = {"band.points": "channel.band.points", "max_interactions": "channel.max_interactions",
+                     "rays": "channel.rays", "receivers": "receivers"}
+
+
+def check_footprint(spec: SweepSpec, receivers: tuple[Antenna, ...], phantom_id: str, limits: Limits) -> None:
+    """Refuse a sweep one of whose traces is estimated (:func:`raytrace.solver.footprint.estimate`,
+    docs/service.md "Memory and work model") to shoot more than ``limits.max_ray_segments`` segments
+    (field ``channel.rays``) or to need more than ``limits.max_trace_bytes`` (the field whose term is
+    largest: ``channel.band.points``, ``channel.max_interactions``, ``channel.rays`` or ``receivers``):
+    the rule of a channel request, applied before any of the sweep's work."""
+    if limits.max_ray_segments is None and limits.max_trace_bytes is None:
+        return
+    tx = Antenna(position_m=[0.0, 0.0, 0.0])  # the footprint depends on the knobs and the counts only
+    for f in spec["frequencies_hz"]:
+        channel = spec.channel_spec(tx, receivers, f, phantom_id)
+        fp = estimate(channel)
+        knobs = (f"rays {channel.rays}, max_interactions {channel.max_interactions}, dynamic_range_db "
+                 f"{channel.dynamic_range_db:g}, {len(receivers)} receivers"
+                 + (f", {len(channel.band.frequencies_hz)} band points" if channel.band is not None else ""))
+        if limits.max_ray_segments is not None and fp.ray_segments > limits.max_ray_segments:
+            raise SweepSpecError(
+                f"each trace's shooting is estimated at {fp.ray_segments:.3g} ray segments ({knobs}), over the work "
+                f"budget of {limits.max_ray_segments:.3g} per trace: lower channel.rays, channel.max_interactions "
+                "or channel.dynamic_range_db", field="channel.rays")
+        if limits.max_trace_bytes is not None and fp.peak_bytes > limits.max_trace_bytes:
+            field = _FOOTPRINT_FIELDS[fp.largest_field()]
+            raise SweepSpecError(
+                f"each trace is estimated to need {fp.peak_bytes / 2**20:.0f} MiB ({knobs}), over the "
+                f"{limits.max_trace_bytes / 2**20:.0f} MiB a trace may hold; lower {field} first (its term is the "
+                "largest), or channel.rays, channel.max_interactions, channel.dynamic_range_db, receivers",
+                field=field)
 
 
 def make_plan(spec: SweepSpec, phantom: Phantom, phantom_id: str | None = None, limits: Limits = LIMITS) -> Plan:
@@ -205,6 +240,7 @@ def make_plan(spec: SweepSpec, phantom: Phantom, phantom_id: str | None = None, 
         if exc.field and exc.field.startswith("transmitter"):
             raise type(exc)(exc.reason, field=fields[0]) from None
         raise
+    check_footprint(spec, probe.receivers, phantom_id, limits)
     rx_m = resolved.rx_m
     for k in range(len(pos)):
         d = np.linalg.norm(rx_m - pos[k], axis=1)

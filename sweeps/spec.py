@@ -32,8 +32,8 @@ centreline) is checked when the sweep is planned (:mod:`sweeps.plan`), before an
 
 from __future__ import annotations
 
-import dataclasses
 import copy
+import dataclasses
 import hashlib
 import json
 import math
@@ -82,6 +82,10 @@ class Limits:
     max_band_points: int = 201
     max_trials: int = 10_000
     max_chunk_positions: int = 256
+    #: Work and memory caps of one trace (``raytrace.solver.footprint``: a trace whose estimate exceeds
+    #: either is refused before the sweep starts, naming the spec field to lower); None: not checked.
+    max_ray_segments: int | None = None
+    max_trace_bytes: int | None = None
 
 
 LIMITS = Limits()
@@ -132,7 +136,14 @@ def _number(value: Any, field: str, *, positive: bool = False, nonnegative: bool
     return x
 
 
+def _integral(value: Any) -> Any:
+    """JSON Schema's ``integer`` is any number without a fractional part: ``4.0`` (or YAML's ``4.0``)
+    counts as 4; a boolean or any other value is left to be refused."""
+    return int(value) if type(value) is float and value.is_integer() else value
+
+
 def _int(value: Any, field: str, lo: int, hi: int) -> int:
+    value = _integral(value)
     if isinstance(value, bool) or not isinstance(value, int):
         raise _fail(f"must be an integer, got {value!r}", field)
     if not lo <= value <= hi:
@@ -442,7 +453,7 @@ class SweepSpec:
         out["ranging"] = _ranging(data.get("ranging"), tuple(freqs), limits)
         out["localization"] = localization.validate(data.get("localization"), out["ranging"], "localization")
         out["trials"] = _int(data.get("trials", min(100, limits.max_trials)), "trials", 1, limits.max_trials)
-        seed = data.get("seed", 0)
+        seed = _integral(data.get("seed", 0))
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
             raise _fail(f"must be an integer in [0, 2^63), got {seed!r}", "seed")
         out["seed"] = int(seed)
@@ -517,6 +528,31 @@ def parse_text(text: str, suffix: str = ".yaml") -> Any:
         re.compile(r"^[-+]?(?:[0-9][0-9_]*)?(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
         list("-+0123456789."))
     try:
-        return yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader subclass
+        data = yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
         raise _fail(f"not valid YAML: {exc}", "spec") from None
+    _check_expanded_size(data)
+    return data
+
+
+#: Values a spec may hold once YAML's aliases are expanded: what JSON of ``Limits.max_spec_bytes``
+#: can hold (each value takes at least two bytes, ``0,``).
+MAX_SPEC_VALUES = LIMITS.max_spec_bytes // 2
+
+
+def _check_expanded_size(data: Any) -> None:
+    """Refuse a YAML document whose aliases expand it past :data:`MAX_SPEC_VALUES` values (ten
+    nested lists of ten aliases are 1e10 values in a few hundred bytes: validating, copying or
+    quoting them in an error would not end). Counts shared values once per reference, stops at the cap."""
+    count, stack = 0, [data]
+    while stack:
+        value = stack.pop()
+        count += 1
+        if count > MAX_SPEC_VALUES:
+            raise _fail(f"the spec expands to more than {MAX_SPEC_VALUES} values (YAML aliases repeat what "
+                        "they refer to): write it out, or use fewer aliases", "spec")
+        if isinstance(value, Mapping):
+            stack.extend(value.keys())
+            stack.extend(value.values())
+        elif isinstance(value, list):
+            stack.extend(value)

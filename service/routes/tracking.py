@@ -4,16 +4,19 @@ thread under the server's deadline; bounds checked before any work."""
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Request
 from pydantic import BaseModel, ConfigDict, Field
 
 from raytrace.solver.budget import Budget
+from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
+from service.schemas import Int
 
-router = APIRouter(prefix="/v1/track", tags=["tracking"])
+router = APIRouter(prefix="/v1/track", tags=["tracking"], route_class=ThreadedJsonRoute)
 
 _ERRORS = error_responses(400, 404, 413, 422, 503, 504)
 #: Observations per request; particles x observations per request (work bound).
@@ -28,7 +31,7 @@ Row3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class RfFixIn(_Strict):
@@ -60,8 +63,8 @@ class TrackerConfigIn(_Strict):
     initial_v_sigma_m_per_s: float = Field(3e-3, gt=0.0, le=1.0)
     gate_probability: float | None = Field(0.9999, gt=0.5, lt=1.0)
     lateral_sigma_m: float = Field(0.0, ge=0.0, le=1.0)
-    particles: int = Field(2000, ge=10, le=100_000)
-    seed: int = Field(0, ge=0, le=2**63 - 1)
+    particles: Int = Field(2000, ge=10, le=100_000)
+    seed: Int = Field(0, ge=0, le=2**53 - 1)  # a JSON number holds integers exactly to 2^53
 
 
 class TrackRequest(_Strict):
@@ -93,13 +96,13 @@ class TrackResponse(BaseModel):
 
 
 class JourneyIn(_Strict):
-    steps: int = Field(120, ge=2, le=MAX_EVALUATE_STEPS)
-    seed: int = Field(0, ge=0, le=2**63 - 1)
+    steps: Int = Field(120, ge=2, le=MAX_EVALUATE_STEPS)
+    seed: Int = Field(0, ge=0, le=2**53 - 1)  # a JSON number holds integers exactly to 2^53
     dt_s: float = Field(0.5, gt=0.0, le=60.0)
     start_m: float = Field(0.20, ge=0.0, le=100.0)
     mean_speed_m_per_s: float = Field(1.5e-3, ge=0.0, le=0.05)
     peristalsis_amplitude_m: float = Field(1.5e-3, ge=0.0, le=0.05)
-    peristalsis_period_s: float = Field(8.0, ge=0.1, le=3600.0)
+    peristalsis_period_s: float = Field(8.0, gt=0.1, le=3600.0)  # the journey refuses 0.1 itself
     roll_step_deg: float = Field(3.0, ge=0.0, le=45.0)
 
 
@@ -110,8 +113,8 @@ class EvaluateRequest(_Strict):
     journey: JourneyIn = Field(default_factory=JourneyIn)
     trackers: list[Literal["rf", "video", "fused", "fused_pf"]] = Field(
         default_factory=lambda: ["rf", "video", "fused"], min_length=1, max_length=4)
-    rays: int = Field(20_000, ge=1000, le=MAX_EVALUATE_RAYS)
-    max_interactions: int = Field(4, ge=0, le=6)
+    rays: Int = Field(20_000, ge=1000, le=MAX_EVALUATE_RAYS)
+    max_interactions: Int = Field(4, ge=1, le=6)
     rf_grid_m: float = Field(5e-3, ge=1e-3, le=0.05)
     include_trajectory: bool = Field(True, description="Return every tracker's trajectory, and the truth.")
 
@@ -119,7 +122,8 @@ class EvaluateRequest(_Strict):
 class EvaluateResponse(BaseModel):
     rmse_m: dict[str, float] = Field(description="RMSE along the tract per tracker [m].")
     rmse_3d_m: dict[str, float] = Field(description="RMSE of the 3-D point per tracker [m].")
-    rf_fix_rmse_3d_m: float
+    rf_fix_rmse_3d_m: float | None = Field(description="3-D RMSE of the RF fixes themselves [m] (null: no RF "
+                                                       "tracker was asked for, so no fix was made).")
     rf_positions_traced: int
     truth: list[dict] = Field(description="Per step: t_s, s_m, position_m, roll_deg, organ.")
     trajectory: dict[str, list[TrackStep]]
@@ -152,6 +156,11 @@ def _track(req: TrackRequest, registry, budget: Budget) -> dict:
     return out.to_dict()
 
 
+def _finite_or_none(x: float | None) -> float | None:
+    """NaN (no RF fix made) as null: JSON has no NaN, and pydantic would write it as null anyway."""
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
 def _evaluate(req: EvaluateRequest, registry, budget: Budget) -> dict:
     from evaluation.tracking import evaluate_tracking
     from tracking import JourneySpec
@@ -163,7 +172,8 @@ def _evaluate(req: EvaluateRequest, registry, budget: Budget) -> dict:
     j = ev.journey
     truth = [{"t_s": float(j.t_s[k]), "s_m": float(j.s_m[k]), "position_m": j.position_m[k].tolist(),
               "roll_deg": float(j.roll_deg[k]), "organ": j.organ[k]} for k in range(len(j.t_s))]
-    return {"rmse_m": ev.rmse_along_m, "rmse_3d_m": ev.rmse_3d_m, "rf_fix_rmse_3d_m": ev.rf_fix_rmse_3d_m,
+    return {"rmse_m": ev.rmse_along_m, "rmse_3d_m": ev.rmse_3d_m,
+            "rf_fix_rmse_3d_m": _finite_or_none(ev.rf_fix_rmse_3d_m),
             "rf_positions_traced": ev.rf_positions_traced, "truth": truth if req.include_trajectory else [],
             "trajectory": {n: t.to_dict()["steps"] for n, t in ev.tracks.items()} if req.include_trajectory else {}}
 

@@ -4,6 +4,7 @@ the job flow over real HTTP, with a restart, is tests/e2e/test_sweeps_http.py)."
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 from fastapi.testclient import TestClient
@@ -80,3 +81,72 @@ def test_queue_is_bounded_and_a_queued_job_can_be_cancelled(client):
     r = client.delete(f"/v1/sweeps/{first['id']}")
     assert r.status_code == 200 and r.json()["cancel_requested"] and r.json()["deleted"] is False
     assert [s["id"] for s in client.get("/v1/sweeps").json()["sweeps"]] == [first["id"]]
+
+
+@pytest.fixture
+def small_budget(make_settings):
+    """A server whose traces may hold 8 MiB each (64 MiB / 8) and shoot 2e5 ray segments."""
+    with TestClient(create_app(make_settings(sweep_workers=1, sweep_max_queue=1, max_compute_memory_bytes=64 << 20,
+                                             max_concurrency=8, max_ray_segments=200_000)),
+                    raise_server_exceptions=False) as c:
+        yield c
+
+
+# Estimates (raytrace.solver.footprint, docs/service.md "Memory and work model"), one belt receiver:
+# 5000 rays, 3 interactions, 80 dB: 26 797 segments per trace, 3.5 MiB, plus 10.1 MiB for a 201-point band;
+# 5000 rays, 10 interactions, 300 dB: 1.35e6 segments (over 2e5), 136 MiB, most of it the launch batches' trees.
+@pytest.mark.parametrize("channel,field", [
+    ({"rays": 5000, "max_interactions": 3, "band": {"span_hz": 20e6, "points": 201}}, "band.points"),
+    ({"rays": 5000, "max_interactions": 10, "dynamic_range_db": 300}, "rays"),
+])
+def test_a_sweep_whose_trace_cannot_fit_is_refused_at_submission(small_budget, channel, field):
+    """The channel endpoint's footprint rule, applied to each trace of a sweep before any of its work:
+    a 422 naming the sweep spec field (`channel.` + the channel request's field), and no job stored."""
+    r = small_budget.post("/v1/sweeps", json={**SPEC, "channel": channel})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"] == ["body", "channel", *field.split(".")], r.json()
+    assert small_budget.get("/v1/sweeps").json() == {"sweeps": []}
+    # the channel endpoint refuses the same trace naming the same field: one rule
+    band = channel.get("band")
+    body = {"phantom": "torso", "transmitter": {"site": "stomach"}, "receivers": [{"site": "belt_anterior"}],
+            **{k: v for k, v in channel.items() if k != "band"},
+            **({"band": {"start_hz": 392e6, "stop_hz": 412e6, "points": band["points"]}} if band else {})}
+    r = small_budget.post("/v1/channel", json=body)
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", *field.split(".")], r.text
+
+
+def test_a_sweep_memory_refusal_names_the_largest_term(small_budget):
+    """Under the 2e5-segment cap (1.35e6 is refused at `rays`), a bigger cap leaves the memory rule:
+    136 MiB over the 8 MiB share, dominated by the trees of max_interactions."""
+    from sweeps.plan import make_plan
+    from sweeps.spec import SweepSpec, SweepSpecError
+
+    jobs = small_budget.app.state.sweeps
+    torso = small_budget.app.state.capsule.registry.get("torso")
+    limits = jobs.limits
+    assert limits.max_trace_bytes == 8 << 20 and limits.max_ray_segments == 200_000
+    big = SweepSpec.from_dict({**SPEC, "channel": {"rays": 5000, "max_interactions": 10, "dynamic_range_db": 300}},
+                              limits)
+    with pytest.raises(SweepSpecError) as err:
+        make_plan(big, torso, "torso", replace(limits, max_ray_segments=10**9))
+    assert err.value.field == "channel.max_interactions" and "136 MiB" in err.value.reason
+    # what fits the same budget plans: 21 band points instead of 201 (3.5 + 1.1 MiB)
+    fits = SweepSpec.from_dict({**SPEC, "channel": {"rays": 5000, "max_interactions": 3,
+                                                    "band": {"span_hz": 20e6, "points": 21}}}, limits)
+    assert make_plan(fits, torso, "torso", limits).n_positions == 1
+
+
+def test_spec_bodies_that_cannot_be_parsed_are_400_not_500(client):
+    """Nesting past the parsers' recursion (a 500 before) and YAML aliases that expand a few hundred bytes
+    into 1e8 values (validating them took minutes of a worker thread) are refused naming the body."""
+    deep = b"[" * 100_000 + b"]" * 100_000
+    for body, kind in ((deep, "application/json"), (b"a: " + b"[" * 100_000, "application/yaml")):
+        r = client.post("/v1/sweeps", content=body, headers={"content-type": kind})
+        assert r.status_code == 400 and r.json()["detail"][0]["loc"] == ["body"], r.text
+    bomb = "&b0 [x, x, x, x, x, x, x, x, x, x]"
+    for i in range(1, 8):  # 10^8 strings once expanded
+        bomb = f"&b{i} [{bomb}, " + ", ".join([f"*b{i - 1}"] * 9) + "]"
+    r = client.post("/v1/sweeps", content=f"capsule_positions: [{{site: stomach}}]\nchannel: {{homogeneous: "
+                    f"{{tissue: {bomb}}}}}\n", headers={"content-type": "application/yaml"})
+    assert r.status_code == 400 and r.json()["detail"][0]["loc"] == ["body"], r.text
+    assert "YAML aliases" in r.json()["detail"][0]["msg"]
