@@ -14,6 +14,8 @@ parts (probes, or pixels of one probe), each counted into its own histogram by a
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -82,6 +84,68 @@ def _histograms(rows, cols, ref_bins, padded, params, center_r, center_c, radius
     return out
 
 
+@njit(cache=True, nogil=True, fastmath=True)
+def _fisheye_histograms(theta, cos_phi, sin_phi, ref_bins, padded, params, center_r, center_c, focal, radius2,
+                        lo, inv_width, bins, a):
+    """The camera-rotation model of :func:`fisheye_joint_histograms`: per compared pixel its
+    angle ``theta`` from the axis [rad] and azimuth (``cos_phi``, ``sin_phi``; x = column,
+    y = up); per probe ``params[k]`` = (pre, post, A row-major 3 x 3): the pixel's ray at angle
+    pre * theta, turned by A, lands at image radius post * focal * theta' in the other frame."""
+    n = theta.shape[0]
+    slack = EDGE_SLACK_PX
+    r_max = padded.shape[0] - 5.0
+    c_max = padded.shape[1] - 5.0
+    out = np.zeros((params.shape[0], bins, bins), np.int64)
+    for k in range(params.shape[0]):
+        pre, post = params[k, 0], params[k, 1]
+        a00, a01, a02, a10, a11, a12, a20, a21, a22 = (params[k, 2], params[k, 3], params[k, 4], params[k, 5],
+                                                       params[k, 6], params[k, 7], params[k, 8], params[k, 9],
+                                                       params[k, 10])
+        hist = out[k]
+        for p in range(n):
+            t = pre * theta[p]
+            st = math.sin(t)
+            x, y, z = st * cos_phi[p], st * sin_phi[p], math.cos(t)
+            x2 = a00 * x + a01 * y + a02 * z
+            y2 = a10 * x + a11 * y + a12 * z
+            z2 = a20 * x + a21 * y + a22 * z
+            rho = math.sqrt(x2 * x2 + y2 * y2)
+            radius = post * focal * math.atan2(rho, z2)
+            if radius * radius > radius2:
+                continue
+            if rho > 0.0:
+                sc = radius * x2 / rho
+                sr = -radius * y2 / rho
+            else:
+                sc = 0.0
+                sr = 0.0
+            r = center_r + sr
+            c = center_c + sc
+            if r < -slack or c < -slack or r > r_max + slack or c > c_max + slack:
+                continue
+            r = min(max(r, 0.0), r_max)
+            c = min(max(c, 0.0), c_max)
+            i0 = int(r)
+            j0 = int(c)
+            u = r - i0
+            v = c - j0
+            wr0, wr1, wr2, wr3 = _outer(u + 1.0, a), _inner(u, a), _inner(1.0 - u, a), _outer(2.0 - u, a)
+            wc0, wc1, wc2, wc3 = _outer(v + 1.0, a), _inner(v, a), _inner(1.0 - v, a), _outer(2.0 - v, a)
+            r0, r1, r2, r3 = padded[i0 + 1], padded[i0 + 2], padded[i0 + 3], padded[i0 + 4]
+            j = j0 + 1
+            value = (wr0 * (wc0 * r0[j] + wc1 * r0[j + 1] + wc2 * r0[j + 2] + wc3 * r0[j + 3])
+                     + wr1 * (wc0 * r1[j] + wc1 * r1[j + 1] + wc2 * r1[j + 2] + wc3 * r1[j + 3])
+                     + wr2 * (wc0 * r2[j] + wc1 * r2[j + 1] + wc2 * r2[j + 2] + wc3 * r2[j + 3])
+                     + wr3 * (wc0 * r3[j] + wc1 * r3[j + 1] + wc2 * r3[j + 2] + wc3 * r3[j + 3]))
+            b = int((value - lo) * inv_width + 1.0) - 1
+            if b < 0:
+                b = 0
+            elif b >= bins:
+                b = bins - 1
+            hist[ref_bins[p], b] += 1
+    return out
+
+
 def pad_frame(frame: np.ndarray) -> np.ndarray:
     """The frame (float64) with 2 edge-replicated pixels on every side, as :func:`_histograms`
     wants it (made once per pyramid level, not per probe)."""
@@ -110,4 +174,30 @@ def warped_joint_histograms(rows: np.ndarray, cols: np.ndarray, ref_bins: np.nda
     parts = np.array_split(np.arange(n), THREADS)  # one probe: share its pixels
     futures = [pool().submit(_histograms, rows[p[0]:p[-1] + 1], cols[p[0]:p[-1] + 1], ref_bins[p[0]:p[-1] + 1],
                               padded, params, *args) for p in parts]
+    return sum(f.result() for f in futures)
+
+
+def fisheye_joint_histograms(theta: np.ndarray, cos_phi: np.ndarray, sin_phi: np.ndarray, ref_bins: np.ndarray,
+                             padded: np.ndarray, params: np.ndarray, center: tuple[float, float], focal_px: float,
+                             radius_px: float, lo: float, width: float, bins: int, a: float) -> np.ndarray:
+    """Joint histograms (K, bins, bins) like :func:`warped_joint_histograms`, but the compared
+    pixels (angle ``theta`` from the optical axis, azimuth ``cos_phi``/``sin_phi``) are mapped into
+    the other frame through the equidistant fisheye of ``focal_px`` (r = f theta) and a 3-D
+    rotation: ``params`` (K, 11) = (pre, post, A (3 x 3, row-major)) per probe
+    (:func:`vision.motion` builds them; docs/vision.md, "Tilt")."""
+    params = np.ascontiguousarray(np.asarray(params, dtype=np.float64).reshape(-1, 11))
+    args = (float(center[0]), float(center[1]), float(focal_px), float(radius_px) ** 2, float(lo),
+            bins / float(width), int(bins), float(a))
+    n, k = len(theta), len(params)
+    if THREADS < 2 or n * k < PARALLEL_MIN_SAMPLES:
+        return _fisheye_histograms(theta, cos_phi, sin_phi, ref_bins, padded, params, *args)
+    if k >= THREADS:
+        parts = np.array_split(np.arange(k), THREADS)
+        futures = [pool().submit(_fisheye_histograms, theta, cos_phi, sin_phi, ref_bins, padded, params[p], *args)
+                   for p in parts]
+        return np.concatenate([f.result() for f in futures])
+    parts = np.array_split(np.arange(n), THREADS)
+    futures = [pool().submit(_fisheye_histograms, theta[p[0]:p[-1] + 1], cos_phi[p[0]:p[-1] + 1],
+                              sin_phi[p[0]:p[-1] + 1], ref_bins[p[0]:p[-1] + 1], padded, params, *args)
+               for p in parts]
     return sum(f.result() for f in futures)
