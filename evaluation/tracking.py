@@ -77,6 +77,12 @@ RF_MODEL_SIGMA_M = 14.3e-3 / np.sqrt(3.0)
 VISUAL_BIAS, VISUAL_REL_SIGMA, VISUAL_ABS_SIGMA_M, VISUAL_ROLL_SIGMA_DEG = -0.01, 0.04, 2e-5, 0.05
 #: What the filters are told about the visual measurements.
 DECLARED_REL, DECLARED_ABS_M, DECLARED_ROLL_DEG = 0.05, 5e-5, 0.1
+#: Visual measurements: "rendered" (frames rendered along the journey, MI estimates) or "model"
+#: (the measured error model above).
+VISUAL_SOURCES = ("rendered", "model")
+#: Rendered frames: what the filters are told, per kind of mucosa (relative, absolute [m], roll
+#: [deg]), measured on rendered journeys of other seeds (docs/tracking.md, "Measurements").
+RENDERED_DECLARED = {"small_intestine": (0.25, 3e-4, 0.6), "colon": (0.10, 5e-5, 0.1), "stomach": (0.25, 3e-4, 0.6)}
 FREQUENCY_HZ = 402e6
 #: Most grid positions traced by one evaluation (work bound).
 MAX_RF_POSITIONS = 200
@@ -145,7 +151,8 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
                       rf_grid_m: float = 5e-3, rays: int = 20_000, max_interactions: int = 4, trials: int = 10,
                       cell_size_m: float = DEFAULT_CELL_SIZE_M, rf_model_sigma_m: float = RF_MODEL_SIGMA_M,
                       config: TrackerConfig | None = None, cache_dir: str | Path | None = None,
-                      check: Callable[[], None] | None = None) -> TrackingEvaluation:
+                      check: Callable[[], None] | None = None, visual_source: str = "model",
+                      odometry=None) -> TrackingEvaluation:
     """The pipeline of the module docstring. ``check`` is called between stages (a budget's
     deadline or cancellation may raise there). Raises TrackingInputError naming the field."""
     from raytrace.body.torso import default_torso
@@ -158,6 +165,9 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
             raise TrackingInputError(f"unknown tracker {name!r}; one of {', '.join(TRACKERS)}", f"trackers[{i}]")
     if not trackers:
         raise TrackingInputError("give at least one tracker", "trackers")
+    if visual_source not in VISUAL_SOURCES:
+        raise TrackingInputError(f"must be one of {', '.join(VISUAL_SOURCES)}, got {visual_source!r}",
+                                 "visual_source")
     phantom = phantom or default_torso()
     line = phantom.centrelines["gi_tract"]
     spec = journey or JourneySpec()
@@ -204,18 +214,10 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
             fixes[k] = RfFix(fix.position_m + offset,
                              fix.covariance_m2 + rf_model_sigma_m ** 2 * np.eye(3))
 
-    visual: list[VisualMotion | None] = [None] * spec.steps
-    junctions = np.asarray(line.junctions_s_m)
-    for k in range(1, spec.steps):
-        lo, hi = sorted((truth.s_m[k - 1], truth.s_m[k]))
-        if np.any((junctions > lo) & (junctions <= hi)):
-            continue  # a scene cut
-        d = truth.s_m[k] - truth.s_m[k - 1]
-        d_hat = d * (1.0 + VISUAL_BIAS + VISUAL_REL_SIGMA * rng.standard_normal()) \
-            + VISUAL_ABS_SIGMA_M * rng.standard_normal()
-        r_hat = truth.roll_deg[k] - truth.roll_deg[k - 1] + VISUAL_ROLL_SIGMA_DEG * rng.standard_normal()
-        visual[k] = VisualMotion(float(d_hat), DECLARED_REL * abs(float(d_hat)) + DECLARED_ABS_M,
-                                 float(r_hat), DECLARED_ROLL_DEG)
+    if visual_source == "rendered":
+        visual = rendered_visual(phantom, truth, odometry, cache_dir, check)
+    else:
+        visual = model_visual(truth, np.asarray(line.junctions_s_m), rng)
     check()
 
     cfg = config or TrackerConfig(initial_s_m=float(truth.s_m[0]), initial_s_sigma_m=5e-3)
@@ -243,8 +245,46 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
         visual_pairs=sum(v is not None for v in visual), rf_positions_traced=traced,
         settings={"rf_grid_m": rf_grid_m, "rays": rays, "max_interactions": max_interactions, "trials": trials,
                   "cell_size_m": cell_size_m, "rf_model_sigma_m": rf_model_sigma_m, "rf_fixes": int(have.sum()),
-                  "visual": "measured error model (docs/vision.md)"},
+                  "visual": "measured error model (docs/vision.md)" if visual_source == "model" else
+                  "rendered frames, MI estimates"},
         elapsed_s=time.perf_counter() - t0)
+
+
+def model_visual(truth: Journey, junctions: np.ndarray, rng: np.random.Generator) -> list[VisualMotion | None]:
+    """Visual motion drawn from the MI estimator's measured error model (module doc, 3)."""
+    visual: list[VisualMotion | None] = [None] * len(truth.s_m)
+    for k in range(1, len(truth.s_m)):
+        lo, hi = sorted((truth.s_m[k - 1], truth.s_m[k]))
+        if np.any((junctions > lo) & (junctions <= hi)):
+            continue  # a scene cut
+        d = truth.s_m[k] - truth.s_m[k - 1]
+        d_hat = d * (1.0 + VISUAL_BIAS + VISUAL_REL_SIGMA * rng.standard_normal()) \
+            + VISUAL_ABS_SIGMA_M * rng.standard_normal()
+        r_hat = truth.roll_deg[k] - truth.roll_deg[k - 1] + VISUAL_ROLL_SIGMA_DEG * rng.standard_normal()
+        visual[k] = VisualMotion(float(d_hat), DECLARED_REL * abs(float(d_hat)) + DECLARED_ABS_M,
+                                 float(r_hat), DECLARED_ROLL_DEG)
+    return visual
+
+
+def rendered_visual(phantom, truth: Journey, odometry=None, cache_dir: str | Path | None = None,
+                    check: Callable[[], None] | None = None) -> list[VisualMotion | None]:
+    """Visual motion from frames rendered along the journey and the MI estimator
+    (:func:`vision.odometry.pair_estimates`); declared sigmas per kind of mucosa
+    (:data:`RENDERED_DECLARED`); a pair without an advance (scale outside what advances give) or at
+    a scene cut gives none."""
+    from vision.odometry import OdometrySettings, pair_estimates
+
+    pairs = pair_estimates(phantom, truth.s_m, truth.roll_deg, odometry or OdometrySettings(),
+                           cache_dir=cache_dir, check=check)
+    out: list[VisualMotion | None] = [None] * len(pairs)
+    for k, p in enumerate(pairs):
+        if p is None or not np.isfinite(p.advance_m):
+            continue
+        kind = "colon" if "colon" in p.organ else p.organ
+        rel, abs_m, roll_sd = RENDERED_DECLARED.get(kind, RENDERED_DECLARED["small_intestine"])
+        out[k] = VisualMotion(float(p.advance_m), rel * abs(float(p.advance_m)) + abs_m, float(p.rotation_deg),
+                              roll_sd)
+    return out
 
 
 def markdown_table(ev: TrackingEvaluation) -> str:
@@ -265,9 +305,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rays", type=int, default=20_000)
-    ap.add_argument("--cache-dir", default=None, help="keep the traced RF positions here between runs")
+    ap.add_argument("--cache-dir", default=None, help="keep the traced RF positions (and the rendered frame pairs' "
+                                                      "estimates) here between runs")
+    ap.add_argument("--visual", choices=VISUAL_SOURCES, default="rendered",
+                    help="visual motion from frames rendered along the journey (default) or the error model")
     args = ap.parse_args(argv)
-    ev = evaluate_tracking(JourneySpec(steps=args.steps, seed=args.seed), rays=args.rays, cache_dir=args.cache_dir)
+    ev = evaluate_tracking(JourneySpec(steps=args.steps, seed=args.seed), rays=args.rays, cache_dir=args.cache_dir,
+                           visual_source=args.visual)
     print(markdown_table(ev))
     j = ev.journey
     print(f"\njourney: {args.steps} steps of {j.spec.dt_s} s, s {j.s_m.min():.3f}..{j.s_m.max():.3f} m through "

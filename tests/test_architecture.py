@@ -65,7 +65,7 @@ def test_the_layer_table_knows_every_subpackage():
 #: none imports the service; a package not listed here must be added with its rule.
 LIBRARIES = {
     "sweeps": {"raytrace", "estimators"},
-    "evaluation": {"raytrace", "estimators", "sweeps", "tracking"},  # studies compose the libraries
+    "evaluation": {"raytrace", "estimators", "sweeps", "tracking", "vision"},  # studies compose the libraries
     "tracking": {"raytrace"},  # trackers on plain arrays and a centreline (docs/tracking.md)
     "plots": {"estimators"},
     "vision": {"raytrace"},
