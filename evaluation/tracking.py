@@ -18,14 +18,17 @@
    own plus ``rf_model_sigma_m``^2 per axis: the model-based fix's measured RMS error on this
    torso (14.3 mm in 3-D over the six capsule sites, docs/localization.md, so 14.3 / sqrt 3 per
    axis), since the fix's own covariance holds only the receiver noise (hundredths of a mm).
-3. **Visual motion.** The frame pair's advance and roll from the measured error model of the MI
-   estimator on rendered sequences (docs/vision.md, Evaluation (b)): advance d (1 + e) with
+3. **Visual motion.** ``visual_source="rendered"`` (the CLI's default): the capsule camera's frames
+   rendered along the journey and every consecutive pair through the MI estimator with the
+   fisheye's tilt (:func:`vision.odometry.pair_estimates`, 192 px, cached per pair with
+   ``cache_dir``), declared per mucosa (:data:`RENDERED_DECLARED`) and gated
+   (:data:`RENDERED_GATE`), both measured on the journey of seed 1 (docs/tracking.md).
+   ``visual_source="model"`` (the function's default, what ``/v1/track/evaluate`` runs): the
+   estimator's measured error model (docs/vision.md, Evaluation (b)): advance d (1 + e) with
    e ~ N(-1 %, 4 %) per pair plus 0.02 mm, roll + N(0, 0.05 deg); declared to the filters as
-   sigma = 5 % |d| + 0.05 mm and 0.1 deg. Pairs straddling a junction of the centreline (where the
-   phantom's separate organs make the position jump: a scene cut for the camera) give no
-   measurement. Rendering every step and running the estimator is not done here (see
-   docs/tracking.md: a first trial inside the torso's small-bowel block gave errors far above the
-   documented ones, not yet understood).
+   sigma = 5 % |d| + 0.05 mm and 0.1 deg. Either way, pairs straddling a junction of the
+   centreline (where the phantom's separate organs make the position jump: a scene cut for the
+   camera) give no measurement.
 4. **Trackers** (same prior: the journey's start +- 5 mm, at rest +- 3 mm/s): ``rf`` Kalman on RF
    fixes alone, ``video`` Kalman on visual motion alone (dead reckoning from the prior), ``fused``
    Kalman on both, ``fused_pf`` the particle filter on both.

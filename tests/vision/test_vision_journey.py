@@ -118,3 +118,23 @@ def test_straight_colon_piece_both_models(torso):
             assert est.rotation_deg == pytest.approx(roll, abs=0.3)
             assert advance_for_scale(a, est.scale) == pytest.approx(ADVANCE_M, rel=0.10)
             assert max(abs(v) for v in est.tilt_deg) < 0.1
+
+
+def test_tilt_model_at_zero_tilt_is_the_similarity():
+    """The fisheye kernel at zero tilt counts the same joint histograms as the similarity kernel
+    (the same samples: a rotation about the axis and a radial scale are the similarity), on both
+    sides of the comparison: MI equal to 1e-12."""
+    from scipy.ndimage import gaussian_filter
+
+    from vision.interpolation import frame_center
+    from vision.motion import _Level
+
+    rng = np.random.default_rng(0)
+    a, b = (gaussian_filter(rng.random((96, 96)), 2.0) for _ in range(2))
+    c = frame_center(a.shape)
+    plain = _Level.build(a, b, c, 45.0, 32)
+    fisheye = _Level.build(a, b, c, 45.0, 32, focal_px=48.0 / np.radians(75.0))
+    rot, ls = np.array([-20.0, -3.0, 0.0, 5.0, 30.0]), np.array([-0.2, 0.05, 0.0, 0.1, -0.05])
+    for side in (0, 1):
+        np.testing.assert_allclose(fisheye.mutual_information(rot, ls, side), plain.mutual_information(rot, ls, side),
+                                   rtol=0, atol=1e-12)
