@@ -18,14 +18,17 @@
    own plus ``rf_model_sigma_m``^2 per axis: the model-based fix's measured RMS error on this
    torso (14.3 mm in 3-D over the six capsule sites, docs/localization.md, so 14.3 / sqrt 3 per
    axis), since the fix's own covariance holds only the receiver noise (hundredths of a mm).
-3. **Visual motion.** The frame pair's advance and roll from the measured error model of the MI
-   estimator on rendered sequences (docs/vision.md, Evaluation (b)): advance d (1 + e) with
+3. **Visual motion.** ``visual_source="rendered"`` (the CLI's default): the capsule camera's frames
+   rendered along the journey and every consecutive pair through the MI estimator with the
+   fisheye's tilt (:func:`vision.odometry.pair_estimates`, 192 px, cached per pair with
+   ``cache_dir``), declared per mucosa (:data:`RENDERED_DECLARED`) and gated
+   (:data:`RENDERED_GATE`), both measured on the journey of seed 1 (docs/tracking.md).
+   ``visual_source="model"`` (the function's default, what ``/v1/track/evaluate`` runs): the
+   estimator's measured error model (docs/vision.md, Evaluation (b)): advance d (1 + e) with
    e ~ N(-1 %, 4 %) per pair plus 0.02 mm, roll + N(0, 0.05 deg); declared to the filters as
-   sigma = 5 % |d| + 0.05 mm and 0.1 deg. Pairs straddling a junction of the centreline (where the
-   phantom's separate organs make the position jump: a scene cut for the camera) give no
-   measurement. Rendering every step and running the estimator is not done here (see
-   docs/tracking.md: a first trial inside the torso's small-bowel block gave errors far above the
-   documented ones, not yet understood).
+   sigma = 5 % |d| + 0.05 mm and 0.1 deg. Either way, pairs straddling a junction of the
+   centreline (where the phantom's separate organs make the position jump: a scene cut for the
+   camera) give no measurement.
 4. **Trackers** (same prior: the journey's start +- 5 mm, at rest +- 3 mm/s): ``rf`` Kalman on RF
    fixes alone, ``video`` Kalman on visual motion alone (dead reckoning from the prior), ``fused``
    Kalman on both, ``fused_pf`` the particle filter on both.
@@ -77,6 +80,16 @@ RF_MODEL_SIGMA_M = 14.3e-3 / np.sqrt(3.0)
 VISUAL_BIAS, VISUAL_REL_SIGMA, VISUAL_ABS_SIGMA_M, VISUAL_ROLL_SIGMA_DEG = -0.01, 0.04, 2e-5, 0.05
 #: What the filters are told about the visual measurements.
 DECLARED_REL, DECLARED_ABS_M, DECLARED_ROLL_DEG = 0.05, 5e-5, 0.1
+#: Visual measurements: "rendered" (frames rendered along the journey, MI estimates) or "model"
+#: (the measured error model above).
+VISUAL_SOURCES = ("rendered", "model")
+#: Rendered frames: what the filters are told, per kind of mucosa (relative, absolute [m], roll
+#: [deg]), measured on rendered journeys of other seeds (docs/tracking.md, "Measurements").
+RENDERED_DECLARED = {"small_intestine": (0.15, 1e-4, 0.5), "colon": (0.06, 3e-5, 0.08),
+                     "stomach": (0.15, 1e-4, 0.5)}
+#: Rendered frames: a pair whose advance is beyond this chi-square(1) quantile of the filter's
+#: prediction is ignored (an outlier: the small bowel's periodic folds aliased, docs/tracking.md).
+RENDERED_GATE = 0.9999
 FREQUENCY_HZ = 402e6
 #: Most grid positions traced by one evaluation (work bound).
 MAX_RF_POSITIONS = 200
@@ -149,7 +162,8 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
                       rf_grid_m: float = 5e-3, rays: int = 20_000, max_interactions: int = 4, trials: int = 10,
                       cell_size_m: float = DEFAULT_CELL_SIZE_M, rf_model_sigma_m: float = RF_MODEL_SIGMA_M,
                       config: TrackerConfig | None = None, cache_dir: str | Path | None = None,
-                      check: Callable[[], None] | None = None) -> TrackingEvaluation:
+                      check: Callable[[], None] | None = None, visual_source: str = "model",
+                      odometry=None) -> TrackingEvaluation:
     """The pipeline of the module docstring. ``check`` is called between stages (a budget's
     deadline or cancellation may raise there). Raises TrackingInputError naming the field."""
     from raytrace.body.torso import default_torso
@@ -162,6 +176,9 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
             raise TrackingInputError(f"unknown tracker {name!r}; one of {', '.join(TRACKERS)}", f"trackers[{i}]")
     if not trackers:
         raise TrackingInputError("give at least one tracker", "trackers")
+    if visual_source not in VISUAL_SOURCES:
+        raise TrackingInputError(f"must be one of {', '.join(VISUAL_SOURCES)}, got {visual_source!r}",
+                                 "visual_source")
     phantom = phantom or default_torso()
     line = phantom.centrelines["gi_tract"]
     spec = journey or JourneySpec()
@@ -208,21 +225,14 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
             fixes[k] = RfFix(fix.position_m + offset,
                              fix.covariance_m2 + rf_model_sigma_m ** 2 * np.eye(3))
 
-    visual: list[VisualMotion | None] = [None] * spec.steps
-    junctions = np.asarray(line.junctions_s_m)
-    for k in range(1, spec.steps):
-        lo, hi = sorted((truth.s_m[k - 1], truth.s_m[k]))
-        if np.any((junctions > lo) & (junctions <= hi)):
-            continue  # a scene cut
-        d = truth.s_m[k] - truth.s_m[k - 1]
-        d_hat = d * (1.0 + VISUAL_BIAS + VISUAL_REL_SIGMA * rng.standard_normal()) \
-            + VISUAL_ABS_SIGMA_M * rng.standard_normal()
-        r_hat = truth.roll_deg[k] - truth.roll_deg[k - 1] + VISUAL_ROLL_SIGMA_DEG * rng.standard_normal()
-        visual[k] = VisualMotion(float(d_hat), DECLARED_REL * abs(float(d_hat)) + DECLARED_ABS_M,
-                                 float(r_hat), DECLARED_ROLL_DEG)
+    if visual_source == "rendered":
+        visual = rendered_visual(phantom, truth, odometry, cache_dir, check)
+    else:
+        visual = model_visual(truth, np.asarray(line.junctions_s_m), rng)
     check()
 
-    cfg = config or TrackerConfig(initial_s_m=float(truth.s_m[0]), initial_s_sigma_m=5e-3)
+    cfg = config or TrackerConfig(initial_s_m=float(truth.s_m[0]), initial_s_sigma_m=5e-3,
+                                  visual_gate_probability=RENDERED_GATE if visual_source == "rendered" else None)
     uses = {"rf": (True, False), "video": (False, True), "fused": (True, True), "fused_pf": (True, True)}
     tracks: dict[str, Track] = {}
     for name in trackers:
@@ -247,8 +257,46 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
         visual_pairs=sum(v is not None for v in visual), rf_positions_traced=traced,
         settings={"rf_grid_m": rf_grid_m, "rays": rays, "max_interactions": max_interactions, "trials": trials,
                   "cell_size_m": cell_size_m, "rf_model_sigma_m": rf_model_sigma_m, "rf_fixes": int(have.sum()),
-                  "visual": "measured error model (docs/vision.md)"},
+                  "visual": "measured error model (docs/vision.md)" if visual_source == "model" else
+                  "rendered frames, MI estimates"},
         elapsed_s=time.perf_counter() - t0)
+
+
+def model_visual(truth: Journey, junctions: np.ndarray, rng: np.random.Generator) -> list[VisualMotion | None]:
+    """Visual motion drawn from the MI estimator's measured error model (module doc, 3)."""
+    visual: list[VisualMotion | None] = [None] * len(truth.s_m)
+    for k in range(1, len(truth.s_m)):
+        lo, hi = sorted((truth.s_m[k - 1], truth.s_m[k]))
+        if np.any((junctions > lo) & (junctions <= hi)):
+            continue  # a scene cut
+        d = truth.s_m[k] - truth.s_m[k - 1]
+        d_hat = d * (1.0 + VISUAL_BIAS + VISUAL_REL_SIGMA * rng.standard_normal()) \
+            + VISUAL_ABS_SIGMA_M * rng.standard_normal()
+        r_hat = truth.roll_deg[k] - truth.roll_deg[k - 1] + VISUAL_ROLL_SIGMA_DEG * rng.standard_normal()
+        visual[k] = VisualMotion(float(d_hat), DECLARED_REL * abs(float(d_hat)) + DECLARED_ABS_M,
+                                 float(r_hat), DECLARED_ROLL_DEG)
+    return visual
+
+
+def rendered_visual(phantom, truth: Journey, odometry=None, cache_dir: str | Path | None = None,
+                    check: Callable[[], None] | None = None) -> list[VisualMotion | None]:
+    """Visual motion from frames rendered along the journey and the MI estimator
+    (:func:`vision.odometry.pair_estimates`); declared sigmas per kind of mucosa
+    (:data:`RENDERED_DECLARED`); a pair without an advance (scale outside what advances give) or at
+    a scene cut gives none."""
+    from vision.odometry import OdometrySettings, pair_estimates
+
+    pairs = pair_estimates(phantom, truth.s_m, truth.roll_deg, odometry or OdometrySettings(),
+                           cache_dir=cache_dir, check=check)
+    out: list[VisualMotion | None] = [None] * len(pairs)
+    for k, p in enumerate(pairs):
+        if p is None or not np.isfinite(p.advance_m):
+            continue
+        kind = "colon" if "colon" in p.organ else p.organ
+        rel, abs_m, roll_sd = RENDERED_DECLARED.get(kind, RENDERED_DECLARED["small_intestine"])
+        out[k] = VisualMotion(float(p.advance_m), rel * abs(float(p.advance_m)) + abs_m, float(p.rotation_deg),
+                              roll_sd)
+    return out
 
 
 def markdown_table(ev: TrackingEvaluation) -> str:
@@ -269,9 +317,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rays", type=int, default=20_000)
-    ap.add_argument("--cache-dir", default=None, help="keep the traced RF positions here between runs")
+    ap.add_argument("--cache-dir", default=None, help="keep the traced RF positions (and the rendered frame pairs' "
+                                                      "estimates) here between runs")
+    ap.add_argument("--visual", choices=VISUAL_SOURCES, default="rendered",
+                    help="visual motion from frames rendered along the journey (default) or the error model")
     args = ap.parse_args(argv)
-    ev = evaluate_tracking(JourneySpec(steps=args.steps, seed=args.seed), rays=args.rays, cache_dir=args.cache_dir)
+    ev = evaluate_tracking(JourneySpec(steps=args.steps, seed=args.seed), rays=args.rays, cache_dir=args.cache_dir,
+                           visual_source=args.visual)
     print(markdown_table(ev))
     j = ev.journey
     print(f"\njourney: {args.steps} steps of {j.spec.dt_s} s, s {j.s_m.min():.3f}..{j.s_m.max():.3f} m through "

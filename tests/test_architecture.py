@@ -65,7 +65,7 @@ def test_the_layer_table_knows_every_subpackage():
 #: none imports the service; a package not listed here must be added with its rule.
 LIBRARIES = {
     "sweeps": {"raytrace", "estimators"},
-    "evaluation": {"raytrace", "estimators", "sweeps", "tracking"},  # studies compose the libraries
+    "evaluation": {"raytrace", "estimators", "sweeps", "tracking", "vision"},  # studies compose the libraries
     "tracking": {"raytrace"},  # trackers on plain arrays and a centreline (docs/tracking.md)
     "plots": {"estimators"},
     "vision": {"raytrace"},
@@ -86,3 +86,21 @@ def test_libraries_import_only_what_the_architecture_allows(package):
 def test_every_top_level_package_has_a_rule():
     packages = {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
     assert packages - {"tests", "bench", "tools"} <= PROJECT, packages - PROJECT
+
+
+#: The only modules that may import numba, llvmlite or ctypes (docs/architecture.md, "One engine fence").
+COMPILED = ("raytrace/engine/", "vision/kernels.py")
+
+
+def test_compiled_code_stays_behind_the_engine_fence():
+    offenders = []
+    for init in sorted(ROOT.glob("*/__init__.py")):
+        package = init.parent.name
+        if package in ("tests", ".venv"):
+            continue
+        for module, path in _modules(package):
+            rel = path.relative_to(ROOT).as_posix()
+            bad = [m for m in _imports(path) if m.split(".")[0] in ("numba", "llvmlite", "ctypes")]
+            if bad and not rel.startswith(COMPILED):
+                offenders.append(f"{rel}: {sorted(set(bad))}")
+    assert not offenders, offenders

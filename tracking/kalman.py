@@ -63,6 +63,7 @@ def kalman_track(line, observations: list[Observation], config: TrackerConfig | 
     x = np.array([s0, cfg.initial_v_m_per_s, 0.0])
     P = np.diag([s0_var, cfg.initial_v_sigma_m_per_s ** 2, cfg.initial_roll_sigma_deg ** 2])
     gate = None if cfg.gate_probability is None else float(chi2.ppf(cfg.gate_probability, 1))
+    vgate = None if cfg.visual_gate_probability is None else float(chi2.ppf(cfg.visual_gate_probability, 1))
     q, qr = cfg.accel_psd_m2_per_s3, cfg.roll_psd_deg2_per_s
 
     n = len(obs)
@@ -81,8 +82,13 @@ def kalman_track(line, observations: list[Observation], config: TrackerConfig | 
             PX = J @ P @ J.T
             PX[:3, :3] += np.array([[q * dt**3 / 3, q * dt**2 / 2, 0.0], [q * dt**2 / 2, q * dt, 0.0],
                                     [0.0, 0.0, qr * dt]])
-            if o.visual is not None:
-                vm = o.visual
+            vm = o.visual
+            if vm is not None and vgate is not None:  # an outlier pair: its advance far off the prediction
+                h = _H_VISUAL[0]
+                y = vm.advance_m - float(h @ X)
+                if y * y / float(h @ PX @ h + vm.advance_sigma_m ** 2) > vgate:
+                    vm = None
+            if vm is not None:
                 if vm.roll_deg is None:
                     X, PX = _update(X, PX, _H_VISUAL[:1], np.array([vm.advance_m]),
                                     np.array([[vm.advance_sigma_m ** 2]]))

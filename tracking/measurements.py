@@ -120,7 +120,11 @@ class TrackerConfig:
     the particle filter; the Kalman filter takes its mean and variance, L/2 and L^2/12);
     v ~ N(initial_v_m_per_s, initial_v_sigma_m_per_s^2); roll starts at 0 +- initial_roll_sigma_deg.
     ``gate_probability``: the Kalman filter ignores an RF fix whose normalised innovation squared
-    exceeds this quantile of chi-square(1) (None: never). ``lateral_sigma_m``: added isotropically
+    exceeds this quantile of chi-square(1) (None: never). ``visual_gate_probability``: likewise both
+    filters ignore a visual advance whose innovation against the predicted advance (the Kalman
+    filter's, or the particles' mean with their spread) exceeds this quantile (None, the default:
+    never; a frame pair can be an outlier, e.g. a periodic fold texture aliased by one period,
+    docs/tracking.md). ``lateral_sigma_m``: added isotropically
     to every fix's covariance in the particle filter's 3-D likelihood (the capsule's offset from the
     centreline inside the lumen)."""
 
@@ -132,6 +136,7 @@ class TrackerConfig:
     initial_v_sigma_m_per_s: float = 3e-3
     initial_roll_sigma_deg: float = 1e-3
     gate_probability: float | None = 0.9999
+    visual_gate_probability: float | None = None
     lateral_sigma_m: float = 0.0
     particles: int = 2000
     resample_fraction: float = 0.5
@@ -144,10 +149,11 @@ class TrackerConfig:
         _finite(self.initial_v_m_per_s, "config.initial_v_m_per_s")
         if self.initial_s_m is not None:
             _finite(self.initial_s_m, "config.initial_s_m")
-        if self.gate_probability is not None:
-            g = _finite(self.gate_probability, "config.gate_probability")
-            if not 0.5 < g < 1.0:
-                raise TrackingInputError(f"must be in (0.5, 1), got {g!r}", "config.gate_probability")
+        for name in ("gate_probability", "visual_gate_probability"):
+            if getattr(self, name) is not None:
+                g = _finite(getattr(self, name), f"config.{name}")
+                if not 0.5 < g < 1.0:
+                    raise TrackingInputError(f"must be in (0.5, 1), got {g!r}", f"config.{name}")
         if _finite(self.lateral_sigma_m, "config.lateral_sigma_m") < 0:
             raise TrackingInputError("must be >= 0", "config.lateral_sigma_m")
         if isinstance(self.particles, bool) or not isinstance(self.particles, (int, np.integer)) \

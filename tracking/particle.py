@@ -28,6 +28,7 @@ spread when both are alive). ``extra``: ``ess`` per step; with ``keep_particles=
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import chi2
 
 from .measurements import Observation, Track, TrackerConfig, check_observations
 
@@ -63,6 +64,7 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
     logw = np.full(N, -np.log(N))
     roll, roll_var = 0.0, cfg.initial_roll_sigma_deg ** 2
     q, lat2 = cfg.accel_psd_m2_per_s3, cfg.lateral_sigma_m ** 2
+    vgate = None if cfg.visual_gate_probability is None else float(chi2.ppf(cfg.visual_gate_probability, 1))
 
     n = len(obs)
     cols = {k: np.empty(n) for k in ("s", "ss", "v", "vs", "r", "rs", "ess")}
@@ -76,17 +78,26 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             dt = o.t_s - obs[k - 1].t_s
             Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
             mean_s, mean_v = s + v * dt, v
-            if o.visual is not None:
-                S = Q[0, 0] + o.visual.advance_sigma_m ** 2
-                y = o.visual.advance_m - v * dt
+            visual = o.visual
+            if visual is not None and vgate is not None:  # an outlier pair (Kalman's gate)
+                w = np.exp(logw - logw.max())
+                w /= w.sum()
+                pred = float(w @ (v * dt))
+                spread = float(w @ (v * dt - pred) ** 2)
+                y0 = visual.advance_m - pred
+                if y0 * y0 / (spread + Q[0, 0] + visual.advance_sigma_m ** 2) > vgate:
+                    visual = None
+            if visual is not None:
+                S = Q[0, 0] + visual.advance_sigma_m ** 2
+                y = visual.advance_m - v * dt
                 K = Q[:, 0] / S
                 mean_s, mean_v = mean_s + K[0] * y, mean_v + K[1] * y
                 Q = Q - np.outer(K, K) * S
                 logw += -0.5 * y * y / S
-                if o.visual.roll_deg is not None:
+                if visual.roll_deg is not None:
                     r_var = roll_var + cfg.roll_psd_deg2_per_s * dt
-                    gain = r_var / (r_var + o.visual.roll_sigma_deg ** 2)
-                    roll = roll + gain * o.visual.roll_deg
+                    gain = r_var / (r_var + visual.roll_sigma_deg ** 2)
+                    roll = roll + gain * visual.roll_deg
                     roll_var = (1.0 - gain) * r_var
                 else:
                     roll_var += cfg.roll_psd_deg2_per_s * dt

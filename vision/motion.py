@@ -55,7 +55,7 @@ import numpy as np
 from .errors import VisionInputError
 from .filters import DEFAULT_CUTOFF, DEFAULT_ORDER, butterworth_lowpass, to_grey
 from .interpolation import THESIS_A, check_kernel_a, frame_center, similarity_matrix
-from .kernels import pad_frame, warped_joint_histograms
+from .kernels import fisheye_joint_histograms, pad_frame, warped_joint_histograms
 from .mutual_information import DEFAULT_BINS, check_bins, grey_range, mutual_information_from_histogram, quantize
 from .search import SEARCHES, maximise
 
@@ -81,6 +81,8 @@ MAX_GRID_SAMPLES = 2e7
 MAX_PIXELS = 2**17
 #: At full resolution, rotation and scale searches alternate at most this many times.
 FINAL_CYCLES = 2
+#: Tilt model: the largest tilt searched by default [deg] and the default tolerance [deg].
+TILT_RANGE_DEG, TILT_TOLERANCE_DEG = 12.0, 0.01
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,50 @@ class MotionEstimate:
     evaluations: int
     levels: int
     settings: dict = field(default_factory=dict, compare=False)
+    #: The moving camera's optical axis as seen from the reference camera, (x right, y up) [deg]
+    #: (module doc, "Tilt"); (0, 0) when the tilt is not estimated.
+    tilt_deg: tuple[float, float] = (0.0, 0.0)
+
+
+def _tilt_matrices(tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) the smallest rotations taking the optical axis z to the direction of tilt
+    (tx, ty) [rad] (x right, y up: the moving camera's axis seen from the reference camera at
+    angle hypot(tx, ty) from the axis, azimuth atan2(ty, tx)); Rodrigues' formula about
+    z x d."""
+    beta = np.hypot(tx, ty)
+    safe = np.where(beta > 0.0, beta, 1.0)
+    kx, ky = -ty / safe, tx / safe
+    sb, cb1 = np.sin(beta), 1.0 - np.cos(beta)
+    zero = np.zeros_like(beta)
+    k = np.stack([np.stack([zero, zero, ky], -1), np.stack([zero, zero, -kx], -1),
+                  np.stack([-ky, kx, zero], -1)], -2)
+    return np.eye(3) + sb[:, None, None] * k + cb1[:, None, None] * (k @ k)
+
+
+def _roll_matrices(rotation_deg: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) rotations by ``rotation_deg`` about z, (x, y) -> (c x - s y, s x + c y)."""
+    t = np.radians(rotation_deg)
+    c, s = np.cos(t), np.sin(t)
+    one, zero = np.ones_like(t), np.zeros_like(t)
+    return np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], -2)
+
+
+def camera_rotation_params(rotation_deg, log_scale, tilt_x_rad, tilt_y_rad, side: int) -> np.ndarray:
+    """(K, 11) probes of :func:`vision.kernels.fisheye_joint_histograms` (module doc, "Tilt"):
+    a reference ray u_ref and a moving ray u_mov see the same wall point when
+    u_ref = T(tilt) Rz(-rotation) u_mov(theta / scale). ``side`` 0 maps reference pixels into the
+    moving frame (A = Rz(rotation) T^T, then radius * scale), 1 moving pixels into the reference
+    (angle / scale, then A = T Rz(-rotation))."""
+    rot, ls, tx, ty = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float))
+                                            for v in (rotation_deg, log_scale, tilt_x_rad, tilt_y_rad)))
+    t = _tilt_matrices(tx.ravel(), ty.ravel())
+    if side == 0:
+        mats = _roll_matrices(rot.ravel()) @ np.swapaxes(t, 1, 2)
+        pre, post = np.ones(rot.size), np.exp(ls.ravel())
+    else:
+        mats = t @ _roll_matrices(-rot.ravel())
+        pre, post = np.exp(-ls.ravel()), np.ones(rot.size)
+    return np.concatenate([pre[:, None], post[:, None], mats.reshape(-1, 9)], axis=1)
 
 
 @dataclass
@@ -109,10 +155,12 @@ class _Level:
     bins: int
     pixels: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]
     ranges: tuple[tuple[float, float], tuple[float, float]]
+    focal_px: float | None = None  # the fisheye's f (tilt model), None: the similarity model
+    rays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # theta, cos phi, sin phi
 
     @classmethod
     def build(cls, ref: np.ndarray, mov: np.ndarray, center, radius_px: float, bins: int,
-              max_pixels: float = math.inf) -> "_Level":
+              max_pixels: float = math.inf, focal_px: float | None = None) -> "_Level":
         r = np.arange(ref.shape[0])[:, None]
         c = np.arange(ref.shape[1])[None, :]
         disc = (r - center[0]) ** 2 + (c - center[1]) ** 2 <= radius_px**2
@@ -123,26 +171,40 @@ class _Level:
         compared = disc & ((r + c) % stride == 0) if stride > 1 else disc  # a diagonal lattice (2: checkerboard)
         rows, cols = (x.astype(float) for x in np.nonzero(compared))
         pixels = tuple((rows, cols, quantize(img[compared], bins, *rng)) for img, rng in zip((ref, mov), ranges))
-        return cls((pad_frame(ref), pad_frame(mov)), center, radius_px, bins, pixels, ranges)
+        rays = None
+        if focal_px is not None:
+            x, y = cols - center[1], center[0] - rows
+            r = np.hypot(x, y)
+            safe = np.where(r > 0.0, r, 1.0)
+            rays = (r / focal_px, np.where(r > 0.0, x / safe, 1.0), np.where(r > 0.0, y / safe, 0.0))
+        return cls((pad_frame(ref), pad_frame(mov)), center, radius_px, bins, pixels, ranges, focal_px, rays)
 
     def mutual_information(self, rotation_deg: np.ndarray, log_scale: np.ndarray, side: int | None = None,
-                           a: float = THESIS_A) -> np.ndarray:
-        """MI at each (rotation, log scale) probe; ``side`` 0 compares over the reference disc,
-        1 over the moving disc, None picks per probe by the sign of log scale (module doc)."""
+                           a: float = THESIS_A, tilt=(0.0, 0.0)) -> np.ndarray:
+        """MI at each (rotation, log scale[, tilt x, tilt y in rad]) probe; ``side`` 0 compares
+        over the reference disc, 1 over the moving disc, None picks per probe by the sign of log
+        scale (module doc). The tilt is used only by a level built with ``focal_px``."""
         rot = np.atleast_1d(np.asarray(rotation_deg, float))
         ls = np.atleast_1d(np.asarray(log_scale, float))
-        rot, ls = np.broadcast_arrays(rot, ls)
+        tx, ty = (np.atleast_1d(np.asarray(v, float)) for v in tilt)
+        rot, ls, tx, ty = np.broadcast_arrays(rot, ls, tx, ty)
         sides = (ls > 0.0).astype(int) if side is None else np.full(rot.shape, side)
         out = np.empty(rot.shape)
         for s in (0, 1):
             pick = sides == s
             if not pick.any():
                 continue
+            rows, cols, qbins = self.pixels[s]
+            lo, width = self.ranges[1 - s]
+            if self.focal_px is not None:
+                params = camera_rotation_params(rot[pick], ls[pick], tx[pick], ty[pick], s)
+                hist = fisheye_joint_histograms(*self.rays, qbins, self.frames[1 - s], params, self.center,
+                                                self.focal_px, self.radius_px, lo, width, self.bins, a)
+                out[pick] = mutual_information_from_histogram(hist)
+                continue
             # side 1 samples the reference at M^-1 = similarity(-rotation, 1 / scale)
             sign = 1.0 if s == 0 else -1.0
             mats = similarity_matrix(sign * rot[pick], np.exp(sign * ls[pick]))
-            rows, cols, qbins = self.pixels[s]
-            lo, width = self.ranges[1 - s]
             hist = warped_joint_histograms(rows, cols, qbins, self.frames[1 - s], mats, self.center,
                                            self.radius_px, lo, width, self.bins, a)
             out[pick] = mutual_information_from_histogram(hist)
@@ -156,18 +218,19 @@ def _downsample(img: np.ndarray) -> np.ndarray:
 
 
 def _pyramid(ref, mov, radius_px: float, bins: int, coarse_size_px: int, min_radius_px: float,
-             max_pixels: float = math.inf) -> list[_Level]:
+             max_pixels: float = math.inf, focal_px: float | None = None) -> list[_Level]:
     """Levels finest first, down to frames of ``coarse_size_px`` pixels a side or a disc radius
     of ``min_radius_px``, whichever comes first; a coarse pixel k covers fine pixels 2k, 2k + 1,
     so the centre maps as c_coarse = (c_fine - 1/2) / 2 and the same rotation and scale hold at
-    every level."""
+    every level (and the same tilt, with the fisheye's f halved per level)."""
     center = frame_center(ref.shape)
-    levels = [_Level.build(ref, mov, center, radius_px, bins, max_pixels)]
+    levels = [_Level.build(ref, mov, center, radius_px, bins, max_pixels, focal_px)]
     while min(ref.shape) // 2 >= coarse_size_px and radius_px / 2.0 >= min_radius_px:
         ref, mov = _downsample(ref), _downsample(mov)
         center = ((center[0] - 0.5) / 2.0, (center[1] - 0.5) / 2.0)
         radius_px /= 2.0
-        levels.append(_Level.build(ref, mov, center, radius_px, bins))
+        focal_px = None if focal_px is None else focal_px / 2.0
+        levels.append(_Level.build(ref, mov, center, radius_px, bins, focal_px=focal_px))
     return levels
 
 
@@ -193,14 +256,19 @@ def _positive(value, field_name: str) -> float:
 
 class _Search:
     """The coarse-to-fine maximisation of :func:`estimate_motion` (module doc) over the pyramid
-    ``levels`` (finest first), counting iterations and MI evaluations."""
+    ``levels`` (finest first), counting iterations and MI evaluations. ``tilt_range`` [rad] > 0:
+    the tilt (x, y) is searched too (levels built with the fisheye's f); it is kept in
+    ``self.tilt``."""
 
     def __init__(self, levels: list[_Level], a: float, method: str, estimate: str,
-                 rot_range: tuple[float, float], ls_range: tuple[float, float]) -> None:
+                 rot_range: tuple[float, float], ls_range: tuple[float, float], tilt_range: float = 0.0) -> None:
         self.levels, self.a, self.method = levels, a, method
         self.do_rot = estimate in ("both", "rotation")
         self.do_scale = estimate in ("both", "scale")
+        self.do_tilt = tilt_range > 0.0
         self.rot_range, self.ls_range = rot_range, ls_range
+        self.tilt_range = (-tilt_range, tilt_range)
+        self.tilt = [0.0, 0.0]
         self.iterations = 0
         self.evaluations = 0
         self.grid_factor = 1.0  # > 1 when the coarsest grid was coarsened (work bound)
@@ -211,17 +279,34 @@ class _Search:
         rotation; :func:`math.degrees` of it in degrees)."""
         return 1.0 / level.radius_px
 
+    @staticmethod
+    def tilt_step(level: _Level) -> float:
+        """One pixel near the optical axis, as a tilt [rad]."""
+        return 1.0 / level.focal_px
+
     def _grid(self, lo: float, hi: float, step: float) -> np.ndarray:
         return np.linspace(lo, hi, max(3, int(math.ceil((hi - lo) / step)) + 1))
 
-    def _mi(self, level: _Level, rot, ls, side: int | None) -> np.ndarray:
-        values = level.mutual_information(rot, ls, side, self.a)
+    def _mi(self, level: _Level, rot, ls, side: int | None, tilt=None) -> np.ndarray:
+        values = level.mutual_information(rot, ls, side, self.a, self.tilt if tilt is None else tilt)
         self.evaluations += values.size
         return values
 
     def bracket(self, rot: float, ls: float, joint: bool) -> tuple[float, float]:
         """The best grid point at the coarsest level: a 2-D grid (``joint``), or 1-D grids of
-        rotation, scale and rotation again in turn."""
+        rotation, scale and rotation again in turn; with the tilt, then a 2-D grid of tilts at
+        that rotation and scale, and the rotation and scale grid again at the best tilt."""
+        rot, ls = self._bracket(rot, ls, joint)
+        if self.do_tilt:
+            level = self.levels[-1]
+            g = self._grid(*self.tilt_range, self.tilt_step(level))
+            tx, ty = (x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
+            best = int(np.argmax(self._mi(level, rot, ls, None, (tx, ty))))
+            self.tilt = [float(tx[best]), float(ty[best])]
+            rot, ls = self._bracket(rot, ls, joint)
+        return rot, ls
+
+    def _bracket(self, rot: float, ls: float, joint: bool) -> tuple[float, float]:
         level = self.levels[-1]
         step = self.step(level)
         two_d = joint and self.do_rot and self.do_scale
@@ -247,27 +332,36 @@ class _Search:
         return rot, ls
 
     def _maximise(self, level: _Level, which: str, centre: float, span: float, tol: float,
-                  fixed: float) -> float:
-        lo_lim, hi_lim = self.rot_range if which == "rot" else self.ls_range
+                  rot: float, ls: float) -> float:
+        lo_lim, hi_lim = {"rot": self.rot_range, "ls": self.ls_range}.get(which, self.tilt_range)
         lo, hi = max(lo_lim, centre - span), min(hi_lim, centre + span)
+        side = int(0.5 * (lo + hi) > 0.0) if which == "ls" else int(ls > 0.0)
+        a = self.a
         if which == "rot":
-            side = int(fixed > 0.0)
-            result = maximise(lambda t: level.mutual_information(t, fixed, side, self.a)[0], lo, hi, tol,
-                              self.method)
+            def f(t):
+                return level.mutual_information(t, ls, side, a, self.tilt)[0]
+        elif which == "ls":
+            def f(g):
+                return level.mutual_information(rot, g, side, a, self.tilt)[0]
         else:
-            side = int(0.5 * (lo + hi) > 0.0)
-            result = maximise(lambda g: level.mutual_information(fixed, g, side, self.a)[0], lo, hi, tol,
-                              self.method)
+            axis = 0 if which == "tx" else 1
+
+            def f(v):
+                tilt = list(self.tilt)
+                tilt[axis] = v
+                return level.mutual_information(rot, ls, side, a, tilt)[0]
+        result = maximise(f, lo, hi, tol, self.method)
         self.iterations += result.iterations
         self.evaluations += result.evaluations
         return result.x
 
-    def refine(self, index: int, rot: float, ls: float, tol_rot: float, tol_ls: float) -> tuple[float, float]:
-        """One rotation and one scale search at level ``index``, each in a bracket of
-        +-BRACKET_STEPS grid steps of the coarser level (of this level on the coarsest), to a
-        quarter of this level's step, or to the tolerances at full resolution. There, when both
-        parameters are estimated, the pair of searches repeats in brackets of +-4 tolerances
-        (at most FINAL_CYCLES pairs in all) until neither moves by more than twice its
+    def refine(self, index: int, rot: float, ls: float, tol_rot: float, tol_ls: float,
+               tol_tilt: float = 0.0) -> tuple[float, float]:
+        """One rotation and one scale search (and one per tilt axis) at level ``index``, each in
+        a bracket of +-BRACKET_STEPS grid steps of the coarser level (of this level on the
+        coarsest), to a quarter of this level's step, or to the tolerances at full resolution.
+        There, when both parameters are estimated, the searches repeat in brackets of +-4
+        tolerances (at most FINAL_CYCLES rounds in all) until none moves by more than twice its
         tolerance: the rotation found at the coarser level's scale is re-optimised at the new
         scale (they are nearly independent: rotation moves pixels along circles, scale along
         radii)."""
@@ -280,13 +374,23 @@ class _Search:
         finest = index == 0
         t_ls = tol_ls if finest else 0.25 * self.step(level)
         t_rot = tol_rot if finest else math.degrees(t_ls)
-        for _ in range(FINAL_CYCLES if finest and self.do_rot and self.do_scale else 1):
-            old = (rot, ls)
+        if self.do_tilt:
+            span_tilt = (FINE_BRACKET_STEPS if finest else BRACKET_STEPS) * self.tilt_step(coarser)
+            t_tilt = tol_tilt if finest else 0.25 * self.tilt_step(level)
+        for _ in range(FINAL_CYCLES if finest and (self.do_rot and self.do_scale or self.do_tilt) else 1):
+            old = (rot, ls, *self.tilt)
+            if self.do_tilt:
+                for axis, name in enumerate(("tx", "ty")):
+                    self.tilt[axis] = self._maximise(level, name, self.tilt[axis], span_tilt, t_tilt, rot, ls)
             if self.do_rot:
-                rot = self._maximise(level, "rot", rot, span_rot, t_rot, ls)
+                rot = self._maximise(level, "rot", rot, span_rot, t_rot, rot, ls)
             if self.do_scale:
-                ls = self._maximise(level, "ls", ls, span_ls, t_ls, rot)
-            if abs(rot - old[0]) <= 2.0 * t_rot and abs(ls - old[1]) <= 2.0 * t_ls:
+                ls = self._maximise(level, "ls", ls, span_ls, t_ls, rot, ls)
+            moved = abs(rot - old[0]) > 2.0 * t_rot or abs(ls - old[1]) > 2.0 * t_ls
+            if self.do_tilt:
+                moved = moved or max(abs(self.tilt[0] - old[2]), abs(self.tilt[1] - old[3])) > 2.0 * t_tilt
+                span_tilt = 4.0 * t_tilt
+            if not moved:
                 break
             span_rot, span_ls = 4.0 * t_rot, 4.0 * t_ls
         return rot, ls
@@ -300,7 +404,9 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
                     initial_rotation_deg: float = 0.0, initial_scale: float = 1.0,
                     bins: int = DEFAULT_BINS, cutoff: float | None = DEFAULT_CUTOFF, order: int = DEFAULT_ORDER,
                     kernel_a: float = THESIS_A, radius_px: float | None = None,
-                    coarse_size_px: int = 16, max_pixels: int = MAX_PIXELS) -> MotionEstimate:
+                    coarse_size_px: int = 16, max_pixels: int = MAX_PIXELS, fov_deg: float | None = None,
+                    tilt_range_deg: float = TILT_RANGE_DEG,
+                    tilt_tolerance_deg: float = TILT_TOLERANCE_DEG) -> MotionEstimate:
     """Rotation about the optical axis and scale of ``moving`` relative to ``reference`` (module
     doc: model, sign conventions, strategy), by maximum mutual information.
 
@@ -313,6 +419,10 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     ``radius_px``: radius of the compared disc (default min(H, W) / 2 - 2). ``coarse_size_px``:
     the smallest pyramid level's side. ``max_pixels``: pixels compared per level at most (a
     regular lattice of the disc beyond; default 2^17, a 408 px disc; module doc).
+    ``fov_deg``: the field of view of the equidistant fisheye whose image circle is inscribed in
+    the frame (:class:`vision.camera.FisheyeCamera`); given, the moving camera's tilt (its
+    optical axis seen from the reference camera) is estimated too, within +-``tilt_range_deg``
+    per axis, to ``tilt_tolerance_deg`` (module doc, "Tilt"); None: the thesis' similarity model.
     """
     if estimate not in ESTIMATES:
         raise VisionInputError(f"must be one of {', '.join(ESTIMATES)}, got {estimate!r}", "estimate")
@@ -335,6 +445,18 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
         raise VisionInputError("must be finite", "initial_rotation_deg")
     bins = check_bins(bins)
     a = check_kernel_a(kernel_a)
+    tilt_range = 0.0
+    if fov_deg is not None:
+        fov = _positive(fov_deg, "fov_deg")
+        if not 10.0 <= fov <= 220.0:
+            raise VisionInputError(f"must be in [10, 220] degrees, got {fov_deg!r}", "fov_deg")
+        tilt_range = math.radians(_positive(tilt_range_deg, "tilt_range_deg"))
+        if tilt_range > math.radians(45.0):
+            raise VisionInputError(f"must be in (0, 45] degrees, got {tilt_range_deg!r}", "tilt_range_deg")
+        tol_tilt = math.radians(_positive(tilt_tolerance_deg, "tilt_tolerance_deg"))
+        if not 1e-7 <= tol_tilt <= tilt_range:
+            raise VisionInputError(f"must be in [1e-7 rad, tilt_range_deg], got {tilt_tolerance_deg!r}",
+                                   "tilt_tolerance_deg")
     ref, mov = to_grey(reference, "reference"), to_grey(moving, "moving")
     if ref.shape != mov.shape:
         raise VisionInputError(f"frames differ in size: reference {ref.shape[1]} x {ref.shape[0]}, "
@@ -365,22 +487,24 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     min_radius = min(MAX_BRACKET_RADIUS_PX, max(MIN_RADIUS_PX, CONTENT_RADIUS_PX / min(s_lo, 1.0 / s_hi)))
     if isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer)) or max_pixels < 1024:
         raise VisionInputError(f"must be an integer >= 1024, got {max_pixels!r}", "max_pixels")
-    levels = _pyramid(ref, mov, radius, bins, coarse, min_radius, int(max_pixels))
-    search_ = _Search(levels, a, search, estimate, (rot_lo, rot_hi), (math.log(s_lo), math.log(s_hi)))
+    focal = None if fov_deg is None else (min(ref.shape) / 2.0) / math.radians(fov / 2.0)
+    levels = _pyramid(ref, mov, radius, bins, coarse, min_radius, int(max_pixels), focal)
+    search_ = _Search(levels, a, search, estimate, (rot_lo, rot_hi), (math.log(s_lo), math.log(s_hi)), tilt_range)
     rot = min(max(rot0, rot_lo), rot_hi) if search_.do_rot else rot0
     ls = min(max(ls0, search_.ls_range[0]), search_.ls_range[1]) if search_.do_scale else ls0
     rot, ls = search_.bracket(rot, ls, joint=strategy == "joint")
     for index in range(len(levels) - 1, -1, -1):
-        rot, ls = search_.refine(index, rot, ls, tol_rot, tol_ls)
+        rot, ls = search_.refine(index, rot, ls, tol_rot, tol_ls, tol_tilt if tilt_range else 0.0)
 
     finest = levels[0]
-    mi = float(finest.mutual_information(rot, ls, int(ls > 0.0), a)[0])
+    mi = float(finest.mutual_information(rot, ls, int(ls > 0.0), a, search_.tilt)[0])
     search_.evaluations += 1
     settings = {"estimate": estimate, "strategy": strategy, "search": search, "bins": bins, "cutoff": cutoff,
-                "order": order, "kernel_a": a, "radius_px": radius, "max_pixels": int(max_pixels)}
+                "order": order, "kernel_a": a, "radius_px": radius, "max_pixels": int(max_pixels),
+                "fov_deg": fov_deg}
     return MotionEstimate(rotation_deg=float(rot), scale=float(math.exp(ls)), mutual_information=mi,
                           iterations=search_.iterations, evaluations=search_.evaluations, levels=len(levels),
-                          settings=settings)
+                          settings=settings, tilt_deg=(math.degrees(search_.tilt[0]), math.degrees(search_.tilt[1])))
 
 
 def estimate_rotation(reference: np.ndarray, moving: np.ndarray, **kwargs) -> MotionEstimate:

@@ -29,74 +29,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from .errors import VisionInputError
-from .noise import gradients, noise_grad, noise_value, permutation
+from .kernels import mucosa
+from .noise import gradients, permutation
 from .pool import THREADS, pool
 
 #: Points below which one thread shades them all.
 PARALLEL_MIN_POINTS = 4096
-
-
-@njit(cache=True, inline="always")
-def _smoothstep(e0, e1, x):
-    t = min(max((x - e0) / (e1 - e0), 0.0), 1.0)
-    return t * t * (3.0 - 2.0 * t)
-
-
-@njit(cache=True, nogil=True)
-def _mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent):
-    """Per point: reflectance (N, 3) into ``albedo`` and bent unit normal into ``bent``
-    (``normals`` face the lumen). ``params``: see MucosaTexture._params."""
-    (axis_x, axis_y, axis_z, has_axis, spacing, depth, sharp, warp_amp, warp_scale, bump_mm, bump_scale,
-     colour_var, colour_scale, vessel_scale, vessel_width, vessel_strength, valley) = params
-    for i in range(points_mm.shape[0]):
-        x, y, z = points_mm[i, 0], points_mm[i, 1], points_mm[i, 2]
-        # --- folds: height (mm) and its gradient (mm / mm)
-        nw, wx, wy, wz = noise_grad(perm, g, x / warp_scale + 17.3, y / warp_scale + 5.1, z / warp_scale + 9.7)
-        if has_axis > 0.5:
-            s = (x * axis_x + y * axis_y + z * axis_z) / spacing + warp_amp * nw
-            sx = axis_x / spacing + warp_amp * wx / warp_scale
-            sy = axis_y / spacing + warp_amp * wy / warp_scale
-            sz = axis_z / spacing + warp_amp * wz / warp_scale
-            c = 0.5 + 0.5 * math.cos(2.0 * math.pi * s)
-            fold = c**sharp
-            dfold = sharp * c ** (sharp - 1.0) * (-math.pi * math.sin(2.0 * math.pi * s)) if c > 0.0 else 0.0
-            gx, gy, gz = dfold * sx, dfold * sy, dfold * sz
-        else:
-            nr, rx, ry, rz = noise_grad(perm, g, x / spacing, y / spacing, z / spacing)
-            ridge = 1.0 - abs(nr)
-            fold = ridge**sharp
-            d = -sharp * ridge ** (sharp - 1.0) * (1.0 if nr >= 0.0 else -1.0) / spacing
-            gx, gy, gz = d * rx, d * ry, d * rz
-        hx, hy, hz = depth * gx, depth * gy, depth * gz
-        # --- fine bumps, two octaves
-        for octave in range(2):
-            f = (2.0**octave) / bump_scale
-            amp = bump_mm / (2.0**octave)
-            _, bx, by, bz = noise_grad(perm, g, x * f + 3.3, y * f + 7.7, z * f + 1.1)
-            hx += amp * f * bx
-            hy += amp * f * by
-            hz += amp * f * bz
-        # --- bend the normal: n' = normalize(n - (grad h - (grad h . n) n))
-        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-        dn = hx * nx + hy * ny + hz * nz
-        px, py, pz = nx - (hx - dn * nx), ny - (hy - dn * ny), nz - (hz - dn * nz)
-        norm = math.sqrt(px * px + py * py + pz * pz)
-        bent[i, 0], bent[i, 1], bent[i, 2] = px / norm, py / norm, pz / norm
-        # --- colour: two octaves of noise
-        c1 = noise_value(perm, g, x / colour_scale + 41.0, y / colour_scale + 43.0, z / colour_scale + 47.0)
-        c2 = noise_value(perm, g, 2 * x / colour_scale + 53.0, 2 * y / colour_scale, 2 * z / colour_scale)
-        tone = 1.0 + colour_var * (c1 + 0.5 * c2)
-        # --- vessels: zero set of domain-warped noise, patchy by the low-frequency colour noise
-        wv = noise_value(perm, g, x / (2 * vessel_scale) + 61.0, y / (2 * vessel_scale), z / (2 * vessel_scale))
-        nv = noise_value(perm, g, x / vessel_scale + 1.5 * wv + 71.0, y / vessel_scale + 1.5 * wv,
-                         z / vessel_scale - 1.5 * wv)
-        vessel = (1.0 - _smoothstep(0.0, vessel_width, abs(nv))) * _smoothstep(-0.2, 0.3, c1) * vessel_strength
-        shade = tone * (1.0 - valley * (1.0 - fold))
-        for k in range(3):
-            albedo[i, k] = min(max(shade * ((1.0 - vessel) * base[k] + vessel * vessel_rgb[k]), 0.0), 1.0)
 
 
 @dataclass(frozen=True)
@@ -177,10 +117,10 @@ class MucosaTexture:
         args = (_perm(self.seed), gradients())
         rest = (self._params(), np.asarray(self.base_rgb, float), np.asarray(self.vessel_rgb, float))
         if THREADS < 2 or len(pts) < PARALLEL_MIN_POINTS:
-            _mucosa(*args, pts, nrm, *rest, albedo, bent)
+            mucosa(*args, pts, nrm, *rest, albedo, bent)
             return albedo, bent
         cuts = np.linspace(0, len(pts), THREADS + 1).astype(int)
-        futures = [pool().submit(_mucosa, *args, pts[a:b], nrm[a:b], *rest, albedo[a:b], bent[a:b])
+        futures = [pool().submit(mucosa, *args, pts[a:b], nrm[a:b], *rest, albedo[a:b], bent[a:b])
                    for a, b in zip(cuts[:-1], cuts[1:])]
         for f in futures:
             f.result()

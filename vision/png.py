@@ -4,7 +4,8 @@ A PNG is a signature, an IHDR chunk (size, bit depth 8, colour type 2 RGB or 0 g
 chunks holding the zlib-deflated scanlines (each prefixed by its filter type, 0 = none), and
 IEND; each chunk is length, type, data, CRC-32 of type + data (PNG specification, W3C 2003).
 The decoder (:func:`decode_png`) reads every PNG the specification allows, bounded against
-hostile files (its doc); its scanline unfiltering is compiled (numba), the rest numpy and zlib.
+hostile files (its doc); its scanline unfiltering is compiled (numba, in :mod:`vision.kernels`), the
+rest numpy and zlib.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ import struct
 import zlib
 
 import numpy as np
-from numba import njit
 
 from .errors import VisionInputError
+from .kernels import png_unfilter
 
 _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -44,38 +45,6 @@ _COLOUR_TYPES = {0: (1, (1, 2, 4, 8, 16)), 2: (3, (8, 16)), 3: (1, (1, 2, 4, 8))
 _ADAM7 = ((0, 0, 8, 8), (0, 4, 8, 8), (4, 0, 8, 4), (0, 2, 4, 4), (2, 0, 4, 2), (0, 1, 2, 2), (1, 0, 2, 1))
 #: Default bounds of :func:`decode_png`: pixels a side, and pixels in all.
 MAX_DECODE_SIDE_PX, MAX_DECODE_PIXELS = 4096, 4096 * 4096
-
-
-@njit(cache=True, nogil=True)
-def _unfilter(raw, height, stride, bpp, out):
-    """Undo the per-scanline filters of PNG spec 9.2 (None, Sub, Up, Average, Paeth) of ``height``
-    scanlines of ``stride`` bytes, each prefixed by its filter type; -1, or the first row whose
-    filter type is unknown."""
-    for y in range(height):
-        src = y * (stride + 1)
-        kind = raw[src]
-        src += 1
-        for x in range(stride):
-            v = np.int32(raw[src + x])
-            a = np.int32(out[y, x - bpp]) if x >= bpp else np.int32(0)
-            b = np.int32(out[y - 1, x]) if y > 0 else np.int32(0)
-            if kind == 0:
-                pass
-            elif kind == 1:
-                v += a
-            elif kind == 2:
-                v += b
-            elif kind == 3:
-                v += (a + b) >> 1
-            elif kind == 4:
-                c = np.int32(out[y - 1, x - bpp]) if (y > 0 and x >= bpp) else np.int32(0)
-                p = a + b - c
-                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
-                v += a if (pa <= pb and pa <= pc) else (b if pb <= pc else c)
-            else:
-                return y
-            out[y, x] = v & 0xFF
-    return -1
 
 
 def _chunks(data: bytes, field: str):
@@ -164,7 +133,7 @@ def decode_png(data: bytes, *, field: str = "image", max_side_px: int = MAX_DECO
     for h, w, r0, c0, dr, dc in passes:
         stride = (w * bits + 7) // 8
         rows = np.empty((h, stride), np.uint8)
-        bad = _unfilter(raw_arr[start:start + h * (stride + 1)], h, stride, max(1, bits // 8), rows)
+        bad = png_unfilter(raw_arr[start:start + h * (stride + 1)], h, stride, max(1, bits // 8), rows)
         if bad >= 0:
             raise VisionInputError(f"has an unknown filter type on scanline {bad}", field)
         samples[r0::dr, c0::dc] = _unpack(rows, w, channels, depth)

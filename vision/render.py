@@ -32,13 +32,13 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from raytrace import InputError, Phantom
 from raytrace.engine.scene import scene_for
 
 from .camera import FisheyeCamera, Pose
 from .errors import VisionInputError
+from .kernels import shade_points
 from .mucosa import MucosaTexture
 from .pool import THREADS, pool
 from .sensor import SensorModel
@@ -134,32 +134,6 @@ def lumen_organ(phantom: Phantom, position_m: np.ndarray, organ: str | None) -> 
     return index
 
 
-@njit(cache=True, nogil=True)
-def _shade(points, normals, albedo, view_dirs, leds, forward, per_led, exponent, spec_norm, shininess, out):
-    for i in range(points.shape[0]):
-        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-        diffuse = 0.0
-        specular = 0.0
-        for k in range(leds.shape[0]):
-            vx, vy, vz = points[i, 0] - leds[k, 0], points[i, 1] - leds[k, 1], points[i, 2] - leds[k, 2]
-            d2 = vx * vx + vy * vy + vz * vz
-            dist = math.sqrt(d2)
-            lx, ly, lz = -vx / dist, -vy / dist, -vz / dist
-            cos_i = nx * lx + ny * ly + nz * lz
-            cos_e = (vx * forward[0] + vy * forward[1] + vz * forward[2]) / dist
-            if cos_i <= 0.0 or cos_e <= 0.0:
-                continue
-            e = per_led * (cos_e if exponent == 1.0 else cos_e**exponent) * cos_i / d2
-            diffuse += e
-            if spec_norm > 0.0:
-                hx, hy, hz = lx - view_dirs[i, 0], ly - view_dirs[i, 1], lz - view_dirs[i, 2]
-                n_h = (nx * hx + ny * hy + nz * hz) / math.sqrt(hx * hx + hy * hy + hz * hz)
-                if n_h > 0.0:
-                    specular += e * spec_norm * n_h**shininess
-        for c in range(3):
-            out[i, c] = diffuse * albedo[i, c] / math.pi + specular
-
-
 def shade(points: np.ndarray, normals: np.ndarray, albedo: np.ndarray, view_dirs: np.ndarray, pose: Pose,
           lighting: Lighting) -> np.ndarray:
     """Radiance (N, 3) towards the camera of wall points lit by the LEDs (module doc);
@@ -169,7 +143,7 @@ def shade(points: np.ndarray, normals: np.ndarray, albedo: np.ndarray, view_dirs
             float(lighting.emission_exponent), lighting.specular * (lighting.shininess + 8.0) / (8.0 * np.pi),
             float(lighting.shininess))
     arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in (points, normals, albedo, view_dirs)]
-    _in_parts(lambda a, b: _shade(*(x[a:b] for x in arrays), *args, out[a:b]), len(points))
+    _in_parts(lambda a, b: shade_points(*(x[a:b] for x in arrays), *args, out[a:b]), len(points))
     return out
 
 

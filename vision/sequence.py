@@ -180,3 +180,30 @@ def centreline_path(phantom, start_m: float, length_m: float, *,
         raise VisionInputError(f"the sequence leaves the {organ} piece of the centreline (arc lengths "
                                f"{starts[k]:.6g} to {starts[k] + path.length_m:.6g} m)", "advance_m")
     return path, offset, organ
+
+
+def transported_ups(path: Path, up_hint=None) -> np.ndarray:
+    """(K - 1, 3) the camera's up vector (roll 0) on each segment of ``path``: the up of the first
+    segment from ``up_hint`` (:class:`~vision.camera.Pose`), carried to every later segment by
+    parallel transport (the smallest rotation taking one segment's direction to the next, module
+    doc). A function of the segment only, so a capsule going back and forth over the same arc
+    lengths sees the same frames."""
+    seg = np.diff(path.points_m, axis=0)
+    tangents = seg / np.linalg.norm(seg, axis=1)[:, None]
+    up = Pose(path.points_m[0], tangents[0], 0.0, up_hint).basis[1]
+    ups = np.empty_like(tangents)
+    ups[0] = up
+    for k in range(1, len(tangents)):
+        axis = np.cross(tangents[k - 1], tangents[k])
+        sin_a = float(np.linalg.norm(axis))
+        if sin_a > 1e-12:
+            up = rotate_about(up, axis / sin_a, math.atan2(sin_a, float(np.dot(tangents[k - 1], tangents[k]))))
+        ups[k] = up
+    return ups
+
+
+def path_pose(path: Path, ups: np.ndarray, s_m: float, roll_deg: float) -> Pose:
+    """The pose at arc length ``s_m`` of ``path`` looking along it, rolled by ``roll_deg`` from the
+    transported up ``ups`` (:func:`transported_ups`) of its segment."""
+    position, tangent = path.at(float(s_m))
+    return Pose(position, tangent, float(roll_deg), ups[path.segment(float(s_m))])
