@@ -191,7 +191,8 @@ def result_to_dict(result: ChannelResult, scenario: str | None = None,
                 "gain_db": _db(p.gain_db),
                 "length_m": _f(p.length_m),
                 "interactions": [
-                    {"kind": it.kind, "point_m": _v(it.point_m), "from_medium": it.from_medium, "to_medium": it.to_medium}
+                    {"kind": it.kind, "point_m": _v(it.point_m), "from_medium": it.from_medium,
+                     "to_medium": it.to_medium}
                     for it in p.interactions
                 ],
                 "segments": [{"medium": s.medium, "length_m": _f(s.length_m)} for s in p.segments],

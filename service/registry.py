@@ -113,7 +113,8 @@ class Registry:
                 if scenario.spec.phantom in self.builtins:
                     self.scenarios[sid] = scenario
                 else:
-                    self.errors.append(f"scenario {sid!r} unavailable: its phantom {scenario.spec.phantom!r} is missing")
+                    self.errors.append(
+                        f"scenario {sid!r} unavailable: its phantom {scenario.spec.phantom!r} is missing")
         self.ready = True
 
     def add_builtin(self, phantom_id: str, phantom: Phantom) -> None:

@@ -48,7 +48,8 @@ _UPLOAD_BODY = {
                         },
                     },
                 },
-                "encoding": {"mesh": {"contentType": "model/gltf-binary"}, "manifest": {"contentType": "application/json"}},
+                "encoding": {"mesh": {"contentType": "model/gltf-binary"},
+                             "manifest": {"contentType": "application/json"}},
             }
         },
     }
@@ -82,7 +83,8 @@ async def get_phantom(request: Request, phantom_id: str = PhantomIdPath) -> Phan
     summary="The phantom as binary glTF (.glb) with organ-named nodes",
     response_class=Response,
     responses={
-        200: {"content": {"model/gltf-binary": {"schema": {"type": "string", "format": "binary"}}}, "description": "The .glb."},
+        200: {"content": {"model/gltf-binary": {"schema": {"type": "string", "format": "binary"}}},
+              "description": "The .glb."},
         **error_responses(404, 422),
     },
 )
@@ -102,7 +104,8 @@ async def get_phantom_mesh(request: Request, phantom_id: str = PhantomIdPath) ->
     operation_id="get_phantom_manifest",
     summary="The manifest that, with the .glb of /mesh, re-uploads the phantom",
     responses={
-        200: {"content": {"application/json": {"schema": {"type": "object"}}}, "description": "The manifest (schema `Manifest`)."},
+        200: {"content": {"application/json": {"schema": {"type": "object"}}},
+              "description": "The manifest (schema `Manifest`)."},
         **error_responses(404, 422),
     },
 )

@@ -37,7 +37,8 @@ def expect_error(status: int, *loc, call):
     assert err.status == status, err
     locs = err.fields
     want = list(loc)
-    assert any(any(l[i : i + len(want)] == want for i in range(len(l) - len(want) + 1)) for l in locs), (want, locs)
+    assert any(any(loc[i : i + len(want)] == want for i in range(len(loc) - len(want) + 1)) for loc in locs), \
+        (want, locs)
     assert all(item["msg"] for item in err.detail)
     return err
 
@@ -107,7 +108,8 @@ def test_upload_lifecycle(api):
         mesh = api.phantom_mesh(info.id)
         assert mesh[:4] == b"glTF"
         assert api.phantom_manifest(info.id)["organs"] == manifest["organs"]
-        ch = api.channel({"phantom": info.id, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}], "rays": 1000, "max_interactions": 2})
+        ch = api.channel({"phantom": info.id, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}],
+                          "rays": 1000, "max_interactions": 2})
         assert ch.profiles[0].medium == "air"
     finally:
         api.delete_phantom(info.id)
@@ -136,7 +138,8 @@ def test_upload_over_the_cap_is_refused_while_streaming(live_url):
             yield chunk
 
     try:
-        r = httpx.post(f"{live_url}/v1/phantoms", content=body(), headers={"content-type": f"multipart/form-data; boundary={boundary}"}, timeout=120)
+        r = httpx.post(f"{live_url}/v1/phantoms", content=body(),
+                       headers={"content-type": f"multipart/form-data; boundary={boundary}"}, timeout=120)
     except httpx.HTTPError:
         pytest.fail("the server should answer 413, not drop the connection")
     assert r.status_code == 413, r.text
@@ -152,10 +155,13 @@ def test_channel_scenario_and_ranging(api):
     direct = prof.paths[0]
     # Thesis: direct path 0.076 m at eps_r 27.9 -> 1.338 ns.
     assert direct.delay_s == pytest.approx(0.076 * math.sqrt(27.9) / C0, rel=1e-3)
-    toa = api.ranging_toa({"profile": prof.model_dump(), "method": "all", "trials": 20, "seed": 1, "true_distance_m": 0.076})
+    toa = api.ranging_toa({"profile": prof.model_dump(), "method": "all", "trials": 20, "seed": 1,
+                           "true_distance_m": 0.076})
     assert {r.method for r in toa.results} == {"first_peak", "all_peaks", "gcc"}
     assert toa.distance_m == pytest.approx(0.076, abs=0.01)
-    pdoa = api.ranging_pdoa({"profile": prof.model_dump(), "method": "regression", "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}, "trials": 20, "seed": 1, "true_distance_m": 0.076})
+    pdoa = api.ranging_pdoa({"profile": prof.model_dump(), "method": "regression",
+                             "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}, "trials": 20, "seed": 1,
+                             "true_distance_m": 0.076})
     assert pdoa.max_unambiguous_range_m and pdoa.distance_m > 0
     rss = api.ranging_rss({"profile": prof.model_dump(), "trials": 50, "seed": 1})
     assert rss.distance_m > 0 and rss.model == "cm2_deep_tissue"
@@ -165,8 +171,10 @@ def test_channel_and_ranging_errors(api):
     r = api._http.post("/v1/channel", json={"scenario": "thesis-fig-5-6", "rays": 10**7})
     assert r.status_code == 422 and ["body", "rays"] in [d["loc"] for d in r.json()["detail"]]
     expect_error(404, "body", "scenario", call=lambda: api.channel({"scenario": "no-such-case", "rays": 100}))
-    expect_error(404, "body", "phantom", call=lambda: api.channel({"phantom": "nope", "transmitter": {"position_m": [0, 0, 0]}, "receivers": [{"position_m": [0, -0.2, 0]}]}))
-    expect_error(404, "body", "receivers", 0, "site", call=lambda: api.channel({"phantom": "torso", "transmitter": {"site": "stomach"}, "receivers": [{"site": "nowhere"}], "rays": 100}))
+    expect_error(404, "body", "phantom", call=lambda: api.channel(
+        {"phantom": "nope", "transmitter": {"position_m": [0, 0, 0]}, "receivers": [{"position_m": [0, -0.2, 0]}]}))
+    expect_error(404, "body", "receivers", 0, "site", call=lambda: api.channel(
+        {"phantom": "torso", "transmitter": {"site": "stomach"}, "receivers": [{"site": "nowhere"}], "rays": 100}))
     for path, body, loc in [
         ("/v1/ranging/toa", {"profile": PROFILE, "trials": 100000}, ["body", "trials"]),
         ("/v1/ranging/pdoa", {"profile": PROFILE, "frequencies_hz": [400e6, float("nan")]}, None),
@@ -174,7 +182,8 @@ def test_channel_and_ranging_errors(api):
     ]:
         if loc is None:  # NaN cannot be sent as strict JSON; send the JavaScript literal
             r = api._http.post(path, content=json.dumps(body).encode(), headers={"content-type": "application/json"})
-            assert r.status_code == 422 and any(d["loc"][:2] == ["body", "frequencies_hz"] for d in r.json()["detail"]), r.text
+            assert r.status_code == 422, r.text
+            assert any(d["loc"][:2] == ["body", "frequencies_hz"] for d in r.json()["detail"]), r.text
             continue
         r = api._http.post(path, json=body)
         assert r.status_code == 422 and loc in [d["loc"] for d in r.json()["detail"]], r.text
@@ -184,7 +193,8 @@ def test_async_client_mirrors_the_sync_one(live_url):
     async def main():
         async with AsyncClient(live_url) as client:
             health, tissues, bound = await asyncio.gather(
-                client.healthz(), client.tissues(2.45e9), client.bound_rss({"shadowing_db": 7.85, "path_loss_exponent": 4.26, "distance_m": 0.05})
+                client.healthz(), client.tissues(2.45e9),
+                client.bound_rss({"shadowing_db": 7.85, "path_loss_exponent": 4.26, "distance_m": 0.05})
             )
             return health, tissues, bound
 

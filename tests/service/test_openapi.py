@@ -123,7 +123,8 @@ def test_upload_manifest_schema_is_documented():
 def test_docs_settings_table_is_current():
     from service.settings import settings_table_markdown
 
-    assert settings_table_markdown() in (ROOT / "README.md").read_text(), "regenerate the settings table in README.md (Configuration)"
+    assert settings_table_markdown() in (ROOT / "README.md").read_text(), \
+        "regenerate the settings table in README.md (Configuration)"
 
 
 def test_schema_uses_only_json_schema_keywords_for_bounds():
