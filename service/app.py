@@ -165,7 +165,7 @@ def _document(app: FastAPI, settings: Settings) -> None:
     added to the components (the multipart part is JSON text, so no route references the
     model); limits lowered by settings replace the schema's ceilings (examples follow); with
     API keys configured, uploads and deletes declare the key."""
-    from service.schemas import Manifest
+    from service.schemas.phantoms import Manifest
 
     generate = app.openapi
 

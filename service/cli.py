@@ -105,7 +105,7 @@ def run_channel_request(payload: dict) -> dict[str, Any]:
     """Run one POST /v1/channel body locally (no HTTP); returns the response dict."""
     from raytrace import Budget, trace_channel
     from service import channel as ops
-    from service.schemas import ChannelRequest, ChannelResponse
+    from service.schemas.channel import ChannelRequest, ChannelResponse
 
     registry, settings = _local_registry()
     req = ChannelRequest.model_validate(payload)
@@ -284,7 +284,7 @@ _KIND = {"reflection": "R", "refraction": "T", "total_internal_reflection": "TIR
 
 def _demo_case(title: str, payload: dict) -> None:
     from service import ranging
-    from service.schemas import PdoaRequest, ToaRequest
+    from service.schemas.ranging import PdoaRequest, ToaRequest
     from service.settings import Settings
 
     print(f"\n=== {title} ===")

@@ -9,13 +9,7 @@ import numpy as np
 
 from raytrace.solver.budget import Budget
 from service.errors import Unprocessable
-from service.schemas import (
-    PdoaRequest,
-    ProfileIn,
-    RangingCommon,
-    RssRequest,
-    ToaRequest,
-)
+from service.schemas.ranging import PdoaRequest, ProfileIn, RangingCommon, RssRequest, ToaRequest
 from service.settings import Settings
 
 

@@ -31,7 +31,7 @@ def _vec(a) -> list[float]:
 
 
 def describe_phantom(phantom_id: str, phantom: Phantom, *, builtin: bool) -> dict[str, Any]:
-    """The :class:`service.schemas.PhantomOut` dict of a phantom."""
+    """The :class:`service.schemas.phantoms.PhantomOut` dict of a phantom."""
     organs = []
     for i, organ in enumerate(phantom.organs):
         mat = organ.material

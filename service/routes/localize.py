@@ -44,20 +44,8 @@ from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import Unprocessable, error_responses
 from service.registry import Registry
-from service.schemas import (
-    MAX_INTERACTIONS,
-    MAX_RAYS,
-    MAX_RECEIVERS,
-    FrequencyHz,
-    Int,
-    Name,
-    Out,
-    PhantomId,
-    Strict,
-    Vec3,
-    int_range,
-)
-from service.settings import Settings
+from service.schemas import FrequencyHz, Int, Name, Out, PhantomId, Strict, Vec3, int_range
+from service.settings import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, Settings
 
 router = APIRouter(prefix="/v1/localize", tags=["localization"], route_class=ThreadedJsonRoute)
 

@@ -11,7 +11,8 @@ from raytrace.solver.budget import Budget
 from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, error_responses
 from service.registry import describe_phantom
-from service.schemas import ID_PATTERN, PhantomOut, PhantomsResponse, UploadResponse
+from service.schemas import ID_PATTERN
+from service.schemas.phantoms import PhantomOut, PhantomsResponse, UploadResponse
 from service.security import check_owner, writer
 from service.storage import Full, Missing, is_upload_id, new_upload_id
 from service.uploads import read_upload

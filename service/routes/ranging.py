@@ -9,7 +9,7 @@ from service import ranging as ops
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
-from service.schemas import PdoaRequest, RangingResponse, RssRequest, ToaRequest
+from service.schemas.ranging import PdoaRequest, RangingResponse, RssRequest, ToaRequest
 
 router = APIRouter(prefix="/v1/ranging", tags=["ranging"], route_class=ThreadedJsonRoute)
 

@@ -14,8 +14,9 @@ import math
 import httpx
 import pytest
 
-from service import schemas as s
 from service.client import APIError, AsyncClient, Client
+from service.schemas.channel import ChannelResponse
+from service.schemas.phantoms import TissuesResponse
 from tests.conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
 
 pytestmark = pytest.mark.e2e
@@ -57,7 +58,7 @@ def test_operations(api, live_url):
 
 def test_tissues(api):
     out = api.tissues(402e6)
-    assert isinstance(out, s.TissuesResponse) and len(out.tissues) == 27
+    assert isinstance(out, TissuesResponse) and len(out.tissues) == 27
     air = next(t for t in out.tissues if t.name == "air")
     assert air.phase_velocity_m_per_s == pytest.approx(C0, rel=1e-12)
     assert air.wavelength_m == pytest.approx(C0 / 402e6, rel=1e-12)
@@ -149,7 +150,7 @@ def test_upload_over_the_cap_is_refused_while_streaming(live_url):
 
 def test_channel_scenario_and_ranging(api):
     ch = api.channel({"scenario": "thesis-fig-5-6", "rays": 20000})
-    assert isinstance(ch, s.ChannelResponse) and ch.scenario == "thesis-fig-5-6"
+    assert isinstance(ch, ChannelResponse) and ch.scenario == "thesis-fig-5-6"
     prof = ch.profiles[0]
     assert prof.paths, "the thesis case must have at least its direct path"
     direct = prof.paths[0]

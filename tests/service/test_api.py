@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from service.schemas import ChannelResponse
+from service.schemas.channel import ChannelResponse
 
 C0 = 299_792_458.0
 
@@ -450,17 +450,18 @@ def test_every_request_example_of_the_docs_works(make_settings):
     """The /docs examples are a tutorial: each one must succeed against the default limits."""
     from fastapi.testclient import TestClient
 
-    from service import schemas as s
     from service.app import create_app
+    from service.schemas import channel as sc
+    from service.schemas import ranging as sr
 
     routes = {
-        s.ChannelRequest: "/v1/channel",
-        s.ToaRequest: "/v1/ranging/toa",
-        s.PdoaRequest: "/v1/ranging/pdoa",
-        s.RssRequest: "/v1/ranging/rss",
-        s.ToaBoundRequest: "/v1/bounds/toa",
-        s.PdoaBoundRequest: "/v1/bounds/pdoa",
-        s.RssBoundRequest: "/v1/bounds/rss",
+        sc.ChannelRequest: "/v1/channel",
+        sr.ToaRequest: "/v1/ranging/toa",
+        sr.PdoaRequest: "/v1/ranging/pdoa",
+        sr.RssRequest: "/v1/ranging/rss",
+        sr.ToaBoundRequest: "/v1/bounds/toa",
+        sr.PdoaBoundRequest: "/v1/bounds/pdoa",
+        sr.RssBoundRequest: "/v1/bounds/rss",
     }
     with TestClient(create_app(make_settings(max_rays=1_000_000))) as api:
         for model, path in routes.items():

@@ -317,7 +317,7 @@ def test_builtin_phantom_round_trips_through_mesh_and_manifest(client, settings)
 
 
 def test_the_documented_manifest_example_uploads(client, glb_phantom):
-    from service.schemas import Manifest
+    from service.schemas.phantoms import Manifest
 
     glb, _ = glb_phantom()
     example = Manifest.model_config["json_schema_extra"]["examples"][0]
