@@ -23,6 +23,7 @@ CHROMIUM ?= /usr/bin/chromium
 test: $(STAMP)
 	@test -x $(CHROMIUM) || echo "make test: no Chromium at $(CHROMIUM), so the browser tests (viewer, /docs) \
 	are skipped; install Debian's package to run them: apt-get install chromium"
+	$(BIN)/ruff check .
 	CAPSULE_RT_CHROMIUM=$(CHROMIUM) $(BIN)/python -m pytest
 
 bench: $(STAMP)

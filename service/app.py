@@ -25,8 +25,20 @@ from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
 from service.registry import Registry
-from service.routes import (bounds, catalogue, channel, localize, ops, pages, phantoms, plots, ranging, sweeps,
-                            tracking, vision)
+from service.routes import (
+    bounds,
+    catalogue,
+    channel,
+    localize,
+    ops,
+    pages,
+    phantoms,
+    plots,
+    ranging,
+    sweeps,
+    tracking,
+    vision,
+)
 from service.security import API_KEY_HEADER, OriginGuard
 from service.settings import Settings
 from service.storage import PhantomStore
@@ -82,8 +94,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         sweep_jobs.start()
         log.info(
             "ready",
-            extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios), "data_dir": str(settings.data_dir),
-                   "kernels_warm_up_s": round(warm_up_s, 3), "gc_frozen_objects": gc.get_freeze_count()},
+            extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios),
+                   "data_dir": str(settings.data_dir), "kernels_warm_up_s": round(warm_up_s, 3),
+                   "gc_frozen_objects": gc.get_freeze_count()},
         )
         try:
             yield
@@ -152,7 +165,7 @@ def _document(app: FastAPI, settings: Settings) -> None:
     added to the components (the multipart part is JSON text, so no route references the
     model); limits lowered by settings replace the schema's ceilings (examples follow); with
     API keys configured, uploads and deletes declare the key."""
-    from service.schemas import Manifest
+    from service.schemas.phantoms import Manifest
 
     generate = app.openapi
 

@@ -19,7 +19,8 @@ from raytrace import ChannelResult, ChannelSpec, Phantom
 from raytrace.solver.footprint import estimate
 from service.errors import NotFound, Unprocessable
 from service.registry import Registry
-from service.schemas import GAIN_DB_FLOOR, MAX_OUTPUT_SAMPLES, ChannelOutputs, ChannelRequest
+from service.schemas import GAIN_DB_FLOOR
+from service.schemas.channel import MAX_OUTPUT_SAMPLES, ChannelOutputs, ChannelRequest
 from service.settings import Settings
 
 
@@ -177,7 +178,7 @@ def _v(a) -> list[float]:
 
 def result_to_dict(result: ChannelResult, scenario: str | None = None,
                    outputs: ChannelOutputs | None = None) -> dict[str, Any]:
-    """The :class:`service.schemas.ChannelResponse` dict of a tracer result (no NaN/inf), with the
+    """The :class:`service.schemas.channel.ChannelResponse` dict of a tracer result (no NaN/inf), with the
     channel ``outputs`` asked for (cfr / cir / taps per receiver)."""
     band = result.band_frequencies_hz
     profiles = []
@@ -191,7 +192,8 @@ def result_to_dict(result: ChannelResult, scenario: str | None = None,
                 "gain_db": _db(p.gain_db),
                 "length_m": _f(p.length_m),
                 "interactions": [
-                    {"kind": it.kind, "point_m": _v(it.point_m), "from_medium": it.from_medium, "to_medium": it.to_medium}
+                    {"kind": it.kind, "point_m": _v(it.point_m), "from_medium": it.from_medium,
+                     "to_medium": it.to_medium}
                     for it in p.interactions
                 ],
                 "segments": [{"medium": s.medium, "length_m": _f(s.length_m)} for s in p.segments],

@@ -24,9 +24,30 @@ from typing import Any, Generic, TypeVar
 import httpx
 from pydantic import BaseModel
 
-from service import schemas as s
-from service.routes import vision as v
 from service.routes import localize as loc
+from service.routes import vision as v
+from service.schemas import Health, Readiness
+from service.schemas.channel import ChannelRequest, ChannelResponse
+from service.schemas.phantoms import (
+    Manifest,
+    PhantomOut,
+    PhantomsResponse,
+    ScenariosResponse,
+    TissuesResponse,
+    UploadResponse,
+)
+from service.schemas.ranging import (
+    PdoaBoundRequest,
+    PdoaBoundResponse,
+    PdoaRequest,
+    RangingResponse,
+    RssBoundRequest,
+    RssBoundResponse,
+    RssRequest,
+    ToaBoundRequest,
+    ToaBoundResponse,
+    ToaRequest,
+)
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -95,11 +116,11 @@ class _Endpoints:
 
     @staticmethod
     def healthz() -> _Call:
-        return _Call("GET", "/healthz", s.Health, {})
+        return _Call("GET", "/healthz", Health, {})
 
     @staticmethod
     def readyz() -> _Call:
-        return _Call("GET", "/readyz", s.Readiness, {})
+        return _Call("GET", "/readyz", Readiness, {})
 
     @staticmethod
     def metrics() -> _Call:
@@ -107,19 +128,19 @@ class _Endpoints:
 
     @staticmethod
     def tissues(frequency_hz: float) -> _Call:
-        return _Call("GET", "/v1/tissues", s.TissuesResponse, {"params": {"frequency_hz": repr(float(frequency_hz))}})
+        return _Call("GET", "/v1/tissues", TissuesResponse, {"params": {"frequency_hz": repr(float(frequency_hz))}})
 
     @staticmethod
     def scenarios() -> _Call:
-        return _Call("GET", "/v1/scenarios", s.ScenariosResponse, {})
+        return _Call("GET", "/v1/scenarios", ScenariosResponse, {})
 
     @staticmethod
     def phantoms() -> _Call:
-        return _Call("GET", "/v1/phantoms", s.PhantomsResponse, {})
+        return _Call("GET", "/v1/phantoms", PhantomsResponse, {})
 
     @staticmethod
     def phantom(phantom_id: str) -> _Call:
-        return _Call("GET", f"/v1/phantoms/{phantom_id}", s.PhantomOut, {})
+        return _Call("GET", f"/v1/phantoms/{phantom_id}", PhantomOut, {})
 
     @staticmethod
     def phantom_mesh(phantom_id: str) -> _Call:
@@ -134,8 +155,9 @@ class _Endpoints:
         return _Call("DELETE", f"/v1/phantoms/{phantom_id}", None, {})
 
     @staticmethod
-    def upload_phantom(mesh_glb: bytes, manifest: dict | s.Manifest | str | bytes, filename: str = "phantom.glb") -> _Call:
-        if isinstance(manifest, s.Manifest):
+    def upload_phantom(mesh_glb: bytes, manifest: dict | Manifest | str | bytes,
+                       filename: str = "phantom.glb") -> _Call:
+        if isinstance(manifest, Manifest):
             manifest = manifest.model_dump_json(exclude_none=True)
         elif isinstance(manifest, dict):
             manifest = json.dumps(manifest)
@@ -143,23 +165,23 @@ class _Endpoints:
             "mesh": (filename, mesh_glb, "model/gltf-binary"),
             "manifest": ("manifest.json", manifest, "application/json"),
         }
-        return _Call("POST", "/v1/phantoms", s.UploadResponse, {"files": files})
+        return _Call("POST", "/v1/phantoms", UploadResponse, {"files": files})
 
     @staticmethod
-    def channel(req: s.ChannelRequest | dict) -> _Call:
-        return _Call("POST", "/v1/channel", s.ChannelResponse, {"json": _body(s.ChannelRequest, req)})
+    def channel(req: ChannelRequest | dict) -> _Call:
+        return _Call("POST", "/v1/channel", ChannelResponse, {"json": _body(ChannelRequest, req)})
 
     @staticmethod
-    def ranging_toa(req: s.ToaRequest | dict) -> _Call:
-        return _Call("POST", "/v1/ranging/toa", s.RangingResponse, {"json": _body(s.ToaRequest, req)})
+    def ranging_toa(req: ToaRequest | dict) -> _Call:
+        return _Call("POST", "/v1/ranging/toa", RangingResponse, {"json": _body(ToaRequest, req)})
 
     @staticmethod
-    def ranging_pdoa(req: s.PdoaRequest | dict) -> _Call:
-        return _Call("POST", "/v1/ranging/pdoa", s.RangingResponse, {"json": _body(s.PdoaRequest, req)})
+    def ranging_pdoa(req: PdoaRequest | dict) -> _Call:
+        return _Call("POST", "/v1/ranging/pdoa", RangingResponse, {"json": _body(PdoaRequest, req)})
 
     @staticmethod
-    def ranging_rss(req: s.RssRequest | dict) -> _Call:
-        return _Call("POST", "/v1/ranging/rss", s.RangingResponse, {"json": _body(s.RssRequest, req)})
+    def ranging_rss(req: RssRequest | dict) -> _Call:
+        return _Call("POST", "/v1/ranging/rss", RangingResponse, {"json": _body(RssRequest, req)})
 
     @staticmethod
     def localize(req: loc.LocalizeRequest | dict) -> _Call:
@@ -171,16 +193,16 @@ class _Endpoints:
                      {"json": _body(loc.LocalizeEvaluateRequest, req)})
 
     @staticmethod
-    def bound_toa(req: s.ToaBoundRequest | dict) -> _Call:
-        return _Call("POST", "/v1/bounds/toa", s.ToaBoundResponse, {"json": _body(s.ToaBoundRequest, req)})
+    def bound_toa(req: ToaBoundRequest | dict) -> _Call:
+        return _Call("POST", "/v1/bounds/toa", ToaBoundResponse, {"json": _body(ToaBoundRequest, req)})
 
     @staticmethod
-    def bound_pdoa(req: s.PdoaBoundRequest | dict) -> _Call:
-        return _Call("POST", "/v1/bounds/pdoa", s.PdoaBoundResponse, {"json": _body(s.PdoaBoundRequest, req)})
+    def bound_pdoa(req: PdoaBoundRequest | dict) -> _Call:
+        return _Call("POST", "/v1/bounds/pdoa", PdoaBoundResponse, {"json": _body(PdoaBoundRequest, req)})
 
     @staticmethod
-    def bound_rss(req: s.RssBoundRequest | dict) -> _Call:
-        return _Call("POST", "/v1/bounds/rss", s.RssBoundResponse, {"json": _body(s.RssBoundRequest, req)})
+    def bound_rss(req: RssBoundRequest | dict) -> _Call:
+        return _Call("POST", "/v1/bounds/rss", RssBoundResponse, {"json": _body(RssBoundRequest, req)})
 
     @staticmethod
     def vision_render(req: v.RenderRequest | dict) -> _Call:
@@ -224,25 +246,25 @@ class Client:
         headers = {**kwargs.pop("headers", {}), **(headers or {})} or None
         return _parse(call, self._http.request(call.method, call.path, headers=headers, **kwargs))
 
-    def healthz(self, *, headers: dict[str, str] | None = None) -> s.Health:
+    def healthz(self, *, headers: dict[str, str] | None = None) -> Health:
         return self._do(_Endpoints.healthz(), headers)
 
-    def readyz(self, *, headers: dict[str, str] | None = None) -> s.Readiness:
+    def readyz(self, *, headers: dict[str, str] | None = None) -> Readiness:
         return self._do(_Endpoints.readyz(), headers)
 
     def metrics(self, *, headers: dict[str, str] | None = None) -> str:
         return self._do(_Endpoints.metrics(), headers)
 
-    def tissues(self, frequency_hz: float, *, headers: dict[str, str] | None = None) -> s.TissuesResponse:
+    def tissues(self, frequency_hz: float, *, headers: dict[str, str] | None = None) -> TissuesResponse:
         return self._do(_Endpoints.tissues(frequency_hz), headers)
 
-    def scenarios(self, *, headers: dict[str, str] | None = None) -> s.ScenariosResponse:
+    def scenarios(self, *, headers: dict[str, str] | None = None) -> ScenariosResponse:
         return self._do(_Endpoints.scenarios(), headers)
 
-    def phantoms(self, *, headers: dict[str, str] | None = None) -> s.PhantomsResponse:
+    def phantoms(self, *, headers: dict[str, str] | None = None) -> PhantomsResponse:
         return self._do(_Endpoints.phantoms(), headers)
 
-    def phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> s.PhantomOut:
+    def phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> PhantomOut:
         return self._do(_Endpoints.phantom(phantom_id), headers)
 
     def phantom_mesh(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> bytes:
@@ -254,19 +276,20 @@ class Client:
     def delete_phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> None:
         return self._do(_Endpoints.delete_phantom(phantom_id), headers)
 
-    def upload_phantom(self, mesh_glb: bytes, manifest: dict | s.Manifest | str | bytes, filename: str = "phantom.glb", *, headers: dict[str, str] | None = None) -> s.UploadResponse:
+    def upload_phantom(self, mesh_glb: bytes, manifest: dict | Manifest | str | bytes, filename: str = "phantom.glb",
+                       *, headers: dict[str, str] | None = None) -> UploadResponse:
         return self._do(_Endpoints.upload_phantom(mesh_glb, manifest, filename), headers)
 
-    def channel(self, req: s.ChannelRequest | dict, *, headers: dict[str, str] | None = None) -> s.ChannelResponse:
+    def channel(self, req: ChannelRequest | dict, *, headers: dict[str, str] | None = None) -> ChannelResponse:
         return self._do(_Endpoints.channel(req), headers)
 
-    def ranging_toa(self, req: s.ToaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+    def ranging_toa(self, req: ToaRequest | dict, *, headers: dict[str, str] | None = None) -> RangingResponse:
         return self._do(_Endpoints.ranging_toa(req), headers)
 
-    def ranging_pdoa(self, req: s.PdoaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+    def ranging_pdoa(self, req: PdoaRequest | dict, *, headers: dict[str, str] | None = None) -> RangingResponse:
         return self._do(_Endpoints.ranging_pdoa(req), headers)
 
-    def ranging_rss(self, req: s.RssRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+    def ranging_rss(self, req: RssRequest | dict, *, headers: dict[str, str] | None = None) -> RangingResponse:
         return self._do(_Endpoints.ranging_rss(req), headers)
 
     def localize(self, req: loc.LocalizeRequest | dict, *,
@@ -279,13 +302,13 @@ class Client:
         """POST /v1/localize/evaluate: trace, range and locate; error statistics beside the bound."""
         return self._do(_Endpoints.localize_evaluate(req), headers)
 
-    def bound_toa(self, req: s.ToaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.ToaBoundResponse:
+    def bound_toa(self, req: ToaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> ToaBoundResponse:
         return self._do(_Endpoints.bound_toa(req), headers)
 
-    def bound_pdoa(self, req: s.PdoaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.PdoaBoundResponse:
+    def bound_pdoa(self, req: PdoaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> PdoaBoundResponse:
         return self._do(_Endpoints.bound_pdoa(req), headers)
 
-    def bound_rss(self, req: s.RssBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.RssBoundResponse:
+    def bound_rss(self, req: RssBoundRequest | dict, *, headers: dict[str, str] | None = None) -> RssBoundResponse:
         return self._do(_Endpoints.bound_rss(req), headers)
 
     def vision_render(self, req: v.RenderRequest | dict, *, headers: dict[str, str] | None = None) -> v.RenderResponse:
@@ -324,25 +347,25 @@ class AsyncClient:
         headers = {**kwargs.pop("headers", {}), **(headers or {})} or None
         return _parse(call, await self._http.request(call.method, call.path, headers=headers, **kwargs))
 
-    async def healthz(self, *, headers: dict[str, str] | None = None) -> s.Health:
+    async def healthz(self, *, headers: dict[str, str] | None = None) -> Health:
         return await self._do(_Endpoints.healthz(), headers)
 
-    async def readyz(self, *, headers: dict[str, str] | None = None) -> s.Readiness:
+    async def readyz(self, *, headers: dict[str, str] | None = None) -> Readiness:
         return await self._do(_Endpoints.readyz(), headers)
 
     async def metrics(self, *, headers: dict[str, str] | None = None) -> str:
         return await self._do(_Endpoints.metrics(), headers)
 
-    async def tissues(self, frequency_hz: float, *, headers: dict[str, str] | None = None) -> s.TissuesResponse:
+    async def tissues(self, frequency_hz: float, *, headers: dict[str, str] | None = None) -> TissuesResponse:
         return await self._do(_Endpoints.tissues(frequency_hz), headers)
 
-    async def scenarios(self, *, headers: dict[str, str] | None = None) -> s.ScenariosResponse:
+    async def scenarios(self, *, headers: dict[str, str] | None = None) -> ScenariosResponse:
         return await self._do(_Endpoints.scenarios(), headers)
 
-    async def phantoms(self, *, headers: dict[str, str] | None = None) -> s.PhantomsResponse:
+    async def phantoms(self, *, headers: dict[str, str] | None = None) -> PhantomsResponse:
         return await self._do(_Endpoints.phantoms(), headers)
 
-    async def phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> s.PhantomOut:
+    async def phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> PhantomOut:
         return await self._do(_Endpoints.phantom(phantom_id), headers)
 
     async def phantom_mesh(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> bytes:
@@ -354,19 +377,20 @@ class AsyncClient:
     async def delete_phantom(self, phantom_id: str, *, headers: dict[str, str] | None = None) -> None:
         return await self._do(_Endpoints.delete_phantom(phantom_id), headers)
 
-    async def upload_phantom(self, mesh_glb: bytes, manifest: dict | s.Manifest | str | bytes, filename: str = "phantom.glb", *, headers: dict[str, str] | None = None) -> s.UploadResponse:
+    async def upload_phantom(self, mesh_glb: bytes, manifest: dict | Manifest | str | bytes,
+                             filename: str = "phantom.glb", *, headers: dict[str, str] | None = None) -> UploadResponse:
         return await self._do(_Endpoints.upload_phantom(mesh_glb, manifest, filename), headers)
 
-    async def channel(self, req: s.ChannelRequest | dict, *, headers: dict[str, str] | None = None) -> s.ChannelResponse:
+    async def channel(self, req: ChannelRequest | dict, *, headers: dict[str, str] | None = None) -> ChannelResponse:
         return await self._do(_Endpoints.channel(req), headers)
 
-    async def ranging_toa(self, req: s.ToaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+    async def ranging_toa(self, req: ToaRequest | dict, *, headers: dict[str, str] | None = None) -> RangingResponse:
         return await self._do(_Endpoints.ranging_toa(req), headers)
 
-    async def ranging_pdoa(self, req: s.PdoaRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+    async def ranging_pdoa(self, req: PdoaRequest | dict, *, headers: dict[str, str] | None = None) -> RangingResponse:
         return await self._do(_Endpoints.ranging_pdoa(req), headers)
 
-    async def ranging_rss(self, req: s.RssRequest | dict, *, headers: dict[str, str] | None = None) -> s.RangingResponse:
+    async def ranging_rss(self, req: RssRequest | dict, *, headers: dict[str, str] | None = None) -> RangingResponse:
         return await self._do(_Endpoints.ranging_rss(req), headers)
 
     async def localize(self, req: loc.LocalizeRequest | dict, *,
@@ -379,13 +403,16 @@ class AsyncClient:
         """POST /v1/localize/evaluate: trace, range and locate; error statistics beside the bound."""
         return await self._do(_Endpoints.localize_evaluate(req), headers)
 
-    async def bound_toa(self, req: s.ToaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.ToaBoundResponse:
+    async def bound_toa(self, req: ToaBoundRequest | dict, *,
+                        headers: dict[str, str] | None = None) -> ToaBoundResponse:
         return await self._do(_Endpoints.bound_toa(req), headers)
 
-    async def bound_pdoa(self, req: s.PdoaBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.PdoaBoundResponse:
+    async def bound_pdoa(self, req: PdoaBoundRequest | dict, *,
+                         headers: dict[str, str] | None = None) -> PdoaBoundResponse:
         return await self._do(_Endpoints.bound_pdoa(req), headers)
 
-    async def bound_rss(self, req: s.RssBoundRequest | dict, *, headers: dict[str, str] | None = None) -> s.RssBoundResponse:
+    async def bound_rss(self, req: RssBoundRequest | dict, *,
+                        headers: dict[str, str] | None = None) -> RssBoundResponse:
         return await self._do(_Endpoints.bound_rss(req), headers)
 
     async def vision_render(self, req: v.RenderRequest | dict, *,

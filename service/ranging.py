@@ -9,13 +9,7 @@ import numpy as np
 
 from raytrace.solver.budget import Budget
 from service.errors import Unprocessable
-from service.schemas import (
-    PdoaRequest,
-    ProfileIn,
-    RangingCommon,
-    RssRequest,
-    ToaRequest,
-)
+from service.schemas.ranging import PdoaRequest, ProfileIn, RangingCommon, RssRequest, ToaRequest
 from service.settings import Settings
 
 
@@ -71,7 +65,8 @@ def _check_trials(req: RangingCommon, settings: Settings) -> None:
     if "trials" not in req.model_fields_set:
         req.trials = min(req.trials, settings.max_trials)
     if req.trials > settings.max_trials:
-        raise Unprocessable(f"{req.trials} exceeds this server's limit of {settings.max_trials}", loc=["body", "trials"])
+        raise Unprocessable(f"{req.trials} exceeds this server's limit of {settings.max_trials}",
+                            loc=["body", "trials"])
 
 
 def _stop(budget: Budget | None):

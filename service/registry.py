@@ -31,7 +31,7 @@ def _vec(a) -> list[float]:
 
 
 def describe_phantom(phantom_id: str, phantom: Phantom, *, builtin: bool) -> dict[str, Any]:
-    """The :class:`service.schemas.PhantomOut` dict of a phantom."""
+    """The :class:`service.schemas.phantoms.PhantomOut` dict of a phantom."""
     organs = []
     for i, organ in enumerate(phantom.organs):
         mat = organ.material
@@ -113,7 +113,8 @@ class Registry:
                 if scenario.spec.phantom in self.builtins:
                     self.scenarios[sid] = scenario
                 else:
-                    self.errors.append(f"scenario {sid!r} unavailable: its phantom {scenario.spec.phantom!r} is missing")
+                    self.errors.append(
+                        f"scenario {sid!r} unavailable: its phantom {scenario.spec.phantom!r} is missing")
         self.ready = True
 
     def add_builtin(self, phantom_id: str, phantom: Phantom) -> None:

@@ -149,7 +149,8 @@ def phantom_manifest(**overrides) -> dict:
     manifest = {
         "name": "test box",
         "units": "m",
-        "organs": {"body": {"tissue": "muscle"}, "organ": {"relative_permittivity": 11.6, "conductivity_s_per_m": 0.08}},
+        "organs": {"body": {"tissue": "muscle"},
+                   "organ": {"relative_permittivity": 11.6, "conductivity_s_per_m": 0.08}},
         "sites": {"capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.01]}, "sensor": [0.0, -0.15, 0.0]},
     }
     manifest.update(overrides)

@@ -28,12 +28,13 @@ import time
 import numpy as np
 
 import raytrace.body.torso as T
+from raytrace.engine.scene import scene_for
+from raytrace.solver.launch import fibonacci_sphere
+from raytrace.solver.media import MediaTable
 
 NT = int(sys.argv[1]) if len(sys.argv) > 1 else 1400
 N_FIB = int(float(sys.argv[2])) if len(sys.argv) > 2 else 2_000_000
 NP = 2 * NT
-from raytrace.engine.scene import scene_for
-from raytrace.solver.media import MediaTable
 
 ph = T.build_torso()
 sc = scene_for(ph)
@@ -43,7 +44,6 @@ parent = np.asarray(ph.parent)
 forg = sc.face_organ
 caps = [n for n, s in ph.sites.items() if s.kind == 'capsule']
 only = sys.argv[3].split(',') if len(sys.argv) > 3 else None
-from raytrace.solver.launch import fibonacci_sphere
 
 if os.environ.get("UNIFORM"):
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
@@ -58,7 +58,8 @@ else:
 A_SKIN, B_SKIN = 0.163, 0.119
 NRM = np.stack([RX[:, 0] / A_SKIN**2, RX[:, 1] / B_SKIN**2, 0 * RX[:, 0]], 1)
 NRM /= np.linalg.norm(NRM, axis=1, keepdims=True)
-E1 = np.cross(NRM, [0, 0, 1.0]); E1 /= np.linalg.norm(E1, axis=1, keepdims=True)
+E1 = np.cross(NRM, [0, 0, 1.0])
+E1 /= np.linalg.norm(E1, axis=1, keepdims=True)
 E2 = np.cross(NRM, E1)
 WINDOW = 0.03
 MAXEV = 14
@@ -157,7 +158,9 @@ def zoom(tx, txm, d0, r, scale, levels=30, g=9):
     best = np.inf
     for _ in range(levels):
         ref = np.array([1.0, 0, 0]) if abs(d0[0]) < 0.9 else np.array([0, 1.0, 0])
-        u = np.cross(d0, ref); u /= np.linalg.norm(u); v = np.cross(d0, u)
+        u = np.cross(d0, ref)
+        u /= np.linalg.norm(u)
+        v = np.cross(d0, u)
         a = np.linspace(-scale, scale, g)
         A, B = np.meshgrid(a, a)
         dd = d0 + A.ravel()[:, None] * u + B.ravel()[:, None] * v
@@ -165,7 +168,8 @@ def zoom(tx, txm, d0, r, scale, levels=30, g=9):
         m = walk(tx, txm, dd)[2][:, r]
         k = int(np.argmin(m))
         if m[k] <= best:
-            best = m[k]; d0 = dd[k]
+            best = m[k]
+            d0 = dd[k]
         scale *= 0.5
         if best < 1e-10:
             break
@@ -189,15 +193,19 @@ for c in caps:
         lsig, land, miss = walk(tx, txm, dirs)
         nearest = np.minimum(nearest, miss.min(axis=0))
         rows = i1 - i0
-        lsig = lsig.reshape(rows, NP, len(RX)); land = land.reshape(rows, NP, len(RX), 2)
+        lsig = lsig.reshape(rows, NP, len(RX))
+        land = land.reshape(rows, NP, len(RX), 2)
         dirs = dirs.reshape(rows, NP, 3)
         if prev is not None:
-            lsig = np.concatenate([prev[0], lsig]); land = np.concatenate([prev[1], land])
+            lsig = np.concatenate([prev[0], lsig])
+            land = np.concatenate([prev[1], land])
             dirs = np.concatenate([prev[2], dirs])
         prev = (lsig[-1:], land[-1:], dirs[-1:])
         for r in range(len(RX)):
-            S = lsig[:, :, r]; L = land[:, :, r]
-            S1 = np.roll(S, -1, axis=1); L1 = np.roll(L, -1, axis=1)
+            S = lsig[:, :, r]
+            L = land[:, :, r]
+            S1 = np.roll(S, -1, axis=1)
+            L1 = np.roll(L, -1, axis=1)
             for (sa, la), (sb, lb), (sc_, lc) in (
                 ((S[:-1], L[:-1]), (S[1:], L[1:]), (S1[1:], L1[1:])),
                 ((S[:-1], L[:-1]), (S1[1:], L1[1:]), (S1[:-1], L1[:-1])),

@@ -33,7 +33,8 @@ receivers = [Antenna(cells[k], f"{k[1]}@{k[0]}") for k in keys]
 reached = dict.fromkeys(keys, 0)
 for name, position in capsules.items():
     t0 = time.time()
-    spec = rt.ChannelSpec(Antenna(position, name), tuple(receivers), phantom=phantom.name, rays=rays, max_interactions=2)
+    spec = rt.ChannelSpec(Antenna(position, name), tuple(receivers), phantom=phantom.name, rays=rays,
+                          max_interactions=2)
     res = rt.trace_channel(spec, phantom)
     for key, prof in zip(keys, res.profiles):
         reached[key] += any(all(i.kind == "refraction" for i in p.interactions) for p in prof.paths)

@@ -38,7 +38,8 @@ def sensor_positions(value: Any, field: str = "sensors", *, minimum: int = 4) ->
     bad = ~np.isfinite(s).all(axis=1)
     if bad.any():
         i = int(np.argmax(bad))
-        raise EstimatorInputError(f"coordinates must be finite numbers, got {s[i].tolist()}", f"{field}[{i}].position_m")
+        raise EstimatorInputError(f"coordinates must be finite numbers, got {s[i].tolist()}",
+                                  f"{field}[{i}].position_m")
     d = np.linalg.norm(s[:, None, :] - s[None, :, :], axis=2)
     d[np.diag_indices(len(s))] = np.inf
     if d.min() < MIN_SENSOR_SEPARATION_M:

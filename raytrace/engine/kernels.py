@@ -30,6 +30,10 @@ the small per-step helpers take only the arrays they read. Compiled by
 process after an install or an edit compiles: ~20 s; :func:`raytrace.solver.tracer.warm_up`
 does it ahead of the first request). Embree is called by symbol name, so the cached code
 stays valid in a new process.
+
+It stays one module (about 1000 lines) because it is one thing: the tracer's compiled per-ray
+loops and the per-step helpers they share (hit, normal, reflect/refract, record a step), compiled,
+cached and tested together; the helpers mean nothing outside these loops.
 """
 
 from __future__ import annotations

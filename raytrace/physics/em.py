@@ -50,6 +50,9 @@ propagation (from medium 1 into medium 2, ``k_in . nf = cos_i >= 0``):
 :func:`cos_transmitted`. Geometry (ray directions, total internal reflection
 masks) uses the real parts of the indices; the Fresnel coefficients use the
 complex indices.
+
+It stays one module (about 500 lines) because every function in it depends on the sign and basis
+conventions stated above; keeping them together keeps those conventions in one place.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from estimators import bounds
 from estimators.link import LinkBudget
 from service.bodies import ThreadedJsonRoute
 from service.errors import Unprocessable, error_responses
-from service.schemas import (
+from service.schemas.ranging import (
     PdoaBoundRequest,
     PdoaBoundResponse,
     RssBoundRequest,

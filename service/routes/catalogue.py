@@ -9,14 +9,8 @@ from raytrace.physics import em
 from raytrace.physics.tissues import TISSUE_NAMES, dielectric
 from service.deps import state
 from service.errors import error_responses
-from service.schemas import (
-    FREQUENCY_MAX_HZ,
-    FREQUENCY_MIN_HZ,
-    ScenarioOut,
-    ScenariosResponse,
-    TissueOut,
-    TissuesResponse,
-)
+from service.schemas import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
+from service.schemas.phantoms import ScenarioOut, ScenariosResponse, TissueOut, TissuesResponse
 
 router = APIRouter(prefix="/v1", tags=["catalogue"])
 

@@ -11,7 +11,7 @@ from service import channel as channel_ops
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
-from service.schemas import ChannelRequest, ChannelResponse
+from service.schemas.channel import ChannelRequest, ChannelResponse
 
 router = APIRouter(prefix="/v1", tags=["channel"], route_class=ThreadedJsonRoute)
 

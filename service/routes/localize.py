@@ -14,6 +14,9 @@ Work is bounded before it starts: at most :data:`MAX_SENSORS` sensors (64; this 
 server's ``max_trials``), rays and interactions at most the server's channel limits. The work
 runs in a worker thread under the request's Budget, checked between sensors' travel-time fields,
 between trials, and inside the trace.
+
+It stays one module (about 500 lines): the two endpoints share the sensor models, their placement
+and measurement checks and the mapping of estimator errors to 422s, which service.localize_cli reuses.
 """
 
 from __future__ import annotations
@@ -44,20 +47,8 @@ from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import Unprocessable, error_responses
 from service.registry import Registry
-from service.schemas import (
-    MAX_INTERACTIONS,
-    MAX_RAYS,
-    MAX_RECEIVERS,
-    FrequencyHz,
-    Int,
-    Name,
-    Out,
-    PhantomId,
-    Strict,
-    Vec3,
-    int_range,
-)
-from service.settings import Settings
+from service.schemas import FrequencyHz, Int, Name, Out, PhantomId, Strict, Vec3, int_range
+from service.settings import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, Settings
 
 router = APIRouter(prefix="/v1/localize", tags=["localization"], route_class=ThreadedJsonRoute)
 

@@ -57,7 +57,8 @@ def _ray_engine() -> str:
     operation_id="metrics",
     summary="Prometheus metrics",
     response_class=Response,
-    responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "Prometheus text format."}},
+    responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}},
+                     "description": "Prometheus text format."}},
 )
 async def metrics(request: Request) -> Response:
     st = state(request)

@@ -11,7 +11,8 @@ from raytrace.solver.budget import Budget
 from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, error_responses
 from service.registry import describe_phantom
-from service.schemas import ID_PATTERN, PhantomOut, PhantomsResponse, UploadResponse
+from service.schemas import ID_PATTERN
+from service.schemas.phantoms import PhantomOut, PhantomsResponse, UploadResponse
 from service.security import check_owner, writer
 from service.storage import Full, Missing, is_upload_id, new_upload_id
 from service.uploads import read_upload
@@ -48,7 +49,8 @@ _UPLOAD_BODY = {
                         },
                     },
                 },
-                "encoding": {"mesh": {"contentType": "model/gltf-binary"}, "manifest": {"contentType": "application/json"}},
+                "encoding": {"mesh": {"contentType": "model/gltf-binary"},
+                             "manifest": {"contentType": "application/json"}},
             }
         },
     }
@@ -82,7 +84,8 @@ async def get_phantom(request: Request, phantom_id: str = PhantomIdPath) -> Phan
     summary="The phantom as binary glTF (.glb) with organ-named nodes",
     response_class=Response,
     responses={
-        200: {"content": {"model/gltf-binary": {"schema": {"type": "string", "format": "binary"}}}, "description": "The .glb."},
+        200: {"content": {"model/gltf-binary": {"schema": {"type": "string", "format": "binary"}}},
+              "description": "The .glb."},
         **error_responses(404, 422),
     },
 )
@@ -102,7 +105,8 @@ async def get_phantom_mesh(request: Request, phantom_id: str = PhantomIdPath) ->
     operation_id="get_phantom_manifest",
     summary="The manifest that, with the .glb of /mesh, re-uploads the phantom",
     responses={
-        200: {"content": {"application/json": {"schema": {"type": "object"}}}, "description": "The manifest (schema `Manifest`)."},
+        200: {"content": {"application/json": {"schema": {"type": "object"}}},
+              "description": "The manifest (schema `Manifest`)."},
         **error_responses(404, 422),
     },
 )

@@ -9,7 +9,7 @@ from service import ranging as ops
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
-from service.schemas import PdoaRequest, RangingResponse, RssRequest, ToaRequest
+from service.schemas.ranging import PdoaRequest, RangingResponse, RssRequest, ToaRequest
 
 router = APIRouter(prefix="/v1/ranging", tags=["ranging"], route_class=ThreadedJsonRoute)
 
@@ -28,7 +28,8 @@ async def _run(request: Request, fn, req) -> RangingResponse:
     return RangingResponse.model_validate(out)
 
 
-@router.post("/toa", response_model=RangingResponse, operation_id="ranging_toa", summary="TOA ranging", responses=_ERRORS)
+@router.post("/toa", response_model=RangingResponse, operation_id="ranging_toa", summary="TOA ranging",
+             responses=_ERRORS)
 async def ranging_toa(req: ToaRequest, request: Request) -> RangingResponse:
     """Transmit the waveform through the profile, add white Gaussian noise at `snr_db`,
     estimate the delay by first peak (Eq 4.18), all peaks (Eq 4.19-4.21) or generalized
@@ -37,7 +38,8 @@ async def ranging_toa(req: ToaRequest, request: Request) -> RangingResponse:
     return await _run(request, ops.toa, req)
 
 
-@router.post("/pdoa", response_model=RangingResponse, operation_id="ranging_pdoa", summary="PDOA ranging", responses=_ERRORS)
+@router.post("/pdoa", response_model=RangingResponse, operation_id="ranging_pdoa", summary="PDOA ranging",
+             responses=_ERRORS)
 async def ranging_pdoa(req: PdoaRequest, request: Request) -> RangingResponse:
     """Phase of the channel at two tones (Eq 5.3-5.5) or a regression of the unwrapped
     phase over N tones (slope = -2 pi tau), with noise; adds the unambiguous range and
@@ -45,7 +47,8 @@ async def ranging_pdoa(req: PdoaRequest, request: Request) -> RangingResponse:
     return await _run(request, ops.pdoa, req)
 
 
-@router.post("/rss", response_model=RangingResponse, operation_id="ranging_rss", summary="RSS ranging", responses=_ERRORS)
+@router.post("/rss", response_model=RangingResponse, operation_id="ranging_rss", summary="RSS ranging",
+             responses=_ERRORS)
 async def ranging_rss(req: RssRequest, request: Request) -> RangingResponse:
     """Invert the IEEE 802.15.6 CM2 path-loss model (thesis Eq 2.2, Table 2.2) for the
     distance, with log-normal shadowing drawn per trial."""

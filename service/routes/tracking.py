@@ -236,10 +236,10 @@ def _cmd_track(args) -> int:
             print(json.dumps({"detail": [{"loc": ["file"], "msg": "give a POST /v1/track body, or --evaluate"}]}),
                   file=sys.stderr)
             return 2
-        from service.cli import _local_registry
+        from service.local import local_registry
 
         req = TrackRequest.model_validate_json(Path(args.file).read_text())
-        print(json.dumps(_track(req, _local_registry(), Budget()), indent=1))
+        print(json.dumps(_track(req, local_registry(), Budget()), indent=1))
         return 0
     except ValidationError as exc:
         print(json.dumps({"detail": [{"loc": ["body", *e["loc"]], "msg": e["msg"]} for e in exc.errors()]}),

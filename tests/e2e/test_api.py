@@ -14,8 +14,9 @@ import math
 import httpx
 import pytest
 
-from service import schemas as s
 from service.client import APIError, AsyncClient, Client
+from service.schemas.channel import ChannelResponse
+from service.schemas.phantoms import TissuesResponse
 from tests.conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
 
 pytestmark = pytest.mark.e2e
@@ -37,7 +38,8 @@ def expect_error(status: int, *loc, call):
     assert err.status == status, err
     locs = err.fields
     want = list(loc)
-    assert any(any(l[i : i + len(want)] == want for i in range(len(l) - len(want) + 1)) for l in locs), (want, locs)
+    assert any(any(loc[i : i + len(want)] == want for i in range(len(loc) - len(want) + 1)) for loc in locs), \
+        (want, locs)
     assert all(item["msg"] for item in err.detail)
     return err
 
@@ -56,7 +58,7 @@ def test_operations(api, live_url):
 
 def test_tissues(api):
     out = api.tissues(402e6)
-    assert isinstance(out, s.TissuesResponse) and len(out.tissues) == 27
+    assert isinstance(out, TissuesResponse) and len(out.tissues) == 27
     air = next(t for t in out.tissues if t.name == "air")
     assert air.phase_velocity_m_per_s == pytest.approx(C0, rel=1e-12)
     assert air.wavelength_m == pytest.approx(C0 / 402e6, rel=1e-12)
@@ -107,7 +109,8 @@ def test_upload_lifecycle(api):
         mesh = api.phantom_mesh(info.id)
         assert mesh[:4] == b"glTF"
         assert api.phantom_manifest(info.id)["organs"] == manifest["organs"]
-        ch = api.channel({"phantom": info.id, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}], "rays": 1000, "max_interactions": 2})
+        ch = api.channel({"phantom": info.id, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}],
+                          "rays": 1000, "max_interactions": 2})
         assert ch.profiles[0].medium == "air"
     finally:
         api.delete_phantom(info.id)
@@ -136,7 +139,8 @@ def test_upload_over_the_cap_is_refused_while_streaming(live_url):
             yield chunk
 
     try:
-        r = httpx.post(f"{live_url}/v1/phantoms", content=body(), headers={"content-type": f"multipart/form-data; boundary={boundary}"}, timeout=120)
+        r = httpx.post(f"{live_url}/v1/phantoms", content=body(),
+                       headers={"content-type": f"multipart/form-data; boundary={boundary}"}, timeout=120)
     except httpx.HTTPError:
         pytest.fail("the server should answer 413, not drop the connection")
     assert r.status_code == 413, r.text
@@ -146,16 +150,19 @@ def test_upload_over_the_cap_is_refused_while_streaming(live_url):
 
 def test_channel_scenario_and_ranging(api):
     ch = api.channel({"scenario": "thesis-fig-5-6", "rays": 20000})
-    assert isinstance(ch, s.ChannelResponse) and ch.scenario == "thesis-fig-5-6"
+    assert isinstance(ch, ChannelResponse) and ch.scenario == "thesis-fig-5-6"
     prof = ch.profiles[0]
     assert prof.paths, "the thesis case must have at least its direct path"
     direct = prof.paths[0]
     # Thesis: direct path 0.076 m at eps_r 27.9 -> 1.338 ns.
     assert direct.delay_s == pytest.approx(0.076 * math.sqrt(27.9) / C0, rel=1e-3)
-    toa = api.ranging_toa({"profile": prof.model_dump(), "method": "all", "trials": 20, "seed": 1, "true_distance_m": 0.076})
+    toa = api.ranging_toa({"profile": prof.model_dump(), "method": "all", "trials": 20, "seed": 1,
+                           "true_distance_m": 0.076})
     assert {r.method for r in toa.results} == {"first_peak", "all_peaks", "gcc"}
     assert toa.distance_m == pytest.approx(0.076, abs=0.01)
-    pdoa = api.ranging_pdoa({"profile": prof.model_dump(), "method": "regression", "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}, "trials": 20, "seed": 1, "true_distance_m": 0.076})
+    pdoa = api.ranging_pdoa({"profile": prof.model_dump(), "method": "regression",
+                             "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}, "trials": 20, "seed": 1,
+                             "true_distance_m": 0.076})
     assert pdoa.max_unambiguous_range_m and pdoa.distance_m > 0
     rss = api.ranging_rss({"profile": prof.model_dump(), "trials": 50, "seed": 1})
     assert rss.distance_m > 0 and rss.model == "cm2_deep_tissue"
@@ -165,8 +172,10 @@ def test_channel_and_ranging_errors(api):
     r = api._http.post("/v1/channel", json={"scenario": "thesis-fig-5-6", "rays": 10**7})
     assert r.status_code == 422 and ["body", "rays"] in [d["loc"] for d in r.json()["detail"]]
     expect_error(404, "body", "scenario", call=lambda: api.channel({"scenario": "no-such-case", "rays": 100}))
-    expect_error(404, "body", "phantom", call=lambda: api.channel({"phantom": "nope", "transmitter": {"position_m": [0, 0, 0]}, "receivers": [{"position_m": [0, -0.2, 0]}]}))
-    expect_error(404, "body", "receivers", 0, "site", call=lambda: api.channel({"phantom": "torso", "transmitter": {"site": "stomach"}, "receivers": [{"site": "nowhere"}], "rays": 100}))
+    expect_error(404, "body", "phantom", call=lambda: api.channel(
+        {"phantom": "nope", "transmitter": {"position_m": [0, 0, 0]}, "receivers": [{"position_m": [0, -0.2, 0]}]}))
+    expect_error(404, "body", "receivers", 0, "site", call=lambda: api.channel(
+        {"phantom": "torso", "transmitter": {"site": "stomach"}, "receivers": [{"site": "nowhere"}], "rays": 100}))
     for path, body, loc in [
         ("/v1/ranging/toa", {"profile": PROFILE, "trials": 100000}, ["body", "trials"]),
         ("/v1/ranging/pdoa", {"profile": PROFILE, "frequencies_hz": [400e6, float("nan")]}, None),
@@ -174,7 +183,8 @@ def test_channel_and_ranging_errors(api):
     ]:
         if loc is None:  # NaN cannot be sent as strict JSON; send the JavaScript literal
             r = api._http.post(path, content=json.dumps(body).encode(), headers={"content-type": "application/json"})
-            assert r.status_code == 422 and any(d["loc"][:2] == ["body", "frequencies_hz"] for d in r.json()["detail"]), r.text
+            assert r.status_code == 422, r.text
+            assert any(d["loc"][:2] == ["body", "frequencies_hz"] for d in r.json()["detail"]), r.text
             continue
         r = api._http.post(path, json=body)
         assert r.status_code == 422 and loc in [d["loc"] for d in r.json()["detail"]], r.text
@@ -184,7 +194,8 @@ def test_async_client_mirrors_the_sync_one(live_url):
     async def main():
         async with AsyncClient(live_url) as client:
             health, tissues, bound = await asyncio.gather(
-                client.healthz(), client.tissues(2.45e9), client.bound_rss({"shadowing_db": 7.85, "path_loss_exponent": 4.26, "distance_m": 0.05})
+                client.healthz(), client.tissues(2.45e9),
+                client.bound_rss({"shadowing_db": 7.85, "path_loss_exponent": 4.26, "distance_m": 0.05})
             )
             return health, tissues, bound
 

@@ -7,7 +7,7 @@ import json
 import struct
 from pathlib import Path
 
-from service.schemas import ChannelRequest
+from service.schemas.channel import ChannelRequest
 
 ROOT = Path(__file__).resolve().parents[2]
 README = (ROOT / "README.md").read_text()

@@ -56,7 +56,8 @@ EXPECTED_SITE_MEDIUM = {
     "descending_colon": "descending_colon",
     **{
         f"belt_{d}": "skin"
-        for d in ("anterior", "anterior_left", "left", "posterior_left", "posterior", "posterior_right", "anterior_right")
+        for d in ("anterior", "anterior_left", "left", "posterior_left", "posterior", "posterior_right",
+                  "anterior_right")
     },
     **{f"upper_{d}": "skin" for d in ("anterior_left", "left", "posterior", "right", "anterior_right")},
 }

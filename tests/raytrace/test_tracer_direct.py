@@ -42,7 +42,8 @@ def lossless(eps_r: float) -> Material:
 
 def homogeneous_sphere(eps_r=27.9, sigma=0.0) -> Phantom:
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
-    return Phantom.build("sphere", [Organ("body", Material(relative_permittivity=eps_r, conductivity_s_per_m=sigma), sphere)])
+    body = Material(relative_permittivity=eps_r, conductivity_s_per_m=sigma)
+    return Phantom.build("sphere", [Organ("body", body, sphere)])
 
 
 def planar(eps_a=10.0, eps_b=50.0) -> Phantom:

@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from service.schemas import ChannelResponse
+from service.schemas.channel import ChannelResponse
 
 C0 = 299_792_458.0
 
@@ -24,7 +24,8 @@ SMALL_CHANNEL = {
     "max_interactions": 6,  # small intestine -> cavity -> muscle -> fat -> skin: 4 refractions
 }
 
-PROFILE = {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}, {"delay_s": 2.0e-9, "gain": {"re": -2e-4, "im": 1e-4}}]}
+PROFILE = {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}},
+                     {"delay_s": 2.0e-9, "gain": {"re": -2e-4, "im": 1e-4}}]}
 
 
 def assert_field(response, status: int, *field: str | int) -> dict:
@@ -70,7 +71,7 @@ def test_metrics_count_routes_by_template_and_rays(api):
     assert 'capsule_rt_http_requests_total{method="GET",route="/v1/phantoms/{phantom_id}",status="200"} 1.0' in text
     assert 'capsule_rt_http_requests_total{method="GET",route="/v1/phantoms/{phantom_id}",status="404"} 1.0' in text
     assert "capsule_rt_http_request_duration_seconds_bucket" in text
-    rays = [l for l in text.splitlines() if l.startswith("capsule_rt_rays_launched_total ")]
+    rays = [line for line in text.splitlines() if line.startswith("capsule_rt_rays_launched_total ")]
     assert rays and float(rays[0].split()[1]) == r.json()["stats"]["rays_launched"] > 0
     assert "capsule_rt_compute_in_flight 0.0" in text
     assert "capsule_rt_compute_queue_depth 0.0" in text
@@ -83,7 +84,8 @@ def test_json_log_lines_carry_the_request_id():
 
     token = request_id_var.set("rid-7")
     try:
-        record = logging.makeLogRecord({"name": "capsule_rt.test", "levelname": "INFO", "msg": "hello %s", "args": ("x",), "route": "/v1/x"})
+        record = logging.makeLogRecord({"name": "capsule_rt.test", "levelname": "INFO", "msg": "hello %s",
+                                        "args": ("x",), "route": "/v1/x"})
         line = json.loads(JsonFormatter().format(record))
     finally:
         request_id_var.reset(token)
@@ -111,7 +113,8 @@ def test_tissues_at_402_mhz_match_the_plane_wave_closed_forms(api):
         n = cmath.sqrt(complex(t["relative_permittivity"], -t["conductivity_s_per_m"] / (w * eps0)))
         assert t["phase_velocity_m_per_s"] == pytest.approx(C0 / n.real, rel=1e-9)
         assert t["wavelength_m"] == pytest.approx(C0 / (f * n.real), rel=1e-9)
-        assert t["attenuation_db_per_m"] == pytest.approx(20 * math.log10(math.e) * w / C0 * abs(n.imag), rel=1e-9, abs=1e-12)
+        assert t["attenuation_db_per_m"] == pytest.approx(20 * math.log10(math.e) * w / C0 * abs(n.imag),
+                                                          rel=1e-9, abs=1e-12)
     muscle = next(t for t in body["tissues"] if t["name"] == "muscle")
     # IFAC-CNR calculator, muscle at 402 MHz: eps' 57.1, sigma 0.797 S/m (3 digits published).
     assert muscle["relative_permittivity"] == pytest.approx(57.1, abs=0.05)
@@ -178,7 +181,8 @@ def test_builtin_mesh_is_a_glb_with_organ_nodes(api):
 # ------------------------------------------------------------------ bounds
 def test_bounds_reproduce_the_science_md_numbers(api):
     # docs/science.md: 402 MHz, W = 10 GHz, T0 = 25 ns, SNR 30 dB, eps_r 27.9 -> about 0.032 mm.
-    r = api.post("/v1/bounds/toa", json={"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30, "relative_permittivity": 27.9})
+    r = api.post("/v1/bounds/toa", json={"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9,
+                                         "snr_db": 30, "relative_permittivity": 27.9})
     assert r.status_code == 200
     assert r.json()["sigma_m"] == pytest.approx(0.032e-3, rel=0.02)
     assert r.json()["sigma_m"] == pytest.approx(r.json()["sigma_s"] * C0 / math.sqrt(27.9), rel=1e-12)
@@ -198,7 +202,8 @@ def test_bounds_reproduce_the_science_md_numbers(api):
     [
         ("/v1/bounds/toa", {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9}, "snr_db"),
         ("/v1/bounds/toa", {"carrier_hz": -1, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30}, "carrier_hz"),
-        ("/v1/bounds/toa", {"carrier_hz": "fast", "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30}, "carrier_hz"),
+        ("/v1/bounds/toa", {"carrier_hz": "fast", "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30},
+         "carrier_hz"),
         ("/v1/bounds/pdoa", {"center_hz": 410e6, "tone_spacing_hz": 900e6, "snr_db": 30}, "tone_spacing_hz"),
         ("/v1/bounds/pdoa", {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "bogus": 1}, "bogus"),
         ("/v1/bounds/rss", {"shadowing_db": 2, "path_loss_exponent": 3, "distance_m": 0}, "distance_m"),
@@ -210,10 +215,12 @@ def test_bounds_reject_bad_inputs(api, path, body, field):
 
 @pytest.mark.parametrize("literal", ["NaN", "Infinity", "-Infinity"])
 def test_non_finite_numbers_are_rejected_everywhere(api, literal):
-    assert_field(post_raw(api, "/v1/bounds/rss", f'{{"shadowing_db": {literal}, "path_loss_exponent": 3, "distance_m": 0.1}}'), 422, "body", "shadowing_db")
+    raw = f'{{"shadowing_db": {literal}, "path_loss_exponent": 3, "distance_m": 0.1}}'
+    assert_field(post_raw(api, "/v1/bounds/rss", raw), 422, "body", "shadowing_db")
     body = json.dumps(SMALL_CHANNEL).replace('"rays": 2000', '"dynamic_range_db": %s' % literal)
     assert_field(post_raw(api, "/v1/channel", body), 422, "body", "dynamic_range_db")
-    raw = '{"phantom": "torso", "transmitter": {"position_m": [0, %s, 0]}, "receivers": [{"site": "belt_left"}]}' % literal
+    raw = ('{"phantom": "torso", "transmitter": {"position_m": [0, %s, 0]}, "receivers": [{"site": "belt_left"}]}'
+           % literal)
     assert_field(post_raw(api, "/v1/channel", raw), 422, "body", "transmitter", "position_m")
     raw = '{"profile": {"paths": [{"delay_s": 1e-9, "gain": {"re": %s, "im": 0}}]}}' % literal
     assert_field(post_raw(api, "/v1/ranging/toa", raw), 422, "body", "profile", "paths", 0, "gain", "re")
@@ -335,7 +342,8 @@ def test_zero_gain_is_reported_at_the_documented_floor():
 
 # ------------------------------------------------------------------ ranging
 def test_ranging_toa_on_a_single_path_profile(api):
-    body = {"profile": {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}]}, "method": "all", "snr_db": 30, "trials": 20, "seed": 3, "true_distance_m": 0.076}
+    body = {"profile": {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}]}, "method": "all",
+            "snr_db": 30, "trials": 20, "seed": 3, "true_distance_m": 0.076}
     r = api.post("/v1/ranging/toa", json=body)
     assert r.status_code == 200, r.text
     out = r.json()
@@ -369,11 +377,14 @@ def test_ranging_accepts_a_channel_profile_as_is(api):
 
 
 def test_ranging_pdoa(api):
-    body = {"profile": {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}]}, "method": "regression", "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}, "snr_db": 40, "trials": 20, "seed": 1, "true_distance_m": 0.076}
+    body = {"profile": {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}]}, "method": "regression",
+            "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}, "snr_db": 40, "trials": 20, "seed": 1,
+            "true_distance_m": 0.076}
     r = api.post("/v1/ranging/pdoa", json=body)
     assert r.status_code == 200, r.text
     out = r.json()
-    assert out["max_unambiguous_range_m"] == pytest.approx(C0 / math.sqrt(27.9) / 1e6, rel=1e-6)  # v / tone spacing (1 MHz)
+    # v / tone spacing (1 MHz)
+    assert out["max_unambiguous_range_m"] == pytest.approx(C0 / math.sqrt(27.9) / 1e6, rel=1e-6)
     assert out["distance_m"] == pytest.approx(0.076, abs=0.01)
 
 
@@ -386,12 +397,16 @@ def test_ranging_rss(api):
 RANGING_BAD = [
     ("/v1/ranging/toa", {"profile": PROFILE, "trials": 10001}, ("body", "trials")),
     ("/v1/ranging/toa", {"profile": {"paths": []}}, ("body", "profile", "paths")),
-    ("/v1/ranging/toa", {"profile": {"paths": [{"delay_s": -1e-9, "gain": {"re": 1, "im": 0}}]}}, ("body", "profile", "paths", 0, "delay_s")),
+    ("/v1/ranging/toa", {"profile": {"paths": [{"delay_s": -1e-9, "gain": {"re": 1, "im": 0}}]}},
+     ("body", "profile", "paths", 0, "delay_s")),
     ("/v1/ranging/toa", {"profile": PROFILE, "method": "psychic"}, ("body", "method")),
-    ("/v1/ranging/toa", {"profile": PROFILE, "waveform": {"kind": "tone_burst", "carrier_hz": 402e6, "sample_rate_hz": 500e6}}, ("body", "waveform")),
+    ("/v1/ranging/toa", {"profile": PROFILE,
+                         "waveform": {"kind": "tone_burst", "carrier_hz": 402e6, "sample_rate_hz": 500e6}},
+     ("body", "waveform")),
     ("/v1/ranging/toa", {"profile": {"paths": [{"delay_s": 1e-9, "gain": {"re": 0, "im": 0}}]}}, ("body", "profile")),
     ("/v1/ranging/pdoa", {"profile": PROFILE, "frequencies_hz": [400e6]}, ("body", "frequencies_hz")),
-    ("/v1/ranging/pdoa", {"profile": PROFILE, "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 500}}, ("body", "band", "points")),
+    ("/v1/ranging/pdoa", {"profile": PROFILE, "band": {"start_hz": 400e6, "stop_hz": 420e6, "points": 500}},
+     ("body", "band", "points")),
     ("/v1/ranging/rss", {"profile": PROFILE, "model": "free_space"}, ("body", "model")),
     ("/v1/ranging/rss", {"profile": PROFILE, "trials": "x"}, ("body", "trials")),
 ]
@@ -415,34 +430,38 @@ def test_server_limit_on_trials_is_enforced(make_settings):
 def test_channel_profiles_declare_their_gain_convention_for_ranging(api):
     """A profile whose gains carry exp(-j 2 pi f tau) (as the tracer's do) ranges like the plain one."""
     f = 402e6
-    plain = [{"delay_s": 1.338e-9, "gain": {"re": 0.15, "im": 0.0}}, {"delay_s": 1.706e-9, "gain": {"re": -0.08, "im": 0.05}}]
+    plain = [{"delay_s": 1.338e-9, "gain": {"re": 0.15, "im": 0.0}},
+             {"delay_s": 1.706e-9, "gain": {"re": -0.08, "im": 0.05}}]
     phased = []
     for p in plain:
         a = complex(p["gain"]["re"], p["gain"]["im"]) * cmath.exp(-2j * math.pi * f * p["delay_s"])
         phased.append({"delay_s": p["delay_s"], "gain": {"re": a.real, "im": a.imag}})
     common = {"method": "gcc", "trials": 10, "seed": 5, "true_distance_m": 0.076}
     a = api.post("/v1/ranging/toa", json={**common, "profile": {"paths": plain}}).json()
-    b = api.post("/v1/ranging/toa", json={**common, "profile": {"paths": phased, "gains_include_delay_phase": True, "reference_frequency_hz": f}}).json()
+    b = api.post("/v1/ranging/toa", json={**common, "profile": {"paths": phased, "gains_include_delay_phase": True,
+                                                                "reference_frequency_hz": f}}).json()
     assert b["distance_m"] == pytest.approx(a["distance_m"], rel=1e-9)
     # The flag without its frequency is a schema error naming the profile.
-    assert_field(api.post("/v1/ranging/toa", json={**common, "profile": {"paths": phased, "gains_include_delay_phase": True}}), 422, "body", "profile")
+    missing_reference = {**common, "profile": {"paths": phased, "gains_include_delay_phase": True}}
+    assert_field(api.post("/v1/ranging/toa", json=missing_reference), 422, "body", "profile")
 
 
 def test_every_request_example_of_the_docs_works(make_settings):
     """The /docs examples are a tutorial: each one must succeed against the default limits."""
     from fastapi.testclient import TestClient
 
-    from service import schemas as s
     from service.app import create_app
+    from service.schemas import channel as sc
+    from service.schemas import ranging as sr
 
     routes = {
-        s.ChannelRequest: "/v1/channel",
-        s.ToaRequest: "/v1/ranging/toa",
-        s.PdoaRequest: "/v1/ranging/pdoa",
-        s.RssRequest: "/v1/ranging/rss",
-        s.ToaBoundRequest: "/v1/bounds/toa",
-        s.PdoaBoundRequest: "/v1/bounds/pdoa",
-        s.RssBoundRequest: "/v1/bounds/rss",
+        sc.ChannelRequest: "/v1/channel",
+        sr.ToaRequest: "/v1/ranging/toa",
+        sr.PdoaRequest: "/v1/ranging/pdoa",
+        sr.RssRequest: "/v1/ranging/rss",
+        sr.ToaBoundRequest: "/v1/bounds/toa",
+        sr.PdoaBoundRequest: "/v1/bounds/pdoa",
+        sr.RssBoundRequest: "/v1/bounds/rss",
     }
     with TestClient(create_app(make_settings(max_rays=1_000_000))) as api:
         for model, path in routes.items():

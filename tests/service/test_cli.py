@@ -44,7 +44,8 @@ def test_channel_command_writes_an_output_file(tmp_path):
     [
         ({"scenario": "thesis-fig-5-6", "rays": -3}, "rays"),
         ({"scenario": "nope"}, "scenario"),
-        ({"phantom": "torso", "transmitter": {"position_m": [9, 9, 9]}, "receivers": [{"site": "belt_left"}], "rays": 100}, "transmitter"),
+        ({"phantom": "torso", "transmitter": {"position_m": [9, 9, 9]}, "receivers": [{"site": "belt_left"}],
+          "rays": 100}, "transmitter"),
     ],
 )
 def test_channel_command_reports_bad_requests_with_the_field(tmp_path, capsys, body, field):

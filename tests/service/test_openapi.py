@@ -103,9 +103,11 @@ def test_request_models_are_strict_documented_and_have_examples():
 
 
 def test_request_examples_validate_against_their_models():
-    from service import schemas as s
+    from service.schemas import channel as sc
+    from service.schemas import ranging as sr
 
-    for model in (s.ChannelRequest, s.ToaRequest, s.PdoaRequest, s.RssRequest, s.ToaBoundRequest, s.PdoaBoundRequest, s.RssBoundRequest):
+    for model in (sc.ChannelRequest, sr.ToaRequest, sr.PdoaRequest, sr.RssRequest, sr.ToaBoundRequest,
+                  sr.PdoaBoundRequest, sr.RssBoundRequest):
         for example in model.model_config["json_schema_extra"]["examples"]:
             model.model_validate(example)
 
@@ -123,7 +125,8 @@ def test_upload_manifest_schema_is_documented():
 def test_docs_settings_table_is_current():
     from service.settings import settings_table_markdown
 
-    assert settings_table_markdown() in (ROOT / "README.md").read_text(), "regenerate the settings table in README.md (Configuration)"
+    assert settings_table_markdown() in (ROOT / "README.md").read_text(), \
+        "regenerate the settings table in README.md (Configuration)"
 
 
 def test_schema_uses_only_json_schema_keywords_for_bounds():

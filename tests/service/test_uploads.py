@@ -21,7 +21,8 @@ def upload(api, glb: bytes, manifest, filename: str = "p.glb"):
     manifest_text = manifest if isinstance(manifest, (str, bytes)) else json.dumps(manifest)
     return api.post(
         "/v1/phantoms",
-        files={"mesh": (filename, glb, "model/gltf-binary"), "manifest": ("manifest.json", manifest_text, "application/json")},
+        files={"mesh": (filename, glb, "model/gltf-binary"),
+               "manifest": ("manifest.json", manifest_text, "application/json")},
     )
 
 
@@ -59,7 +60,8 @@ def test_upload_describe_trace_download_reupload_delete(client, settings, glb_ph
     assert pid in [p["id"] for p in client.get("/v1/phantoms").json()["phantoms"]]
     assert client.get(f"/v1/phantoms/{pid}").json() == info
 
-    ch = client.post("/v1/channel", json={"phantom": pid, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}], "rays": 1000, "max_interactions": 2})
+    ch = client.post("/v1/channel", json={"phantom": pid, "transmitter": {"site": "capsule"},
+                                          "receivers": [{"site": "sensor"}], "rays": 1000, "max_interactions": 2})
     assert ch.status_code == 200, ch.text
     assert ch.json()["transmitter"]["medium"] == "organ"
 
@@ -72,7 +74,8 @@ def test_upload_describe_trace_download_reupload_delete(client, settings, glb_ph
     assert client.delete(f"/v1/phantoms/{pid}").status_code == 204
     assert_field(client.get(f"/v1/phantoms/{pid}"), 404, "path", "phantom_id")
     assert_field(client.delete(f"/v1/phantoms/{pid}"), 404, "path", "phantom_id")
-    assert_field(client.post("/v1/channel", json={"phantom": pid, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}]}), 404, "body", "phantom")
+    gone = {"phantom": pid, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}]}
+    assert_field(client.post("/v1/channel", json=gone), 404, "body", "phantom")
     assert stored_entries(settings) == [again.json()["id"]]
 
 
@@ -82,7 +85,8 @@ def test_uploads_survive_a_restart(settings, glb_phantom):
         pid = upload(first, glb, manifest).json()["id"]
     with TestClient(create_app(settings)) as second:  # a new process would see the same data dir
         assert second.get(f"/v1/phantoms/{pid}").status_code == 200
-        r = second.post("/v1/channel", json={"phantom": pid, "transmitter": {"site": "capsule"}, "receivers": [{"site": "sensor"}], "rays": 500, "max_interactions": 1})
+        r = second.post("/v1/channel", json={"phantom": pid, "transmitter": {"site": "capsule"},
+                                             "receivers": [{"site": "sensor"}], "rays": 500, "max_interactions": 1})
         assert r.status_code == 200, r.text
         assert second.get("/readyz").json()["phantoms"] >= 2
 
@@ -115,9 +119,11 @@ def test_bad_meshes_are_rejected_without_leftovers(client, settings, glb_phantom
         ("open", {}, ("organs", "organ")),  # not watertight: names the organ
         ("intersecting", {}, ("organs",)),
         ("ok", {"organs": {"body": {"tissue": "muscle"}}}, ("organs",)),  # mesh node 'organ' not in the manifest
-        ("ok", {"organs": {"body": {"tissue": "muscle"}, "organ": {"tissue": "fat_average_infiltrated"}, "ghost": {"tissue": "liver"}}}, ("ghost",)),
+        ("ok", {"organs": {"body": {"tissue": "muscle"}, "organ": {"tissue": "fat_average_infiltrated"},
+                           "ghost": {"tissue": "liver"}}}, ("ghost",)),
         ("ok", {"organs": {"body": {"tissue": "unobtainium"}, "organ": {"tissue": "muscle"}}}, ("tissue",)),
-        ("ok", {"organs": {"body": {"tissue": "muscle", "relative_permittivity": 3.0}, "organ": {"tissue": "muscle"}}}, ("manifest", "organs", "body")),
+        ("ok", {"organs": {"body": {"tissue": "muscle", "relative_permittivity": 3.0}, "organ": {"tissue": "muscle"}}},
+         ("manifest", "organs", "body")),
         ("ok", {"sites": {"on_face": [0.1, 0.0, 0.0]}}, ("on_face",)),  # on the box surface: ambiguous medium
         ("ok", {"sites": {"bad": [0.0, "x", 0.0]}}, ("manifest", "sites", "bad")),
         ("ok", {"units": "furlong"}, ("manifest", "units")),
@@ -160,7 +166,8 @@ def test_missing_or_extra_parts(client, glb_phantom):
     assert_field(r, 422, "header", "content-type")
     r = client.post(
         "/v1/phantoms",
-        files={"mesh": ("p.glb", glb, "model/gltf-binary"), "manifest": ("m.json", json.dumps(manifest), "application/json"), "other": ("x", b"1", "text/plain")},
+        files={"mesh": ("p.glb", glb, "model/gltf-binary"),
+               "manifest": ("m.json", json.dumps(manifest), "application/json"), "other": ("x", b"1", "text/plain")},
     )
     assert_field(r, 422, "body", "other")
 
@@ -303,13 +310,14 @@ def test_builtin_phantom_round_trips_through_mesh_and_manifest(client, settings)
             assert sum(a["bounds_m"], []) == pytest.approx(sum(b["bounds_m"], []), abs=1e-6)
         assert copy["sites"].keys() == original["sites"].keys()
         for name, site in copy["sites"].items():
-            assert (site["kind"], site["medium"]) == (original["sites"][name]["kind"], original["sites"][name]["medium"])
+            want = original["sites"][name]
+            assert (site["kind"], site["medium"]) == (want["kind"], want["medium"])
             assert site["position_m"] == pytest.approx(original["sites"][name]["position_m"], abs=1e-6)
         assert_field(big.get("/v1/phantoms/up-0000000000000000/manifest"), 404, "path", "phantom_id")
 
 
 def test_the_documented_manifest_example_uploads(client, glb_phantom):
-    from service.schemas import Manifest
+    from service.schemas.phantoms import Manifest
 
     glb, _ = glb_phantom()
     example = Manifest.model_config["json_schema_extra"]["examples"][0]
@@ -321,9 +329,11 @@ def test_the_documented_manifest_example_uploads(client, glb_phantom):
 def test_antenna_on_an_organ_surface_is_422_naming_it(client, glb_phantom):
     glb, manifest = glb_phantom()
     pid = upload(client, glb, manifest).json()["id"]
-    on_face = {"phantom": pid, "transmitter": {"position_m": [0.1, 0.0, 0.0]}, "receivers": [{"site": "sensor"}], "rays": 500}
+    on_face = {"phantom": pid, "transmitter": {"position_m": [0.1, 0.0, 0.0]}, "receivers": [{"site": "sensor"}],
+               "rays": 500}
     body = assert_field(client.post("/v1/channel", json=on_face), 422, "body", "transmitter", "position_m")
     assert "surface" in body["detail"][0]["msg"]
-    on_sphere = {"phantom": pid, "transmitter": {"site": "capsule"}, "receivers": [{"name": "s", "position_m": [0.0, 0.0, 0.04]}], "rays": 500}
+    on_sphere = {"phantom": pid, "transmitter": {"site": "capsule"},
+                 "receivers": [{"name": "s", "position_m": [0.0, 0.0, 0.04]}], "rays": 500}
     # 0.04 m is the icosphere's vertex radius: a vertex lies exactly there.
     assert_field(client.post("/v1/channel", json=on_sphere), 422, "body", "receivers", 0, "position_m")
