@@ -133,17 +133,25 @@ def test_heterogeneity_bias_survives_the_full_multipath_profile(torso):
     """Companion of the test above with the whole real-tissue channel (max_interactions 6,
     22-35 paths per sensor) instead of the direct path alone: absorption (muscle ~1.65 dB/cm at
     402 MHz) keeps the echoes weak, so the GCC error stays the heterogeneity bias.
-    Measured: +41.9 to +133.5 mm (direct path alone: +39.2 to +157.2 mm), noise std
-    0.032-0.038 mm. Per-sensor shift full - direct: -6.6 to +5.4 mm (4-10 % of the bias) at six
-    sensors; -24 mm (15 %) at belt_left, whose direct path bends around the front of the spine
-    (55 mm longer than the straight line) while reflected paths of comparable strength arrive
-    up to 1.7 ns earlier, so the profile's energy centre moves. Tolerance: every error > 20 mm
-    (tens of mm), std < 0.2 mm, and |shift| < 35 % of the direct-path-only error (measured at
-    most 15 %: multipath perturbs the bias, it does not create or cancel it)."""
+    Measured (since every distinct path of a signature is kept): +35.0 to +72.2 mm (direct path
+    alone: +32.5 to +157.1 mm), noise std 0.03-0.04 mm. Per-sensor shift full - direct: -7.7 to
+    +5.2 mm (at most 13 % of the bias) at six sensors. At belt_left the refracted direct path
+    bends around the front of the spine (55 mm longer than the straight line; phase / group
+    delay 5.85 / 5.14 ns, -93.8 dB) and a path reflected twice inside the body arrives 1.7 /
+    1.3 ns earlier and 17 dB stronger (4.17 / 3.79 ns, -76.8 dB; found since the seeds of one
+    signature are clustered): GCC follows that echo (3.84 ns) and the error falls from 157
+    to 42 mm. Multipath can shorten the bias where an echo outruns a bent direct
+    path; it never removes it.
+
+    Tolerances: every error > 20 mm ("tens of mm"), std < 0.2 mm; where no path arrives
+    earlier than the direct one and within 6 dB of it, |shift| < 35 % of the direct-path-only
+    error (measured at most 13 %); where one does, the GCC delay is nearer to that echo than to
+    the direct path, and belt_left is the one such sensor (a path-completeness guard too)."""
     tx = Antenna(torso.sites[CAPSULE].position_m, name=CAPSULE)
     rxs = [Antenna(torso.sites[s].position_m, name=s) for s in BELT]
     res = trace(torso, tx, rxs, 402e6, rays=20_000, max_interactions=6)
     direct_only = _direct_toa_errors(torso, None)
+    early_echo_sensors = []
     for prof, row in zip(res.profiles, direct_only):
         assert len(prof.paths) > 1
         geometric_m = float(np.linalg.norm(prof.position_m - res.transmitter_position_m))
@@ -151,7 +159,15 @@ def test_heterogeneity_bias_survives_the_full_multipath_profile(torso):
                               relative_permittivity=THESIS_EPS_R, true_distance_m=geometric_m)
         assert gcc.error_m > 20e-3, (prof.receiver, gcc.error_m)
         assert gcc.std_m < 0.2e-3
-        assert abs(gcc.error_m - row[2]) < 0.35 * row[2], (prof.receiver, gcc.error_m, row[2])
+        direct = min((p for p in prof.paths if _is_direct(p)), key=lambda p: p.delay_s)
+        early = [p for p in prof.paths if p.delay_s < direct.delay_s - 0.2e-9 and abs(p.gain) >= 0.5 * abs(direct.gain)]
+        if not early:
+            assert abs(gcc.error_m - row[2]) < 0.35 * row[2], (prof.receiver, gcc.error_m, row[2])
+            continue
+        early_echo_sensors.append(prof.receiver)
+        echo = max(early, key=lambda p: abs(p.gain))
+        assert abs(gcc.delay_s - echo.delay_s) < abs(gcc.delay_s - direct.delay_s), prof.receiver
+    assert early_echo_sensors == ["belt_left"]
 
 
 # ----------------------------------------------------------------- 2. thesis Tables 5.1 / 5.2
