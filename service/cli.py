@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from plots import cli as plots_cli
-from service.local import error_json, local_registry
+from service.local import error_json, local_registry, run_file_request
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
@@ -95,24 +95,11 @@ def run_channel_request(payload: dict) -> dict[str, Any]:
 
 
 def _cmd_channel(args: argparse.Namespace) -> int:
-    from pydantic import ValidationError
-
     from raytrace.errors import CapsuleRTError
     from service.errors import ServiceError
 
-    try:
-        payload = json.loads(Path(args.file).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        print(json.dumps({"detail": [{"loc": ["file"], "msg": str(exc), "type": "invalid_file"}]}), file=sys.stderr)
-        return 2
-    try:
-        out = run_channel_request(payload)
-    except ValidationError as exc:
-        items = [{"loc": ["body", *e["loc"]], "msg": e["msg"], "type": e["type"]} for e in exc.errors()]
-        print(json.dumps({"detail": items}, indent=2), file=sys.stderr)
-        return 2
-    except (CapsuleRTError, ServiceError, ValueError) as exc:
-        print(json.dumps(error_json(exc), indent=2), file=sys.stderr)
+    out = run_file_request(args.file, run_channel_request, (CapsuleRTError, ServiceError, ValueError))
+    if out is None:
         return 2
     text = json.dumps(out, indent=2) + "\n"
     if args.output:

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from service.local import error_json, local_registry
+from service.local import local_registry, run_file_request
 
 __all__ = ["add_parsers", "run_localize_request"]
 
@@ -28,25 +28,14 @@ def run_localize_request(payload: dict, *, evaluate: bool = False) -> dict[str, 
 
 
 def _cmd_localize(args: argparse.Namespace) -> int:
-    from pydantic import ValidationError
-
     from estimators.errors import EstimatorInputError
     from raytrace.errors import CapsuleRTError
     from service.errors import ServiceError
 
-    try:
-        payload = json.loads(Path(args.file).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        print(json.dumps({"detail": [{"loc": ["file"], "msg": str(exc), "type": "invalid_file"}]}), file=sys.stderr)
-        return 2
-    try:
-        out = run_localize_request(payload, evaluate=args.command == "localize-evaluate")
-    except ValidationError as exc:
-        items = [{"loc": ["body", *e["loc"]], "msg": e["msg"], "type": e["type"]} for e in exc.errors()]
-        print(json.dumps({"detail": items}, indent=2), file=sys.stderr)
-        return 2
-    except (CapsuleRTError, ServiceError, EstimatorInputError) as exc:
-        print(json.dumps(error_json(exc), indent=2), file=sys.stderr)
+    evaluate = args.command == "localize-evaluate"
+    out = run_file_request(args.file, lambda body: run_localize_request(body, evaluate=evaluate),
+                           (CapsuleRTError, ServiceError, EstimatorInputError))
+    if out is None:
         return 2
     text = json.dumps(out, indent=2) + "\n"
     if args.output:

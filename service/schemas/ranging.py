@@ -316,24 +316,22 @@ class RangingResponse(RangingResult):
 
 
 # ----------------------------------------------------------------- bounds
+def _snr_or_link(example: dict) -> dict:
+    """The schema of a bound request: the SNR, or a link with the channel's gain, not both."""
+    return {
+        "anyOf": [{"required": ["snr_db"], "properties": {"snr_db": {"type": "number"}}},
+                  {"required": ["link", "path_gain_db"],
+                   "properties": {"link": {"type": "object"}, "path_gain_db": {"type": "number"}}}],
+        "not": {"required": ["snr_db", "link"],
+                "properties": {"snr_db": {"type": "number"}, "link": {"type": "object"}}},
+        "examples": [example],
+    }
+
 class ToaBoundRequest(Strict):
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
-        json_schema_extra={
-            # the SNR, or a link with the channel's gain, not both
-            "anyOf": [{"required": ["snr_db"], "properties": {"snr_db": {"type": "number"}}},
-                      {"required": ["link", "path_gain_db"],
-                       "properties": {"link": {"type": "object"}, "path_gain_db": {"type": "number"}}}],
-            "not": {"required": ["snr_db", "link"],
-                    "properties": {"snr_db": {"type": "number"}, "link": {"type": "object"}}},
-            "examples": [
-                {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30,
-                 "relative_permittivity": 27.9}
-            ]
-        },
-    )
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True,
+                              json_schema_extra=_snr_or_link(
+                                  {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30,
+                                   "relative_permittivity": 27.9}))
     carrier_hz: float = Field(ge=1.0, le=1e12, description="Tone frequency [Hz].")
     duration_s: float = Field(ge=1e-15, le=1.0, description="Observation time T0 [s].")
     bandwidth_hz: float = Field(ge=1.0, le=1e12, description="Receiver (noise) bandwidth W [Hz].")
@@ -347,23 +345,10 @@ class ToaBoundRequest(Strict):
 
 
 class PdoaBoundRequest(Strict):
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
-        json_schema_extra={
-            # the SNR, or a link with the channel's gain, not both
-            "anyOf": [{"required": ["snr_db"], "properties": {"snr_db": {"type": "number"}}},
-                      {"required": ["link", "path_gain_db"],
-                       "properties": {"link": {"type": "object"}, "path_gain_db": {"type": "number"}}}],
-            "not": {"required": ["snr_db", "link"],
-                    "properties": {"snr_db": {"type": "number"}, "link": {"type": "object"}}},
-            "examples": [
-                {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "duration_s": 50e-9,
-                 "relative_permittivity": 27.9}
-            ]
-        },
-    )
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True,
+                              json_schema_extra=_snr_or_link(
+                                  {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "duration_s": 50e-9,
+                                   "relative_permittivity": 27.9}))
     center_hz: float = Field(ge=1.0, le=1e12, description="Centre frequency f0 [Hz].")
     tone_spacing_hz: float = Field(ge=1e-3, le=1e12, description="Tone spacing W [Hz] (< 2 center_hz).")
     snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="In-band signal-to-noise ratio [dB] (or "
