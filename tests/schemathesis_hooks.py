@@ -93,6 +93,7 @@ CROSS_FIELD_RULES = [
     ("plot_tract_errors", ["body", "rows"], "invalid", "at least one row with both s_m and error_m"),
     *((op, ["body", "centreline"], "tracking_input", "a centreline of the phantom")
       for op in ("track", "track_evaluate")),
+    ("track_evaluate", ["body", "journey", "start_m"], "tracking_input", "a start within the phantom's centreline"),
     # the JSON parts are strings to the schema: their content's errors have the body models' types
     *(("vision_motion", ["body", part], None, "the part is JSON text of its model (MotionOptions, "
        "RenderRequest)") for part in ("options", "geometry")),
