@@ -674,31 +674,85 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
         prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, hit, o[i, 0], o[i, 1], o[i, 2],
                                                           d[i, 0], d[i, 1], d[i, 2])
         cast += 1
-    # receptions, receiver-major (ray order within a receiver), into arrays grown by doubling
+    # receptions: tested ray by ray (each ray's data once, the receivers stay in cache; with
+    # many receivers the receiver-by-receiver loop streamed every ray array once per receiver),
+    # into arrays grown by doubling, then put receiver-major (ray order within a receiver) by a
+    # stable counting sort: the same receptions, in the same order, as testing receiver by receiver
     cap = 256
-    c_rx = np.empty(cap, np.int64)
-    c_hist = np.empty(cap, np.int64)
-    c_n = np.empty(cap, np.int64)
-    c_src = np.empty(cap, np.int64)
-    c_close = np.empty(cap, np.float64)
+    h_rx = np.empty(cap, np.int64)
+    h_ray = np.empty(cap, np.int64)
+    h_close = np.empty(cap, np.float64)
+    per_rx = np.zeros(n_rx + 1, np.int64)
     c = 0
-    for r in range(n_rx):
-        for i in range(n):
-            if cls[med[i] + 1] != rx_cls[r] or mode[i] == 2:
+    grid_lo, cell, dims = receivers.grid_lo_m, receivers.grid_cell_m, receivers.grid_dims
+    cell_start, cell_items = receivers.cell_start, receivers.cell_items
+    lo_c = np.zeros(3, np.int64)
+    hi_c = np.zeros(3, np.int64)
+    for i in range(n):
+        if mode[i] == 2:
+            continue
+        ray_cls = cls[med[i] + 1]
+        reach = tfar[i] if prim[i] >= 0 else np.inf
+        # the cells of the segment's box widened by its largest tube half-width (+ a float32 margin)
+        grid = n_rx > 4 and prim[i] >= 0
+        if grid:
+            widen = reception_factor * (np.float64(rad[i]) + np.float64(reach) * ang[i]) * 1.001 + 1e-4
+            for a in range(3):
+                end = np.float64(o[i, a]) + np.float64(reach) * d[i, a]
+                lo_a = min(np.float64(o[i, a]), end) - widen
+                hi_a = max(np.float64(o[i, a]), end) + widen
+                lo_c[a] = min(max(int(math.floor((lo_a - grid_lo[a]) / cell)), 0), dims[a] - 1)
+                hi_c[a] = min(max(int(math.floor((hi_a - grid_lo[a]) / cell)), 0), dims[a] - 1)
+                if not math.isfinite(widen) or hi_a < grid_lo[a] or lo_a > grid_lo[a] + dims[a] * cell:
+                    hi_c[a] = lo_c[a] - 1  # no cell (the box misses the grid), or a non-finite tube
+            if not math.isfinite(widen):
+                grid = False
+        if grid:
+            for ci in range(lo_c[0], hi_c[0] + 1):
+                for cj in range(lo_c[1], hi_c[1] + 1):
+                    for ck in range(lo_c[2], hi_c[2] + 1):
+                        cc = (ci * dims[1] + cj) * dims[2] + ck
+                        for q in range(cell_start[cc], cell_start[cc + 1]):
+                            r = cell_items[q]
+                            if rx_cls[r] != ray_cls:
+                                continue
+                            received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang,
+                                                                reception_factor)
+                            if not received:
+                                continue
+                            if c == cap:
+                                cap *= 2
+                                h_rx, h_ray, h_close = _grow(h_rx, cap), _grow(h_ray, cap), _grow(h_close, cap)
+                            h_rx[c], h_ray[c] = r, i
+                            h_close[c] = perp / max(radius, 1e-30)
+                            per_rx[r + 1] += 1
+                            c += 1
+            continue
+        for r in range(n_rx):
+            if rx_cls[r] != ray_cls:
                 continue
-            reach = tfar[i] if prim[i] >= 0 else np.inf
             received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)
             if not received:
                 continue
             if c == cap:
                 cap *= 2
-                c_rx, c_hist, c_n, c_src = _grow(c_rx, cap), _grow(c_hist, cap), _grow(c_n, cap), _grow(c_src, cap)
-                c_close = _grow(c_close, cap)
-            c_rx[c], c_hist[c], c_n[c], c_src[c] = r, hist[i], nint[i], src[i]
-            c_close[c] = perp / max(radius, 1e-30)
+                h_rx, h_ray, h_close = _grow(h_rx, cap), _grow(h_ray, cap), _grow(h_close, cap)
+            h_rx[c], h_ray[c] = r, i
+            h_close[c] = perp / max(radius, 1e-30)
+            per_rx[r + 1] += 1
             c += 1
-    c_rx, c_hist, c_n, c_src, c_close = c_rx[:c].copy(), c_hist[:c].copy(), c_n[:c].copy(), c_src[:c].copy(), \
-        c_close[:c].copy()
+    for r in range(n_rx):
+        per_rx[r + 1] += per_rx[r]
+    c_rx = np.empty(c, np.int64)
+    c_hist = np.empty(c, np.int64)
+    c_n = np.empty(c, np.int64)
+    c_src = np.empty(c, np.int64)
+    c_close = np.empty(c, np.float64)
+    for k in range(c):
+        r, i = h_rx[k], h_ray[k]
+        at = per_rx[r]
+        per_rx[r] += 1
+        c_rx[at], c_hist[at], c_n[at], c_src[at], c_close[at] = r, hist[i], nint[i], src[i], h_close[k]
     walking = walk_miss.shape[0] > 0
     if walking:
         for i in range(n):

@@ -131,10 +131,18 @@ class ShotMedia(NamedTuple):
 
 
 class ShotReceivers(NamedTuple):
-    """Receivers as the shooting sees them: float32 positions in the scene's centred frame."""
+    """Receivers as the shooting sees them: float32 positions in the scene's centred frame, and
+    a uniform grid over them (cell ``(i, j, k)`` of edge ``grid_cell_m`` from ``grid_lo_m``; its
+    receivers are ``cell_items[cell_start[c]:cell_start[c + 1]]``, ``c = (i * ny + j) * nz + k``),
+    so that a ray segment tests only the receivers near it (:func:`raytrace.solver.sbr.receiver_grid`)."""
 
     position_m: _f32("R", 3)
     material_class: _i64("R")
+    grid_lo_m: _f64(3)
+    grid_cell_m: _FLOAT
+    grid_dims: _i64(3)
+    cell_start: _i64("G")
+    cell_items: _i64("R", within=(0, "R"))
 
 
 class ShotSettings(NamedTuple):

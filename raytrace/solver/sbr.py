@@ -139,20 +139,48 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
     tables = media.kernel_tables
     alpha = (2.0 * np.pi * media.frequencies_hz[0] / C0) * -media.n[0].imag
     shot = scene.shot_tables
+    rx32 = np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32))
     no_passes = not bool(tables.transparent[shot.face_map].any())
     return _Context(
         scene=shot,
         media=build(ShotMedia, parent=tables.parent, material_class=tables.material_class,
                     transparent=tables.transparent, n_real=media.n_real.astype(np.float32),
                     alpha=alpha.astype(np.float32), need=_interactions_needed(media, rx_medium)),
-        receivers=build(ShotReceivers,
-                        position_m=np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
-                        material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1])),
+        receivers=build(ShotReceivers, position_m=rx32,
+                        material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1]),
+                        **receiver_grid(rx32)),
         settings=build(ShotSettings, threshold=10.0 ** (-dynamic_range_db / 10.0), kmax=int(kmax),
                        reception_factor=config.reception_factor, curvature_margin=config.curvature_margin,
                        no_passes=no_passes, walk_events=config.walk_max_events),
         walk=bool(walk),
     )
+
+
+def receiver_grid(rx32: np.ndarray) -> dict:
+    """A uniform grid over the receivers (the :class:`~raytrace.engine.records.ShotReceivers` grid
+    fields): cells of about one receiver each (at most 32 per axis), receivers listed cell by
+    cell. :func:`raytrace.engine.kernels.bounce` tests a ray segment only against the receivers
+    of the cells its bounding box, widened by the largest tube half-width along it, overlaps:
+    a receiver outside that box is farther than the half-width from every point of the segment,
+    so the receptions are those of testing every receiver (exact), at a cost that no longer
+    grows with the receivers far from the ray. Cell indices are ``floor((x - lo) / cell)`` in
+    float64, clipped, here and in the kernel alike (monotonic: a receiver inside the box lies
+    in a cell of the box's index range)."""
+    p = np.asarray(rx32, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return {"grid_lo_m": np.zeros(3), "grid_cell_m": 1.0, "grid_dims": np.ones(3, np.int64),
+                "cell_start": np.zeros(2, np.int64), "cell_items": np.zeros(0, np.int64)}
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    extent = np.maximum(hi - lo, 1e-3)
+    cell = max(float(np.prod(extent) / len(p)) ** (1.0 / 3.0), float(extent.max()) / 32.0, 1e-3)
+    dims = np.clip(np.ceil(extent / cell).astype(np.int64), 1, 32)
+    idx = np.clip(np.floor((p - lo) / cell).astype(np.int64), 0, dims - 1)
+    flat = (idx[:, 0] * dims[1] + idx[:, 1]) * dims[2] + idx[:, 2]
+    order = np.argsort(flat, kind="stable")
+    start = np.zeros(int(np.prod(dims)) + 1, np.int64)
+    np.add.at(start, flat + 1, 1)
+    return {"grid_lo_m": lo, "grid_cell_m": cell, "grid_dims": dims, "cell_start": np.cumsum(start),
+            "cell_items": order.astype(np.int64)}
 
 
 def _bounce(ctx: _Context, rays: ShotRays, log: _Log, found: _Found, walk: WalkRecords = _NO_WALK
