@@ -25,7 +25,9 @@ Timing: each tool is warmed up once per receiver count (kernels compiled, scene 
 ``--repeat`` runs alternate between the two tools (which goes first alternates too) and the
 medians are printed. CapsuleRT's time is one ``trace_channel`` call in this process; Sionna's
 one ``PathSolver`` call with every result evaluated to numpy, measured inside its worker
-process (:mod:`bench.sionna_worker`), so the pipe costs nothing.
+process (:mod:`bench.sionna_worker`), so the pipe costs nothing. Both wall time (the ratio the
+issue's target is about) and CPU time of all threads (``CPU C/S``: less sensitive to a machine
+shared with other work) are printed.
 
 Sionna is not a dependency of CapsuleRT: it is installed into its own virtual environment
 (``$CAPSULE_RT_SIONNA_VENV``, default ``bench/.sionna-venv``) with pip on first use. Dr.Jit
@@ -221,21 +223,21 @@ def matched(found: list[list[dict]], oracle: list[list[dict]]) -> int:
 
 
 # ------------------------------------------------------------------ the run
-def run_capsule(phantom: Phantom, rx: np.ndarray, args) -> tuple[float, list[list[dict]]]:
+def run_capsule(phantom: Phantom, rx: np.ndarray, args) -> tuple[float, float, list[list[dict]]]:
     z = np.array([0.0, 0.0, 1.0])
     spec = rt.ChannelSpec(rt.Antenna(TX, polarization=z), tuple(rt.Antenna(r, polarization=z) for r in rx),
                           phantom=phantom.name, frequency_hz=F_HZ, rays=args.rays, max_interactions=args.depth,
                           dynamic_range_db=DYNAMIC_RANGE_DB, near_field=False)
     config = rt.TracerConfig(threads=args.threads)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     result = rt.trace_channel(spec, phantom, config=config)
-    return time.perf_counter() - t0, capsule_paths(result)
+    return time.perf_counter() - t0, time.process_time() - c0, capsule_paths(result)
 
 
-def run_sionna(worker: SionnaWorker, rx: np.ndarray, args) -> tuple[float, list[list[dict]]]:
+def run_sionna(worker: SionnaWorker, rx: np.ndarray, args) -> tuple[float, float, list[list[dict]]]:
     ans = worker.ask(op="run", tx_m=TX.tolist(), rx_m=rx.tolist(), depth=args.depth, samples=args.rays,
                      max_paths=args.max_paths)
-    return ans["time_s"], ans["paths"]
+    return ans["time_s"], ans["cpu_s"], ans["paths"]
 
 
 def compare(scene: str, worker: SionnaWorker, args, folder: str) -> list[dict]:
@@ -251,20 +253,24 @@ def compare(scene: str, worker: SionnaWorker, args, folder: str) -> list[dict]:
         run_sionna(worker, rx, args)
         gc.freeze()
         times = {"capsule": [], "sionna": []}
+        cpu = {"capsule": [], "sionna": []}
         found = {}
         for rep in range(args.repeat):
             order = ("capsule", "sionna") if rep % 2 == 0 else ("sionna", "capsule")
             for tool in order:
-                t, paths = run_capsule(phantom, rx, args) if tool == "capsule" else run_sionna(worker, rx, args)
+                t, c, paths = run_capsule(phantom, rx, args) if tool == "capsule" else run_sionna(worker, rx, args)
                 times[tool].append(t)
+                cpu[tool].append(c)
                 found[tool] = paths
         row = {"scene": scene, "receivers": count, "depth": args.depth, "rays": args.rays,
                "threads": args.threads, "repeat": args.repeat,
                "capsule_s": float(np.median(times["capsule"])), "sionna_s": float(np.median(times["sionna"])),
                "capsule_times_s": times["capsule"], "sionna_times_s": times["sionna"],
+               "capsule_cpu_s": float(np.median(cpu["capsule"])), "sionna_cpu_s": float(np.median(cpu["sionna"])),
                "capsule_paths": sum(len(p) for p in found["capsule"]),
                "sionna_paths": sum(len(p) for p in found["sionna"])}
         row["ratio"] = row["capsule_s"] / row["sionna_s"]
+        row["cpu_ratio"] = row["capsule_cpu_s"] / row["sionna_cpu_s"]
         if oracle is not None:
             row["oracle_paths"] = sum(len(o) for o in oracle)
             row["capsule_found"] = matched(found["capsule"], oracle)
@@ -278,7 +284,8 @@ def print_row(row: dict) -> None:
     oracle = (f"{row['capsule_found']:>5} / {row['sionna_found']:>5} of {row['oracle_paths']:>5}"
               if "oracle_paths" in row else f"{'(no oracle)':>23}")
     print(f"{row['scene']:<7} {row['receivers']:>4} {row['capsule_s']:>10.3f} {row['sionna_s']:>9.3f} "
-          f"{row['ratio']:>9.2f}  {oracle}  {row['capsule_paths']:>6} / {row['sionna_paths']:<6}", flush=True)
+          f"{row['ratio']:>9.2f} {row['cpu_ratio']:>9.2f}  {oracle}  "
+          f"{row['capsule_paths']:>6} / {row['sionna_paths']:<6}", flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -303,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         print(f"depth {args.depth}, {args.rays} rays, {args.threads} threads, medians of {args.repeat} interleaved "
               f"runs; found: oracle paths above {DYNAMIC_RANGE_DB:.0f} dB (CapsuleRT / Sionna)")
-        print(f"{'scene':<7} {'rx':>4} {'CapsuleRT s':>10} {'Sionna s':>9} {'Caps/Sion':>9}  "
+        print(f"{'scene':<7} {'rx':>4} {'CapsuleRT s':>10} {'Sionna s':>9} {'Caps/Sion':>9} {'CPU C/S':>9}  "
               f"{'found CapsuleRT / Sionna':>23}  paths C / S")
         with tempfile.TemporaryDirectory() as folder:
             for scene in scenes:

@@ -10,8 +10,8 @@ stdin and answers one JSON line on stdout:
 * ``{"op": "run", "tx_m": [x, y, z], "rx_m": [[x, y, z], ...], "depth": .., "samples": ..,
   "max_paths": ..}``: reflection-only paths (line of sight and specular reflections; no
   refraction, no diffuse, no diffraction), isotropic antennas, polarization V. The answer is
-  the wall time of the solver call with every result tensor evaluated to numpy
-  (``time_s``), and per receiver its paths: the number of reflections, the absolute delay
+  the wall and CPU (all threads) times of the solver call with every result tensor evaluated
+  to numpy (``time_s``, ``cpu_s``), and per receiver its paths: the number of reflections, the absolute delay
   (``normalize_delays`` does not apply to ``Paths.tau``) and the reflection points.
 * ``{"op": "quit"}``.
 """
@@ -60,7 +60,7 @@ def main() -> None:
             scene.add(Transmitter(name="tx", position=mi.Point3f(*cmd["tx_m"])))
             for k, p in enumerate(cmd["rx_m"]):
                 scene.add(Receiver(name=f"rx{k}", position=mi.Point3f(*p)))
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             paths = solver(scene, max_depth=int(cmd["depth"]), max_num_paths_per_src=int(cmd["max_paths"]),
                            samples_per_src=int(cmd["samples"]), synthetic_array=True, los=True,
                            specular_reflection=True, diffuse_reflection=False, refraction=False)
@@ -69,7 +69,7 @@ def main() -> None:
             inter = paths.interactions.numpy()  # [depth, num_rx, num_tx, num_paths]
             verts = paths.vertices.numpy()  # [depth, num_rx, num_tx, num_paths, 3]
             a_re, _a_im = (x.numpy() for x in paths.a)
-            elapsed = time.perf_counter() - t0
+            elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
             per_rx = []
             for r in range(len(cmd["rx_m"])):
                 rows = []
@@ -81,7 +81,7 @@ def main() -> None:
                     rows.append({"n": n, "delay_s": float(tau[r, 0, p]), "points_m": verts[:n, r, 0, p].tolist()})
                 per_rx.append(rows)
             del a_re
-            answer = {"ok": True, "time_s": elapsed, "paths": per_rx}
+            answer = {"ok": True, "time_s": elapsed, "cpu_s": cpu, "paths": per_rx}
         else:
             answer = {"ok": False, "error": f"unknown op {cmd['op']!r}"}
         out.write(json.dumps(answer) + "\n")

@@ -215,11 +215,11 @@ def _segment_miss(vx, vy, vz, dx, dy, dz, reach):
 
 
 @helper
-def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
-    """Whether :func:`_tube_miss` could receive ray i at some receiver of its material class
-    for any segment length (the test with an unbounded segment)."""
+def _may_receive(rx_m, rx_zone, ray_zone, o, d, i, rad, ang, reception_factor):
+    """Whether :func:`_tube_miss` could receive ray i at some receiver of its zone for any
+    segment length (the test with an unbounded segment)."""
     for r in range(len(rx_m)):
-        if rx_cls[r] == ray_cls and _tube_miss(rx_m, r, o, d, i, np.inf, rad, ang, reception_factor)[0]:
+        if rx_zone[r] == ray_zone and _tube_miss(rx_m, r, o, d, i, np.inf, rad, ang, reception_factor)[0]:
             return True
     return False
 
@@ -613,7 +613,8 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     ``reception_factor``, ``curvature_margin``, ``no_passes``, ``walk_events`` below); the
     event-log entries made are numbered from ``log_base`` on.
 
-    Reception: a ray of the receiver's material class whose segment passes the receiver
+    Reception: a ray in the receiver's zone (``media.zone``: the region of one material it is
+    in, :func:`raytrace.solver.sbr.zones`) whose segment passes the receiver
     within ``reception_factor * (rad + t_along * ang)`` (the ray tube's half-width) makes a
     candidate. Then each ray that hit a surface is absorbed along its segment
     (``exp(-2 alpha L)``) and splits, about the smooth normal, into a reflected ray
@@ -654,6 +655,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     corner32, curvature32, offset_m = scene.corner, scene.curvature, scene.offset_m
     parent, cls, transparent, n_re, alpha, need = media.parent, media.material_class, media.transparent, \
         media.n_real, media.alpha, media.need
+    zone, rx_zone = media.zone, receivers.zone
     rx_m, rx_cls = receivers.position_m, receivers.material_class
     threshold, kmax, reception_factor = settings.threshold, settings.kmax, settings.reception_factor
     curvature_margin, no_passes, walk_events = settings.curvature_margin, settings.no_passes, settings.walk_events
@@ -667,8 +669,8 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     hit = embree.ray_hit()
     cast = 0
     for i in range(n):
-        if nint[i] >= kmax and no_passes and mode[i] == 0 and not _may_receive(rx_m, rx_cls, cls[med[i] + 1], o, d,
-                                                                               i, rad, ang, reception_factor):
+        if nint[i] >= kmax and no_passes and mode[i] == 0 and not _may_receive(rx_m, rx_zone, zone[med[i] + 1], o,
+                                                                               d, i, rad, ang, reception_factor):
             prim[i], tfar[i] = -1, np.inf  # no children possible, and no receiver on its line: not cast
             continue
         prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, hit, o[i, 0], o[i, 1], o[i, 2],
@@ -691,7 +693,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     for i in range(n):
         if mode[i] == 2:
             continue
-        ray_cls = cls[med[i] + 1]
+        ray_zone = zone[med[i] + 1]
         reach = tfar[i] if prim[i] >= 0 else np.inf
         # the cells of the segment's box widened by its largest tube half-width (+ a float32 margin)
         grid = n_rx > 4 and prim[i] >= 0
@@ -714,7 +716,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
                         cc = (ci * dims[1] + cj) * dims[2] + ck
                         for q in range(cell_start[cc], cell_start[cc + 1]):
                             r = cell_items[q]
-                            if rx_cls[r] != ray_cls:
+                            if rx_zone[r] != ray_zone:
                                 continue
                             received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang,
                                                                 reception_factor)
@@ -729,7 +731,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
                             c += 1
             continue
         for r in range(n_rx):
-            if rx_cls[r] != ray_cls:
+            if rx_zone[r] != ray_zone:
                 continue
             received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)
             if not received:

@@ -119,14 +119,16 @@ class ShotScene(NamedTuple):
 
 
 class ShotMedia(NamedTuple):
-    """The shooting's media: float32 Re n and power attenuation, and the events each medium
-    needs at least to reach a receiver's material class."""
+    """The shooting's media: float32 Re n and power attenuation, each medium's zone (the region of
+    one material it belongs to: :func:`raytrace.solver.sbr.zones`) and the events it needs at
+    least to reach a receiver's zone."""
 
     parent: _i64("M", within=(-1, "M"))
     material_class: _i64("M+1")
     transparent: _bool("F")
     n_real: _f32("M+1")
     alpha: _f32("M+1")  # power attenuation constant k0 |Im n| [Np/m]
+    zone: _i64("M+1")
     need: _i64("M+1")
 
 
@@ -138,6 +140,7 @@ class ShotReceivers(NamedTuple):
 
     position_m: _f32("R", 3)
     material_class: _i64("R")
+    zone: _i64("R")
     grid_lo_m: _f64(3)
     grid_cell_m: _FLOAT
     grid_dims: _i64(3)

@@ -138,6 +138,7 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
     rx_medium = np.asarray(rx_medium, np.int64)
     tables = media.kernel_tables
     alpha = (2.0 * np.pi * media.frequencies_hz[0] / C0) * -media.n[0].imag
+    zone = zones(media)
     shot = scene.shot_tables
     rx32 = np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32))
     no_passes = not bool(tables.transparent[shot.face_map].any())
@@ -145,9 +146,10 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
         scene=shot,
         media=build(ShotMedia, parent=tables.parent, material_class=tables.material_class,
                     transparent=tables.transparent, n_real=media.n_real.astype(np.float32),
-                    alpha=alpha.astype(np.float32), need=_interactions_needed(media, rx_medium)),
+                    alpha=alpha.astype(np.float32), zone=zone, need=_interactions_needed(media, rx_medium)),
         receivers=build(ShotReceivers, position_m=rx32,
                         material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1]),
+                        zone=np.ascontiguousarray(zone[rx_medium + 1]),
                         **receiver_grid(rx32)),
         settings=build(ShotSettings, threshold=10.0 ** (-dynamic_range_db / 10.0), kmax=int(kmax),
                        reception_factor=config.reception_factor, curvature_margin=config.curvature_margin,
@@ -342,37 +344,66 @@ def shoot(
     )
 
 
+def zones(media: MediaTable) -> np.ndarray:
+    """Per medium (index m + 1): its zone, the connected region of one material it belongs to.
+
+    A ray only ever crosses a surface of organ X between X and its parent, and the surfaces
+    between identical materials are not in the shooting's scene (transparent): so the media a
+    ray can be in without an interaction are those joined by organ/parent pairs of the same
+    material class, and a zone is a connected component of that graph (labels are the smallest
+    medium index + 1 of the component). Two organs of one material that do not touch (two
+    separate bowel loops, the air of a closed room and the air outside its walls) are different
+    zones: a ray in one never reaches a point of the other without an interaction."""
+    cls = np.asarray(media.material_class, np.int64)
+    label = np.arange(len(cls), dtype=np.int64)
+
+    def root(a: int) -> int:
+        while label[a] != a:
+            a = int(label[a])
+        return a
+
+    for organ, parent in enumerate(np.asarray(media.parent, np.int64)):
+        a, b = organ + 1, int(parent) + 1
+        if cls[a] == cls[b]:
+            ra, rb = root(a), root(b)
+            label[max(ra, rb)] = min(ra, rb)
+    return np.array([root(a) for a in range(len(cls))], np.int64)
+
+
 def _interactions_needed(media: MediaTable, rx_medium: np.ndarray) -> np.ndarray:
     """Per medium (index m + 1): the fewest interactions a ray in it needs before it can be
-    received, i.e. the number of transmissions to reach a medium of a receiver's material
-    class (0 for those classes; a large number when none can be reached).
+    received, i.e. the number of transmissions to reach a receiver's zone (:func:`zones`; 0 in
+    those zones; a large number when none can be reached).
 
     A ray only ever crosses a surface of organ X between X and its parent (the bounce
-    requires the side it comes from to be of the ray's class), each crossing of a visible
-    surface costs one interaction and joins two different classes, and reception needs the
-    ray's class to be the receiver's. So a breadth-first search over the graph of material
-    classes (an edge per organ/parent pair of different classes) bounds the interactions
-    still needed; a ray with ``nint + need > max_interactions`` can never make a candidate
-    and is not spawned (exact pruning: the candidates are unchanged)."""
+    requires the side it comes from to be the ray's), each crossing of a visible surface costs
+    one interaction and joins two zones, and reception needs the ray to be in the receiver's
+    zone (a ray in another region of the same material never passes the receiver without
+    crossing a surface). So a breadth-first search over the graph of zones (an edge per
+    organ/parent pair of different materials) bounds the interactions still needed; a ray with
+    ``nint + need > max_interactions`` can never make a candidate and is not spawned (exact
+    pruning). By zone rather than by material: in a closed room, rays leaving the walls into
+    the air outside need two more crossings, not none."""
+    zone = zones(media)
     cls = np.asarray(media.material_class, np.int64)
-    n_cls = int(cls.max()) + 1
-    adjacent: list[set[int]] = [set() for _ in range(n_cls)]
+    n_zone = len(zone)
+    adjacent: list[set[int]] = [set() for _ in range(n_zone)]
     for organ, parent in enumerate(np.asarray(media.parent, np.int64)):
-        a, b = int(cls[organ + 1]), int(cls[parent + 1])
-        if a != b:
+        a, b = int(zone[organ + 1]), int(zone[parent + 1])
+        if cls[organ + 1] != cls[parent + 1]:
             adjacent[a].add(b)
             adjacent[b].add(a)
     big = 1 << 20
-    dist = np.full(n_cls, big, np.int64)
-    frontier = sorted({int(c) for c in cls[np.asarray(rx_medium, np.int64) + 1]})
+    dist = np.full(n_zone, big, np.int64)
+    frontier = sorted({int(z) for z in zone[np.asarray(rx_medium, np.int64) + 1]})
     dist[frontier] = 0
     step = 0
-    while frontier:  # a graph of a dozen material classes
+    while frontier:  # a graph of a few dozen zones
         step += 1
         nxt = sorted({b for a in frontier for b in adjacent[a] if dist[b] == big})
         dist[nxt] = step
         frontier = nxt
-    return dist[cls]
+    return dist[zone]
 
 
 def _log_arrays(log: _Log) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
