@@ -225,6 +225,25 @@ def _may_receive(rx_m, rx_zone, ray_zone, o, d, i, rad, ang, reception_factor):
 
 
 @helper
+def _may_return(w, alpha_m, return_m, threshold, px, py, pz, dx, dy, dz, bounds):
+    """Whether a ray of power factor ``w`` spawned at (px, py, pz) along d in a medium from which
+    no receiver can be reached without an interaction may still make a reception: not if the
+    absorption over the least length it must travel before it can cross towards a receiver
+    (``return_m``) brings it below ``threshold`` (every later power factor is lower), nor if it
+    leaves the scene's box ``bounds`` (it is outside the box on an axis and moves away from it
+    there: it can hit nothing). Both exact."""
+    if w * math.exp(-2.0 * alpha_m * return_m) < threshold:
+        return False
+    if (px > bounds[1, 0] and dx > 0.0) or (px < bounds[0, 0] and dx < 0.0):
+        return False
+    if (py > bounds[1, 1] and dy > 0.0) or (py < bounds[0, 1] and dy < 0.0):
+        return False
+    if (pz > bounds[1, 2] and dz > 0.0) or (pz < bounds[0, 2] and dz < 0.0):
+        return False
+    return True
+
+
+@helper
 def _trace_ray(i, hit, scene, media, state, steps, max_steps, differentials, dp, dd):
     """Ray ``i`` of :func:`follow` traced on from its current ``state`` (a
     :class:`~raytrace.engine.records.TraceState`, updated in place) to its end, at most
@@ -622,7 +641,10 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     Born & Wolf 1.5.3) and a transmitted one (vector Snell law) with the rest, unless Snell has
     no real solution (total internal reflection); a transparent surface passes the ray
     unchanged. Children below ``threshold`` or unable to reach a receiver's class within
-    ``kmax`` events (``need``) are dropped. Tube angles grow as in :mod:`raytrace.solver.sbr`.
+    ``kmax`` events (``need``) are dropped, and so are those outside every receiver's zone that
+    leave the scene's box or whose absorption over the least length they must still travel
+    there (``return_m``) brings them below ``threshold`` (:func:`_may_return`). Tube angles grow
+    as in :mod:`raytrace.solver.sbr`.
 
     A ray that already has ``kmax`` events can have no children (``no_passes``: the scene
     has no transparent surface to pass on through), so it is cast only if the receiver test
@@ -655,7 +677,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     corner32, curvature32, offset_m = scene.corner, scene.curvature, scene.offset_m
     parent, cls, transparent, n_re, alpha, need = media.parent, media.material_class, media.transparent, \
         media.n_real, media.alpha, media.need
-    zone, rx_zone = media.zone, receivers.zone
+    zone, rx_zone, return_m, bounds = media.zone, receivers.zone, media.return_m, media.bounds_m
     rx_m, rx_cls = receivers.position_m, receivers.material_class
     threshold, kmax, reception_factor = settings.threshold, settings.kmax, settings.reception_factor
     curvature_margin, no_passes, walk_events = settings.curvature_margin, settings.no_passes, settings.walk_events
@@ -845,15 +867,22 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
         wt = wk - wr
         bend = curvature_margin * curvature32[f] * radk
         code_k[i] = (organ * 2 + (1 if leaving else 0)) * 2
+        side = 0 if leaving else 1  # the reflected child's side of the face (0: inside its organ)
         if (shot and (rx_ * fx + ry_ * fy + rz_ * fz) * sg < 0.0 and wr >= threshold
-                and nk + 1 + need[m_from + 1] <= kmax):
+                and nk + 1 + need[m_from + 1] <= kmax
+                and (need[m_from + 1] == 0 or _may_return(
+                    wr, alpha[m_from + 1], return_m[f, side], threshold, pt[i, 0] - push[i, 0],
+                    pt[i, 1] - push[i, 1], pt[i, 2] - push[i, 2], rx_, ry_, rz_, bounds))):
             kind[i] |= 1
             dr[i, 0], dr[i, 1], dr[i, 2] = rx_, ry_, rz_
             w_r[i] = wr
             ang_r[i] = ang[i] + 2.0 * bend
             n_r += 1
         through = not tir and (tx * fx + ty * fy + tz * fz) * sg > 0.0
-        if shot and through and wt >= threshold and nk + 1 + need[m_to + 1] <= kmax:
+        if (shot and through and wt >= threshold and nk + 1 + need[m_to + 1] <= kmax
+                and (need[m_to + 1] == 0 or _may_return(
+                    wt, alpha[m_to + 1], return_m[f, 1 - side], threshold, pt[i, 0] + push[i, 0],
+                    pt[i, 1] + push[i, 1], pt[i, 2] + push[i, 2], tx, ty, tz, bounds))):
             mode_t[i] = mode[i]
         elif walked and through:
             mode_t[i] = 2

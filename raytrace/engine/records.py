@@ -130,6 +130,10 @@ class ShotMedia(NamedTuple):
     alpha: _f32("M+1")  # power attenuation constant k0 |Im n| [Np/m]
     zone: _i64("M+1")
     need: _i64("M+1")
+    #: per face, for a ray on the inside (0) / outside (1) of its organ: the least length it must
+    #: still travel in that medium before it can cross towards a receiver (raytrace.solver.sbr.return_lengths)
+    return_m: _f32("F", 2)
+    bounds_m: _f64(2, 3)  # the scene's box (lowest, highest corner) in the centred frame
 
 
 class ShotReceivers(NamedTuple):
