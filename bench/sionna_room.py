@@ -302,7 +302,8 @@ def main(argv: list[str] | None = None) -> int:
     args.receivers = [int(k) for k in args.receivers.split(",")]
     scenes = args.scenes.split(",")
     try:
-        worker = SionnaWorker(sionna_python(), llvm_library())
+        llvm = llvm_library()  # first: a missing LLVM is reported before anything is installed
+        worker = SionnaWorker(sionna_python(), llvm)
     except Unavailable as exc:
         print(f"bench.sionna_room: Sionna RT is not available: {exc}", file=sys.stderr)
         return 2
