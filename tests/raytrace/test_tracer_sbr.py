@@ -91,7 +91,8 @@ def test_zones_and_return_lengths_of_a_closed_room():
     """The room's air and the air outside the walls are one material but two zones: rays outside
     need two crossings (walls, room), not none. A ray on the walls' outer face (inside the
     concrete) must still cross the 1 m shell before it can get back in: its return length is
-    the thickness (by hand); on the inner face it is 0 (it may cross there)."""
+    the thickness (by hand); a ray entering the concrete from the room (a convex box) must reach
+    the outer face and come back: twice the thickness."""
     ph = _closed_room()
     media = MediaTable.build(ph, np.array([3.5e9]))
     scene = scene_for(ph, ~media.face_transparent)
@@ -103,7 +104,9 @@ def test_zones_and_return_lengths_of_a_closed_room():
     ret = sbr.return_lengths(scene, media, zone, need, alpha)
     outer = scene.face_organ == 0
     np.testing.assert_allclose(ret[outer, 0], 1.0, rtol=1e-3)  # inside the concrete, at its outer face
-    assert (ret[outer, 1] == 0).all() and (ret[~outer] == 0).all()
+    # in the concrete at the (convex) room's surface, moving away from it: out to the outer face and back
+    np.testing.assert_allclose(ret[~outer, 1], 2.0, rtol=1e-3)
+    assert (ret[outer, 1] == 0).all() and (ret[~outer, 0] == 0).all()  # outside air (no absorption), room air
 
 
 @pytest.mark.parametrize("max_interactions", [4, 5])
