@@ -656,7 +656,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     the same rays when ``walk`` (:class:`~raytrace.engine.records.WalkRecords`: ``walk_miss``,
     ``walk_n``, ``walk_hist``) has a row per launch direction of the batch (row
     ``src - src_base``): ``mode`` 1 marks a ray with no reflection so far, 2 a ray that only the
-    walk still follows. Every leg of a mode 1 or 2 ray in a receiver's material class
+    walk still follows. Every leg of a mode 1 or 2 ray in a receiver's zone
     updates that launch's closest approach to the receiver (``walk_miss``, the segment
     clamped to its hit, at most 1 km) with the events so far (``walk_n``) and the ray's last
     log entry (``walk_hist``), as the walk does; a mode 1 ray's transmitted child is mode 1,
@@ -678,7 +678,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     parent, cls, transparent, n_re, alpha, need = media.parent, media.material_class, media.transparent, \
         media.n_real, media.alpha, media.need
     zone, rx_zone, return_m, bounds = media.zone, receivers.zone, media.return_m, media.bounds_m
-    rx_m, rx_cls = receivers.position_m, receivers.material_class
+    rx_m = receivers.position_m
     threshold, kmax, reception_factor = settings.threshold, settings.kmax, settings.reception_factor
     curvature_margin, no_passes, walk_events = settings.curvature_margin, settings.no_passes, settings.walk_events
     walk_miss, walk_n, walk_hist, src_base = walk.miss, walk.events, walk.hist, walk.src_base
@@ -782,11 +782,11 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
         for i in range(n):
             if mode[i] == 0:
                 continue
-            ray_cls = cls[med[i] + 1]
+            ray_zone = zone[med[i] + 1]
             reach = min(np.float64(tfar[i]) if prim[i] >= 0 else np.inf, 1e3)
             row = src[i] - src_base
             for r in range(n_rx):
-                if rx_cls[r] != ray_cls:
+                if rx_zone[r] != ray_zone:
                     continue
                 dist = _segment_miss(rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2],
                                      d[i, 0], d[i, 1], d[i, 2], reach)
@@ -884,7 +884,9 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
                     wt, alpha[m_to + 1], return_m[f, 1 - side], threshold, pt[i, 0] + push[i, 0],
                     pt[i, 1] + push[i, 1], pt[i, 2] + push[i, 2], tx, ty, tz, bounds))):
             mode_t[i] = mode[i]
-        elif walked and through:
+        elif walked and through and (need[m_to + 1] == 0 or _may_return(
+                1.0, 0.0, 0.0, 0.0, pt[i, 0] + push[i, 0], pt[i, 1] + push[i, 1], pt[i, 2] + push[i, 2], tx, ty, tz,
+                bounds)):  # the walk alone goes on, unless it leaves the box outside every receiver's zone
             mode_t[i] = 2
         else:
             through = False

@@ -143,8 +143,7 @@ class ShotReceivers(NamedTuple):
     so that a ray segment tests only the receivers near it (:func:`raytrace.solver.sbr.receiver_grid`)."""
 
     position_m: _f32("R", 3)
-    material_class: _i64("R")
-    zone: _i64("R")
+    zone: _i64("R")  # the receiver's zone (raytrace.solver.sbr.zones)
     grid_lo_m: _f64(3)
     grid_cell_m: _FLOAT
     grid_dims: _i64(3)

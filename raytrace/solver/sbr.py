@@ -152,7 +152,6 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
                     return_m=return_lengths(scene, media, zone, need, alpha),
                     bounds_m=np.array([verts32.min(axis=0), verts32.max(axis=0)], np.float64)),
         receivers=build(ShotReceivers, position_m=rx32,
-                        material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1]),
                         zone=np.ascontiguousarray(zone[rx_medium + 1]),
                         **receiver_grid(rx32)),
         settings=build(ShotSettings, threshold=10.0 ** (-dynamic_range_db / 10.0), kmax=int(kmax),
