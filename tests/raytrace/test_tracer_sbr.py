@@ -187,3 +187,16 @@ def test_face_curvature_is_one_over_the_radius_on_a_sphere_and_zero_on_flat_face
     on_ball = scene.face_organ == ph.organ_index("ball")
     np.testing.assert_allclose(k[on_ball], 1.0 / radius, rtol=1e-3)
     assert np.all(k[~on_ball] == 0.0)
+
+
+def test_row_groups_are_numpys_unique_rows():
+    """The seeds' (receiver, signature) groups are labelled as ``np.unique(axis=0)`` labels them
+    (lexicographic order of the rows), through the mixed-radix path and the lexsort fallback."""
+    from raytrace.solver.tracer import _row_groups
+
+    rng = np.random.default_rng(17)
+    for hi in (3, 40, 10**6):  # the last does not fit the mixed radix with 6 columns
+        key = rng.integers(-1, hi, size=(4000, 6))
+        key[::3] = key[1::3]  # repeated rows
+        _, ref = np.unique(key, axis=0, return_inverse=True)
+        np.testing.assert_array_equal(_row_groups(key), ref.ravel())
