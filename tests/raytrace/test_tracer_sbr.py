@@ -197,6 +197,6 @@ def test_row_groups_are_numpys_unique_rows():
     rng = np.random.default_rng(17)
     for hi in (3, 40, 10**6):  # the last does not fit the mixed radix with 6 columns
         key = rng.integers(-1, hi, size=(4000, 6))
-        key[::3] = key[1::3]  # repeated rows
+        key[:2000:2] = key[1:2000:2]  # repeated rows
         _, ref = np.unique(key, axis=0, return_inverse=True)
         np.testing.assert_array_equal(_row_groups(key), ref.ravel())
