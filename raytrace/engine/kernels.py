@@ -232,7 +232,7 @@ def _may_return(w, alpha_m, return_m, threshold, px, py, pz, dx, dy, dz, bounds)
     (``return_m``) brings it below ``threshold`` (every later power factor is lower), nor if it
     leaves the scene's box ``bounds`` (it is outside the box on an axis and moves away from it
     there: it can hit nothing). Both exact."""
-    if w * math.exp(-2.0 * alpha_m * return_m) < threshold:
+    if return_m > 0.0 and w * math.exp(-2.0 * alpha_m * return_m) < threshold:
         return False
     if (px > bounds[1, 0] and dx > 0.0) or (px < bounds[0, 0] and dx < 0.0):
         return False
@@ -713,7 +713,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     lo_c = np.zeros(3, np.int64)
     hi_c = np.zeros(3, np.int64)
     for i in range(n):
-        if mode[i] == 2:
+        if mode[i] == 2 or need[med[i] + 1] != 0:  # walk only, or no receiver in its zone
             continue
         ray_zone = zone[med[i] + 1]
         reach = tfar[i] if prim[i] >= 0 else np.inf
