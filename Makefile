@@ -27,7 +27,7 @@ test: $(STAMP)
 	CAPSULE_RT_CHROMIUM=$(CHROMIUM) $(BIN)/python -m pytest
 
 bench: $(STAMP)
-	$(BIN)/python -m bench
+	$(BIN)/python -m bench $(BENCH_ARGS)
 
 openapi: $(STAMP)
 	$(BIN)/capsule-rt openapi

@@ -4,6 +4,8 @@
     python -m bench --quick    # small sizes: a smoke run of every benchmark
     python -m bench --skip-http
     python -m bench --skip-vision   # without the visual motion evaluation (bench/vision.py)
+    python -m bench --sionna        # also CapsuleRT against Sionna RT on a room (bench/sionna_room.py;
+                                    # installs Sionna into its own virtual environment on first use)
 
 Every number that matters is printed as a ratio to a reference measured in the
 same run (the raw Embree ray rate on the same mesh) or as a growth exponent;
@@ -76,6 +78,8 @@ def main() -> None:
     ap.add_argument("--skip-scaling", action="store_true", help="skip the sub-process scaling sweep")
     ap.add_argument("--skip-sweeps", action="store_true", help="skip the sweep engines' throughput")
     ap.add_argument("--skip-vision", action="store_true", help="skip the visual motion evaluation (minutes)")
+    ap.add_argument("--sionna", action="store_true",
+                    help="also the room against Sionna RT (bench/sionna_room.py; optional peer, own venv)")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "latest.json"))
     args = ap.parse_args()
     rays = 20_000 if args.quick else 100_000
@@ -161,6 +165,12 @@ def main() -> None:
         _row("vision: render one 256 x 256 frame, p50 [ms]", f"{vs['render_256_s'] * 1e3:.0f}", "target < 50")
         print("  vision accuracy tables: python -m bench.vision (or 'vision' in the JSON)")
     print(f"wrote {os.path.relpath(args.out, ROOT)}")
+    if args.sionna:  # after the table: its own table, its own JSON (bench/results/sionna_room.json)
+        from bench import sionna_room
+
+        status = sionna_room.main(["--repeat", "3"] if args.quick else [])
+        if status:
+            print("CapsuleRT vs Sionna RT: not run (see the reason above)")
 
 
 if __name__ == "__main__":

@@ -219,13 +219,32 @@ def _segment_miss(vx, vy, vz, dx, dy, dz, reach):
 
 
 @helper
-def _may_receive(rx_m, rx_cls, ray_cls, o, d, i, rad, ang, reception_factor):
-    """Whether :func:`_tube_miss` could receive ray i at some receiver of its material class
-    for any segment length (the test with an unbounded segment)."""
+def _may_receive(rx_m, rx_zone, ray_zone, o, d, i, rad, ang, reception_factor):
+    """Whether :func:`_tube_miss` could receive ray i at some receiver of its zone for any
+    segment length (the test with an unbounded segment)."""
     for r in range(len(rx_m)):
-        if rx_cls[r] == ray_cls and _tube_miss(rx_m, r, o, d, i, np.inf, rad, ang, reception_factor)[0]:
+        if rx_zone[r] == ray_zone and _tube_miss(rx_m, r, o, d, i, np.inf, rad, ang, reception_factor)[0]:
             return True
     return False
+
+
+@helper
+def _may_return(w, alpha_m, return_m, threshold, px, py, pz, dx, dy, dz, bounds):
+    """Whether a ray of power factor ``w`` spawned at (px, py, pz) along d in a medium from which
+    no receiver can be reached without an interaction may still make a reception: not if the
+    absorption over the least length it must travel before it can cross towards a receiver
+    (``return_m``) brings it below ``threshold`` (every later power factor is lower), nor if it
+    leaves the scene's box ``bounds`` (it is outside the box on an axis and moves away from it
+    there: it can hit nothing). Both exact."""
+    if return_m > 0.0 and w * math.exp(-2.0 * alpha_m * return_m) < threshold:
+        return False
+    if (px > bounds[1, 0] and dx > 0.0) or (px < bounds[0, 0] and dx < 0.0):
+        return False
+    if (py > bounds[1, 1] and dy > 0.0) or (py < bounds[0, 1] and dy < 0.0):
+        return False
+    if (pz > bounds[1, 2] and dz > 0.0) or (pz < bounds[0, 2] and dz < 0.0):
+        return False
+    return True
 
 
 @helper
@@ -617,7 +636,8 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     ``reception_factor``, ``curvature_margin``, ``no_passes``, ``walk_events`` below); the
     event-log entries made are numbered from ``log_base`` on.
 
-    Reception: a ray of the receiver's material class whose segment passes the receiver
+    Reception: a ray in the receiver's zone (``media.zone``: the region of one material it is
+    in, :func:`raytrace.solver.sbr.zones`) whose segment passes the receiver
     within ``reception_factor * (rad + t_along * ang)`` (the ray tube's half-width) makes a
     candidate. Then each ray that hit a surface is absorbed along its segment
     (``exp(-2 alpha L)``) and splits, about the smooth normal, into a reflected ray
@@ -625,7 +645,10 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     Born & Wolf 1.5.3) and a transmitted one (vector Snell law) with the rest, unless Snell has
     no real solution (total internal reflection); a transparent surface passes the ray
     unchanged. Children below ``threshold`` or unable to reach a receiver's class within
-    ``kmax`` events (``need``) are dropped. Tube angles grow as in :mod:`raytrace.solver.sbr`.
+    ``kmax`` events (``need``) are dropped, and so are those outside every receiver's zone that
+    leave the scene's box or whose absorption over the least length they must still travel
+    there (``return_m``) brings them below ``threshold`` (:func:`_may_return`). Tube angles grow
+    as in :mod:`raytrace.solver.sbr`.
 
     A ray that already has ``kmax`` events can have no children (``no_passes``: the scene
     has no transparent surface to pass on through), so it is cast only if the receiver test
@@ -637,7 +660,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     the same rays when ``walk`` (:class:`~raytrace.engine.records.WalkRecords`: ``walk_miss``,
     ``walk_n``, ``walk_hist``) has a row per launch direction of the batch (row
     ``src - src_base``): ``mode`` 1 marks a ray with no reflection so far, 2 a ray that only the
-    walk still follows. Every leg of a mode 1 or 2 ray in a receiver's material class
+    walk still follows. Every leg of a mode 1 or 2 ray in a receiver's zone
     updates that launch's closest approach to the receiver (``walk_miss``, the segment
     clamped to its hit, at most 1 km) with the events so far (``walk_n``) and the ray's last
     log entry (``walk_hist``), as the walk does; a mode 1 ray's transmitted child is mode 1,
@@ -658,7 +681,8 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     corner32, curvature32, offset_m = scene.corner, scene.curvature, scene.offset_m
     parent, cls, transparent, n_re, alpha, need = media.parent, media.material_class, media.transparent, \
         media.n_real, media.alpha, media.need
-    rx_m, rx_cls = receivers.position_m, receivers.material_class
+    zone, rx_zone, return_m, bounds = media.zone, receivers.zone, media.return_m, media.bounds_m
+    rx_m = receivers.position_m
     threshold, kmax, reception_factor = settings.threshold, settings.kmax, settings.reception_factor
     curvature_margin, no_passes, walk_events = settings.curvature_margin, settings.no_passes, settings.walk_events
     walk_miss, walk_n, walk_hist, src_base = walk.miss, walk.events, walk.hist, walk.src_base
@@ -671,48 +695,102 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     hit = embree.ray_hit()
     cast = 0
     for i in range(n):
-        if nint[i] >= kmax and no_passes and mode[i] == 0 and not _may_receive(rx_m, rx_cls, cls[med[i] + 1], o, d,
-                                                                               i, rad, ang, reception_factor):
+        if nint[i] >= kmax and no_passes and mode[i] == 0 and not _may_receive(rx_m, rx_zone, zone[med[i] + 1], o,
+                                                                               d, i, rad, ang, reception_factor):
             prim[i], tfar[i] = -1, np.inf  # no children possible, and no receiver on its line: not cast
             continue
         prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, hit, o[i, 0], o[i, 1], o[i, 2],
                                                           d[i, 0], d[i, 1], d[i, 2])
         cast += 1
-    # receptions, receiver-major (ray order within a receiver), into arrays grown by doubling
+    # receptions: tested ray by ray (each ray's data once, the receivers stay in cache; with
+    # many receivers the receiver-by-receiver loop streamed every ray array once per receiver),
+    # into arrays grown by doubling, then put receiver-major (ray order within a receiver) by a
+    # stable counting sort: the same receptions, in the same order, as testing receiver by receiver
     cap = 256
-    c_rx = np.empty(cap, np.int64)
-    c_hist = np.empty(cap, np.int64)
-    c_n = np.empty(cap, np.int64)
-    c_src = np.empty(cap, np.int64)
-    c_close = np.empty(cap, np.float64)
+    h_rx = np.empty(cap, np.int64)
+    h_ray = np.empty(cap, np.int64)
+    h_close = np.empty(cap, np.float64)
+    per_rx = np.zeros(n_rx + 1, np.int64)
     c = 0
-    for r in range(n_rx):
-        for i in range(n):
-            if cls[med[i] + 1] != rx_cls[r] or mode[i] == 2:
+    grid_lo, cell, dims = receivers.grid_lo_m, receivers.grid_cell_m, receivers.grid_dims
+    cell_start, cell_items = receivers.cell_start, receivers.cell_items
+    lo_c = np.zeros(3, np.int64)
+    hi_c = np.zeros(3, np.int64)
+    for i in range(n):
+        if mode[i] == 2 or need[med[i] + 1] != 0:  # walk only, or no receiver in its zone
+            continue
+        ray_zone = zone[med[i] + 1]
+        reach = tfar[i] if prim[i] >= 0 else np.inf
+        # the cells of the segment's box widened by its largest tube half-width (+ a float32 margin)
+        grid = n_rx > 4 and prim[i] >= 0
+        if grid:
+            widen = reception_factor * (np.float64(rad[i]) + np.float64(reach) * ang[i]) * 1.001 + 1e-4
+            for a in range(3):
+                end = np.float64(o[i, a]) + np.float64(reach) * d[i, a]
+                lo_a = min(np.float64(o[i, a]), end) - widen
+                hi_a = max(np.float64(o[i, a]), end) + widen
+                lo_c[a] = min(max(int(math.floor((lo_a - grid_lo[a]) / cell)), 0), dims[a] - 1)
+                hi_c[a] = min(max(int(math.floor((hi_a - grid_lo[a]) / cell)), 0), dims[a] - 1)
+                if not math.isfinite(widen) or hi_a < grid_lo[a] or lo_a > grid_lo[a] + dims[a] * cell:
+                    hi_c[a] = lo_c[a] - 1  # no cell (the box misses the grid), or a non-finite tube
+            if not math.isfinite(widen):
+                grid = False
+        if grid:
+            for ci in range(lo_c[0], hi_c[0] + 1):
+                for cj in range(lo_c[1], hi_c[1] + 1):
+                    for ck in range(lo_c[2], hi_c[2] + 1):
+                        cc = (ci * dims[1] + cj) * dims[2] + ck
+                        for q in range(cell_start[cc], cell_start[cc + 1]):
+                            r = cell_items[q]
+                            if rx_zone[r] != ray_zone:
+                                continue
+                            received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang,
+                                                                reception_factor)
+                            if not received:
+                                continue
+                            if c == cap:
+                                cap *= 2
+                                h_rx, h_ray, h_close = _grow(h_rx, cap), _grow(h_ray, cap), _grow(h_close, cap)
+                            h_rx[c], h_ray[c] = r, i
+                            h_close[c] = perp / max(radius, 1e-30)
+                            per_rx[r + 1] += 1
+                            c += 1
+            continue
+        for r in range(n_rx):
+            if rx_zone[r] != ray_zone:
                 continue
-            reach = tfar[i] if prim[i] >= 0 else np.inf
             received, perp, radius = _tube_miss(rx_m, r, o, d, i, reach, rad, ang, reception_factor)
             if not received:
                 continue
             if c == cap:
                 cap *= 2
-                c_rx, c_hist, c_n, c_src = _grow(c_rx, cap), _grow(c_hist, cap), _grow(c_n, cap), _grow(c_src, cap)
-                c_close = _grow(c_close, cap)
-            c_rx[c], c_hist[c], c_n[c], c_src[c] = r, hist[i], nint[i], src[i]
-            c_close[c] = perp / max(radius, 1e-30)
+                h_rx, h_ray, h_close = _grow(h_rx, cap), _grow(h_ray, cap), _grow(h_close, cap)
+            h_rx[c], h_ray[c] = r, i
+            h_close[c] = perp / max(radius, 1e-30)
+            per_rx[r + 1] += 1
             c += 1
-    c_rx, c_hist, c_n, c_src, c_close = c_rx[:c].copy(), c_hist[:c].copy(), c_n[:c].copy(), c_src[:c].copy(), \
-        c_close[:c].copy()
+    for r in range(n_rx):
+        per_rx[r + 1] += per_rx[r]
+    c_rx = np.empty(c, np.int64)
+    c_hist = np.empty(c, np.int64)
+    c_n = np.empty(c, np.int64)
+    c_src = np.empty(c, np.int64)
+    c_close = np.empty(c, np.float64)
+    for k in range(c):
+        r, i = h_rx[k], h_ray[k]
+        at = per_rx[r]
+        per_rx[r] += 1
+        c_rx[at], c_hist[at], c_n[at], c_src[at], c_close[at] = r, hist[i], nint[i], src[i], h_close[k]
     walking = walk_miss.shape[0] > 0
     if walking:
         for i in range(n):
             if mode[i] == 0:
                 continue
-            ray_cls = cls[med[i] + 1]
+            ray_zone = zone[med[i] + 1]
             reach = min(np.float64(tfar[i]) if prim[i] >= 0 else np.inf, 1e3)
             row = src[i] - src_base
             for r in range(n_rx):
-                if rx_cls[r] != ray_cls:
+                if rx_zone[r] != ray_zone:
                     continue
                 dist = _segment_miss(rx_m[r, 0] - o[i, 0], rx_m[r, 1] - o[i, 1], rx_m[r, 2] - o[i, 2],
                                      d[i, 0], d[i, 1], d[i, 2], reach)
@@ -793,17 +871,26 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
         wt = wk - wr
         bend = curvature_margin * curvature32[f] * radk
         code_k[i] = (organ * 2 + (1 if leaving else 0)) * 2
+        side = 0 if leaving else 1  # the reflected child's side of the face (0: inside its organ)
         if (shot and (rx_ * fx + ry_ * fy + rz_ * fz) * sg < 0.0 and wr >= threshold
-                and nk + 1 + need[m_from + 1] <= kmax):
+                and nk + 1 + need[m_from + 1] <= kmax
+                and (need[m_from + 1] == 0 or _may_return(
+                    wr, alpha[m_from + 1], return_m[f, side], threshold, pt[i, 0] - push[i, 0],
+                    pt[i, 1] - push[i, 1], pt[i, 2] - push[i, 2], rx_, ry_, rz_, bounds))):
             kind[i] |= 1
             dr[i, 0], dr[i, 1], dr[i, 2] = rx_, ry_, rz_
             w_r[i] = wr
             ang_r[i] = ang[i] + 2.0 * bend
             n_r += 1
         through = not tir and (tx * fx + ty * fy + tz * fz) * sg > 0.0
-        if shot and through and wt >= threshold and nk + 1 + need[m_to + 1] <= kmax:
+        if (shot and through and wt >= threshold and nk + 1 + need[m_to + 1] <= kmax
+                and (need[m_to + 1] == 0 or _may_return(
+                    wt, alpha[m_to + 1], return_m[f, 1 - side], threshold, pt[i, 0] + push[i, 0],
+                    pt[i, 1] + push[i, 1], pt[i, 2] + push[i, 2], tx, ty, tz, bounds))):
             mode_t[i] = mode[i]
-        elif walked and through:
+        elif walked and through and (need[m_to + 1] == 0 or _may_return(
+                1.0, 0.0, 0.0, 0.0, pt[i, 0] + push[i, 0], pt[i, 1] + push[i, 1], pt[i, 2] + push[i, 2], tx, ty, tz,
+                bounds)):  # the walk alone goes on, unless it leaves the box outside every receiver's zone
             mode_t[i] = 2
         else:
             through = False

@@ -119,22 +119,36 @@ class ShotScene(NamedTuple):
 
 
 class ShotMedia(NamedTuple):
-    """The shooting's media: float32 Re n and power attenuation, and the events each medium
-    needs at least to reach a receiver's material class."""
+    """The shooting's media: float32 Re n and power attenuation, each medium's zone (the region of
+    one material it belongs to: :func:`raytrace.solver.sbr.zones`) and the events it needs at
+    least to reach a receiver's zone."""
 
     parent: _i64("M", within=(-1, "M"))
     material_class: _i64("M+1")
     transparent: _bool("F")
     n_real: _f32("M+1")
     alpha: _f32("M+1")  # power attenuation constant k0 |Im n| [Np/m]
+    zone: _i64("M+1")
     need: _i64("M+1")
+    #: per face, for a ray on the inside (0) / outside (1) of its organ: the least length it must
+    #: still travel in that medium before it can cross towards a receiver (raytrace.solver.sbr.return_lengths)
+    return_m: _f32("F", 2)
+    bounds_m: _f64(2, 3)  # the scene's box (lowest, highest corner) in the centred frame
 
 
 class ShotReceivers(NamedTuple):
-    """Receivers as the shooting sees them: float32 positions in the scene's centred frame."""
+    """Receivers as the shooting sees them: float32 positions in the scene's centred frame, and
+    a uniform grid over them (cell ``(i, j, k)`` of edge ``grid_cell_m`` from ``grid_lo_m``; its
+    receivers are ``cell_items[cell_start[c]:cell_start[c + 1]]``, ``c = (i * ny + j) * nz + k``),
+    so that a ray segment tests only the receivers near it (:func:`raytrace.solver.sbr.receiver_grid`)."""
 
     position_m: _f32("R", 3)
-    material_class: _i64("R")
+    zone: _i64("R")  # the receiver's zone (raytrace.solver.sbr.zones)
+    grid_lo_m: _f64(3)
+    grid_cell_m: _FLOAT
+    grid_dims: _i64(3)
+    cell_start: _i64("G")
+    cell_items: _i64("R", within=(0, "R"))
 
 
 class ShotSettings(NamedTuple):

@@ -138,21 +138,54 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
     rx_medium = np.asarray(rx_medium, np.int64)
     tables = media.kernel_tables
     alpha = (2.0 * np.pi * media.frequencies_hz[0] / C0) * -media.n[0].imag
+    zone = zones(media)
+    need = _interactions_needed(media, rx_medium)
+    verts32 = (scene.vertices - scene.center).astype(np.float32)  # what Embree holds
     shot = scene.shot_tables
+    rx32 = np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32))
     no_passes = not bool(tables.transparent[shot.face_map].any())
     return _Context(
         scene=shot,
         media=build(ShotMedia, parent=tables.parent, material_class=tables.material_class,
                     transparent=tables.transparent, n_real=media.n_real.astype(np.float32),
-                    alpha=alpha.astype(np.float32), need=_interactions_needed(media, rx_medium)),
-        receivers=build(ShotReceivers,
-                        position_m=np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32)),
-                        material_class=np.ascontiguousarray(tables.material_class[rx_medium + 1])),
+                    alpha=alpha.astype(np.float32), zone=zone, need=need,
+                    return_m=return_lengths(scene, media, zone, need, alpha),
+                    bounds_m=np.array([verts32.min(axis=0), verts32.max(axis=0)], np.float64)),
+        receivers=build(ShotReceivers, position_m=rx32,
+                        zone=np.ascontiguousarray(zone[rx_medium + 1]),
+                        **receiver_grid(rx32)),
         settings=build(ShotSettings, threshold=10.0 ** (-dynamic_range_db / 10.0), kmax=int(kmax),
                        reception_factor=config.reception_factor, curvature_margin=config.curvature_margin,
                        no_passes=no_passes, walk_events=config.walk_max_events),
         walk=bool(walk),
     )
+
+
+def receiver_grid(rx32: np.ndarray) -> dict:
+    """A uniform grid over the receivers (the :class:`~raytrace.engine.records.ShotReceivers` grid
+    fields): cells of about one receiver each (at most 32 per axis), receivers listed cell by
+    cell. :func:`raytrace.engine.kernels.bounce` tests a ray segment only against the receivers
+    of the cells its bounding box, widened by the largest tube half-width along it, overlaps:
+    a receiver outside that box is farther than the half-width from every point of the segment,
+    so the receptions are those of testing every receiver (exact), at a cost that no longer
+    grows with the receivers far from the ray. Cell indices are ``floor((x - lo) / cell)`` in
+    float64, clipped, here and in the kernel alike (monotonic: a receiver inside the box lies
+    in a cell of the box's index range)."""
+    p = np.asarray(rx32, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return {"grid_lo_m": np.zeros(3), "grid_cell_m": 1.0, "grid_dims": np.ones(3, np.int64),
+                "cell_start": np.zeros(2, np.int64), "cell_items": np.zeros(0, np.int64)}
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    extent = np.maximum(hi - lo, 1e-3)
+    cell = max(float(np.prod(extent) / len(p)) ** (1.0 / 3.0), float(extent.max()) / 32.0, 1e-3)
+    dims = np.clip(np.ceil(extent / cell).astype(np.int64), 1, 32)
+    idx = np.clip(np.floor((p - lo) / cell).astype(np.int64), 0, dims - 1)
+    flat = (idx[:, 0] * dims[1] + idx[:, 1]) * dims[2] + idx[:, 2]
+    order = np.argsort(flat, kind="stable")
+    start = np.zeros(int(np.prod(dims)) + 1, np.int64)
+    np.add.at(start, flat + 1, 1)
+    return {"grid_lo_m": lo, "grid_cell_m": cell, "grid_dims": dims, "cell_start": np.cumsum(start),
+            "cell_items": order.astype(np.int64)}
 
 
 def _bounce(ctx: _Context, rays: ShotRays, log: _Log, found: _Found, walk: WalkRecords = _NO_WALK
@@ -321,37 +354,166 @@ def shoot(
     )
 
 
+def zones(media: MediaTable) -> np.ndarray:
+    """Per medium (index m + 1): its zone, the connected region of one material it belongs to.
+
+    A ray only ever crosses a surface of organ X between X and its parent, and the surfaces
+    between identical materials are not in the shooting's scene (transparent): so the media a
+    ray can be in without an interaction are those joined by organ/parent pairs of the same
+    material class, and a zone is a connected component of that graph (labels are the smallest
+    medium index + 1 of the component). Two organs of one material that do not touch (two
+    separate bowel loops, the air of a closed room and the air outside its walls) are different
+    zones: a ray in one never reaches a point of the other without an interaction."""
+    cls = np.asarray(media.material_class, np.int64)
+    label = np.arange(len(cls), dtype=np.int64)
+
+    def root(a: int) -> int:
+        while label[a] != a:
+            a = int(label[a])
+        return a
+
+    for organ, parent in enumerate(np.asarray(media.parent, np.int64)):
+        a, b = organ + 1, int(parent) + 1
+        if cls[a] == cls[b]:
+            ra, rb = root(a), root(b)
+            label[max(ra, rb)] = min(ra, rb)
+    return np.array([root(a) for a in range(len(cls))], np.int64)
+
+
+def return_lengths(scene: TracerScene, media: MediaTable, zone: np.ndarray, need: np.ndarray,
+                   alpha: np.ndarray, max_pairs: int = 4_000_000) -> np.ndarray:
+    """(F, 2) float32: for a ray on the inside (column 0) / outside (1) of face f's organ, in a
+    zone (:func:`zones`) from which no receiver is reached without an interaction, the least
+    length it must still travel in that zone's medium before it can cross towards a receiver.
+
+    The zones form a tree (the containment tree with the surfaces between identical materials
+    contracted). From zone Z a receiver can be reached only through a face to a neighbour Y
+    whose side of the tree (without Z) holds a receiver's zone: Z's *exit* faces. A ray on an
+    exit face needs no length (0). A ray on any other face of Z must reach an exit face, or
+    leave Z and come back through a non-exit face (its side of the tree has no receiver), so
+    it travels at least D_Z, the least distance between Z's non-exit and exit faces, in Z:
+    bounded below by the distance between their bounding boxes (all pairs, when there are at
+    most ``max_pairs``; else 0, no bound). When every exit face is on one convex organ that Z
+    surrounds, a ray leaving that organ's surface into Z cannot meet it again before it has
+    reached another face of Z: it travels at least twice D_Z. Only absorbing zones
+    (``alpha > 0``) get a bound.
+    The shooting drops a ray whose power factor times ``exp(-2 alpha L)`` over that length is
+    below the dynamic range (:func:`raytrace.engine.kernels._may_return`): exact, since power
+    factors only decrease. In a closed room of 1 m concrete walls at 3.5 GHz (alpha 3.8 Np/m)
+    a ray reflected at the walls' outer face must cross the 1 m back, -66 dB: the steep ones
+    are dropped there instead of being cast."""
+    out = np.zeros((len(scene.face_organ), 2), np.float32)
+    parent = np.asarray(media.parent, np.int64)
+    organ = np.asarray(scene.face_organ, np.int64)
+    z_in, z_out = zone[organ + 1], zone[parent[organ] + 1]
+    n_zone = len(zone)
+    # the zone tree rooted at the outside's zone: parent zone and receivers below each zone
+    up = np.full(n_zone, -1, np.int64)
+    for o, p in enumerate(parent):
+        a, b = int(zone[o + 1]), int(zone[p + 1])
+        if a != b:
+            up[a] = b
+    below = np.zeros(n_zone, np.int64)
+    below[np.unique(zone[need == 0])] = 1  # receivers' zones (need 0)
+    total = int(below.sum())
+    order = []  # zones from the leaves up (a zone's children before it)
+    depth = np.zeros(n_zone, np.int64)
+    for z in range(n_zone):
+        w = z
+        while up[w] >= 0:
+            depth[z] += 1
+            w = int(up[w])
+    for z in sorted(set(int(x) for x in zone), key=lambda x: -depth[x]):
+        order.append(z)
+        if up[z] >= 0:
+            below[up[z]] += below[z]
+
+    def exit_towards(z: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether a receiver lies on y's side of the tree edge z - y."""
+        child = up[y] == z  # y below z
+        return np.where(child, below[y] > 0, total - below[z] > 0)
+
+    tri = scene.vertices[scene.faces]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    for z in np.unique(zone):
+        m = int(np.flatnonzero(zone == z)[0])
+        if need[m] == 0 or not alpha[m] > 0.0 or need[m] >= 1 << 20:
+            continue
+        sides = []  # (faces, column, exit?) of Z's faces seen from Z
+        for col, here, there in ((0, z_in, z_out), (1, z_out, z_in)):
+            rows = np.flatnonzero((here == z) & (there != z))
+            sides.append((rows, col, exit_towards(np.full(len(rows), z), there[rows])))
+        exits = np.concatenate([rows[ex] for rows, _c, ex in sides])
+        others = [(rows[~ex], col) for rows, col, ex in sides]
+        n_other = sum(len(r) for r, _c in others)
+        if len(exits) == 0 or n_other == 0 or len(exits) * n_other > max_pairs:
+            continue
+        gap = np.inf
+        for rows, _col in others:
+            for k in range(0, len(rows), 256):
+                a = rows[k:k + 256]
+                d = np.maximum(np.maximum(lo[exits][None] - hi[a][:, None], lo[a][:, None] - hi[exits][None]), 0.0)
+                gap = min(gap, float(np.sqrt((d * d).sum(axis=2)).min()))
+        for rows, col in others:
+            out[rows, col] = np.float32(gap * (1.0 - 1e-4))  # rounded down: a lower bound in float32
+        # all exits on one convex organ C around which Z lies (a room's air in its walls): a ray
+        # leaving C's surface into Z never meets C again without first reaching another face of
+        # Z, and must then come back: twice the gap
+        inner_exits, outer_exits = sides[0][0][sides[0][2]], sides[1][0][sides[1][2]]
+        if len(inner_exits) == 0:
+            exit_organs = np.unique(organ[outer_exits])
+            if len(exit_organs) == 1 and _convex(scene, int(exit_organs[0])):
+                out[outer_exits, 1] = np.float32(2.0 * gap * (1.0 - 1e-4))
+    return out
+
+
+def _convex(scene: TracerScene, organ: int, max_faces: int = 5_000) -> bool:
+    """Whether ``organ``'s closed, outward-oriented mesh is convex: every vertex of it on the
+    inner side of every face's plane (to 1e-9 of its size). Larger meshes: False (no claim)."""
+    rows = np.flatnonzero(np.asarray(scene.face_organ) == organ)
+    if len(rows) == 0 or len(rows) > max_faces:
+        return False
+    verts = scene.vertices[np.unique(scene.faces[rows])]
+    normals = scene.face_normals[rows]
+    offsets = np.einsum("ij,ij->i", normals, scene.vertices[scene.faces[rows, 0]])
+    size = float(np.ptp(verts, axis=0).max())
+    return bool((verts @ normals.T - offsets[None, :] <= 1e-9 * size).all())
+
+
 def _interactions_needed(media: MediaTable, rx_medium: np.ndarray) -> np.ndarray:
     """Per medium (index m + 1): the fewest interactions a ray in it needs before it can be
-    received, i.e. the number of transmissions to reach a medium of a receiver's material
-    class (0 for those classes; a large number when none can be reached).
+    received, i.e. the number of transmissions to reach a receiver's zone (:func:`zones`; 0 in
+    those zones; a large number when none can be reached).
 
     A ray only ever crosses a surface of organ X between X and its parent (the bounce
-    requires the side it comes from to be of the ray's class), each crossing of a visible
-    surface costs one interaction and joins two different classes, and reception needs the
-    ray's class to be the receiver's. So a breadth-first search over the graph of material
-    classes (an edge per organ/parent pair of different classes) bounds the interactions
-    still needed; a ray with ``nint + need > max_interactions`` can never make a candidate
-    and is not spawned (exact pruning: the candidates are unchanged)."""
+    requires the side it comes from to be the ray's), each crossing of a visible surface costs
+    one interaction and joins two zones, and reception needs the ray to be in the receiver's
+    zone (a ray in another region of the same material never passes the receiver without
+    crossing a surface). So a breadth-first search over the graph of zones (an edge per
+    organ/parent pair of different materials) bounds the interactions still needed; a ray with
+    ``nint + need > max_interactions`` can never make a candidate and is not spawned (exact
+    pruning). By zone rather than by material: in a closed room, rays leaving the walls into
+    the air outside need two more crossings, not none."""
+    zone = zones(media)
     cls = np.asarray(media.material_class, np.int64)
-    n_cls = int(cls.max()) + 1
-    adjacent: list[set[int]] = [set() for _ in range(n_cls)]
+    n_zone = len(zone)
+    adjacent: list[set[int]] = [set() for _ in range(n_zone)]
     for organ, parent in enumerate(np.asarray(media.parent, np.int64)):
-        a, b = int(cls[organ + 1]), int(cls[parent + 1])
-        if a != b:
+        a, b = int(zone[organ + 1]), int(zone[parent + 1])
+        if cls[organ + 1] != cls[parent + 1]:
             adjacent[a].add(b)
             adjacent[b].add(a)
     big = 1 << 20
-    dist = np.full(n_cls, big, np.int64)
-    frontier = sorted({int(c) for c in cls[np.asarray(rx_medium, np.int64) + 1]})
+    dist = np.full(n_zone, big, np.int64)
+    frontier = sorted({int(z) for z in zone[np.asarray(rx_medium, np.int64) + 1]})
     dist[frontier] = 0
     step = 0
-    while frontier:  # a graph of a dozen material classes
+    while frontier:  # a graph of a few dozen zones
         step += 1
         nxt = sorted({b for a in frontier for b in adjacent[a] if dist[b] == big})
         dist[nxt] = step
         frontier = nxt
-    return dist[cls]
+    return dist[zone]
 
 
 def _nbytes(parts) -> int:

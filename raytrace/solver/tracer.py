@@ -439,9 +439,8 @@ def _select_seeds(c, config: TracerConfig):
     if len(c.receiver) == 0:
         return c.receiver, c.codes, c.nint, c.launch_dir
     spacing = np.sqrt(4.0 * np.pi / max(c.rays_launched, 1))
-    key = np.concatenate([c.receiver[:, None], c.codes], axis=1)
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    cluster = _clusters(group.ravel(), c.launch_dir, config.cluster_link * spacing)
+    group = _row_groups(np.concatenate([c.receiver[:, None], c.codes], axis=1))
+    cluster = _clusters(group, c.launch_dir, config.cluster_link * spacing)
     order = np.lexsort((c.closeness, cluster))
     k = cluster[order]
     starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1], True])
@@ -459,6 +458,30 @@ def _select_seeds(c, config: TracerConfig):
     early[by_group[rank < config.seeds_per_cluster]] = True
     chosen = np.concatenate([chosen[early[chosen]], chosen[~early[chosen]]])
     return c.receiver[chosen], c.codes[chosen], c.nint[chosen], c.launch_dir[chosen]
+
+
+def _row_groups(key: np.ndarray) -> np.ndarray:
+    """The label of each row of the int ``key`` matrix among its distinct rows in lexicographic
+    order: ``np.unique(key, axis=0, return_inverse=True)[1]``, without sorting rows as records
+    (0.95 s for 1.5e5 candidates of the room with a sphere). The rows (values >= -1) are read as
+    numbers in a mixed radix (each column's digit ``value + 1`` below its base, so the order is
+    the rows' lexicographic order) and one int64 array is sorted; a lexsort of the columns when
+    that number would not fit in 63 bits."""
+    key = np.asarray(key, np.int64)
+    if len(key) == 0:
+        return np.zeros(0, np.int64)
+    digits = key - key.min(axis=0)
+    base = digits.max(axis=0) + 1
+    if float(np.prod(base.astype(float))) < 2.0 ** 62:
+        weight = np.cumprod(np.r_[base[1:], 1][::-1])[::-1]
+        _, group = np.unique(digits @ weight, return_inverse=True)
+        return np.ascontiguousarray(group.ravel(), np.int64)
+    order = np.lexsort(key.T[::-1])
+    ranked = key[order]
+    new = np.r_[True, (ranked[1:] != ranked[:-1]).any(axis=1)]
+    group = np.empty(len(key), np.int64)
+    group[order] = np.cumsum(new) - 1
+    return group
 
 
 def _clusters(group: np.ndarray, dirs: np.ndarray, link_rad: float) -> np.ndarray:
@@ -484,10 +507,8 @@ def _unique_paths(rx_idx, codes, dirs, config: TracerConfig):
     already kept in its group (:func:`raytrace.engine.kernels.first_of_duplicates`)."""
     if len(rx_idx) == 0:
         return np.zeros(0, bool)
-    key = np.concatenate([rx_idx[:, None], codes], axis=1)
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    return kernels.first_of_duplicates(np.ascontiguousarray(group.ravel(), np.int64), np.ascontiguousarray(dirs, float),
-                                       config.duplicate_angle_rad)
+    group = _row_groups(np.concatenate([rx_idx[:, None], codes], axis=1))
+    return kernels.first_of_duplicates(group, np.ascontiguousarray(dirs, float), config.duplicate_angle_rad)
 
 
 def _make_paths(phantom, records: Steps, tir: np.ndarray, fields, rows: np.ndarray, tx_m: np.ndarray,

@@ -60,3 +60,40 @@ def test_completeness_compares_the_default_with_a_denser_launch() -> None:
     assert out["dense_rays"] == 6000 and out["receivers"] == 12
     assert 0 <= out["strongest_missed"] <= out["receivers"]
     assert 0 <= out["strong_found"] <= out["strong_paths"] and out["strong_paths"] >= 1
+
+
+def test_sionna_room_matches_paths_to_the_oracle_within_float32() -> None:
+    """bench/sionna_room.py counts a tool's path as an oracle path when the reflection count
+    agrees, the delay is within 1 ps and the points within 1 mm (Sionna computes in float32):
+    a float32-rounded copy matches, a path 1 cm off or with another count does not, and an
+    oracle path is counted once however many copies were returned."""
+    from bench.sionna_room import matched
+
+    pts = np.array([[3.0, 0.2, -0.4], [-1.0, 2.5, 0.3]])
+    oracle = [[{"n": 2, "delay_s": 3.3e-8, "points_m": pts}, {"n": 0, "delay_s": 1e-8, "points_m": np.zeros((0, 3))}]]
+    f32 = {"n": 2, "delay_s": float(np.float32(3.3e-8)), "points_m": pts.astype(np.float32).tolist()}
+    off = {"n": 2, "delay_s": 3.3e-8, "points_m": (pts + [0.01, 0.0, 0.0]).tolist()}
+    los = {"n": 0, "delay_s": 1e-8 + 2e-12, "points_m": []}
+    assert matched([[f32, f32]], oracle) == 1
+    assert matched([[off, los]], oracle) == 0
+    assert matched([[off, dict(los, delay_s=1e-8)]], oracle) == 1
+
+
+def test_sionna_room_receivers_are_inside_the_room_and_apart() -> None:
+    from bench.sionna_room import ROOM_HI, ROOM_LO, SPHERE_CENTRE, SPHERE_RADIUS, TX, receiver_positions
+
+    rx = receiver_positions(64)
+    assert len(rx) == 64 and np.array_equal(rx, receiver_positions(64))  # seeded
+    assert (rx > ROOM_LO).all() and (rx < ROOM_HI).all()
+    assert (np.linalg.norm(rx - TX, axis=1) > 0.5).all()
+    assert (np.linalg.norm(rx - SPHERE_CENTRE, axis=1) > SPHERE_RADIUS + 0.3).all()
+
+
+def test_sionna_room_says_why_when_sionna_cannot_run(monkeypatch, capsys) -> None:
+    """Without Dr.Jit's LLVM the script exits with status 2 and the reason, installing nothing."""
+    from bench import sionna_room
+
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/nonexistent/libLLVM.so")
+    monkeypatch.setattr(sionna_room, "sionna_python", lambda: pytest.fail("must not install"))
+    assert sionna_room.main(["--receivers", "1"]) == 2
+    assert "DRJIT_LIBLLVM_PATH=/nonexistent/libLLVM.so does not exist" in capsys.readouterr().err

@@ -1,10 +1,11 @@
-"""Shooting phase (raytrace/sbr.py): rays that cannot reach a receiver's material within
-``max_interactions`` are not spawned, and that must not change the candidates; the facet
-curvature that widens the reception tubes.
+"""Shooting phase (raytrace/sbr.py): rays that cannot reach a receiver's zone within
+``max_interactions``, leave the scene's box or are absorbed below the dynamic range before they
+can get back are not spawned, and that must not change the candidates; the facet curvature
+that widens the reception tubes.
 
-Oracles: the torso's nesting written out by hand (skin > fat > muscle wall > visceral
-cavity > organs) for the interaction counts, and the same launch shot with the pruning
-disabled for the candidates (exact equality: pruning is a pure optimisation).
+Oracles: the torso's nesting and a closed room's shell written out by hand for the interaction
+counts and return lengths, and the same launch shot with the pruning disabled for the
+candidates (exact equality: pruning is a pure optimisation).
 """
 
 from __future__ import annotations
@@ -76,6 +77,65 @@ def test_pruning_leaves_the_candidates_unchanged(phantom, monkeypatch, max_inter
     assert _candidate_set(pruned) == _candidate_set(full)
 
 
+def _closed_room():
+    """A 6 x 5 x 3 m room's air (one organ) in a 1 m concrete shell (eps_r 5.24, 0.0462 S/m)."""
+    lo, hi = np.array([-3.0, -2.5, -1.5]), np.array([3.0, 2.5, 1.5])
+    return Phantom.build("closed-room", [
+        Organ("walls", Material(relative_permittivity=5.24, conductivity_s_per_m=0.0462),
+              trimesh.creation.box(bounds=[lo - 1.0, hi + 1.0])),
+        Organ("room", Material(relative_permittivity=1.0, conductivity_s_per_m=0.0),
+              trimesh.creation.box(bounds=[lo, hi]))])
+
+
+def test_zones_and_return_lengths_of_a_closed_room():
+    """The room's air and the air outside the walls are one material but two zones: rays outside
+    need two crossings (walls, room), not none. A ray on the walls' outer face (inside the
+    concrete) must still cross the 1 m shell before it can get back in: its return length is
+    the thickness (by hand); a ray entering the concrete from the room (a convex box) must reach
+    the outer face and come back: twice the thickness."""
+    ph = _closed_room()
+    media = MediaTable.build(ph, np.array([3.5e9]))
+    scene = scene_for(ph, ~media.face_transparent)
+    zone = sbr.zones(media)
+    assert zone[0] != zone[2]  # outside air (medium -1), room air (organ 1)
+    need = sbr._interactions_needed(media, np.array([1]))
+    assert list(need) == [2, 1, 0]
+    alpha = np.array([0.0, 3.8, 0.0])
+    ret = sbr.return_lengths(scene, media, zone, need, alpha)
+    outer = scene.face_organ == 0
+    np.testing.assert_allclose(ret[outer, 0], 1.0, rtol=1e-3)  # inside the concrete, at its outer face
+    # in the concrete at the (convex) room's surface, moving away from it: out to the outer face and back
+    np.testing.assert_allclose(ret[~outer, 1], 2.0, rtol=1e-3)
+    assert (ret[outer, 1] == 0).all() and (ret[~outer, 0] == 0).all()  # outside air (no absorption), room air
+
+
+@pytest.mark.parametrize("max_interactions", [4, 5])
+def test_return_and_escape_pruning_leave_the_candidates_unchanged(monkeypatch, max_interactions):
+    """Rays that leave the scene's box outside every receiver's zone, or that the walls' absorption
+    over their least return length brings below the dynamic range, are not cast: the candidates
+    are those of the same launch without that pruning (exact equality), with fewer segments."""
+    ph = _closed_room()
+    media = MediaTable.build(ph, np.array([3.5e9]))
+    scene = scene_for(ph, ~media.face_transparent)
+    tx = np.array([0.7, -0.4, 0.2])
+    rx = np.array([[-1.3, 1.1, -0.35], [2.1, 1.7, 0.6], [-2.2, -1.6, 0.9], [0.4, 0.9, -1.0]])
+    args = (scene, media, tx, 1, rx, np.ones(len(rx), np.int64), 20_000, max_interactions, 80.0)
+    pruned = sbr.shoot(*args, walk=True)
+    real_context = sbr._context
+
+    def unpruned(*a, **k):
+        ctx = real_context(*a, **k)
+        m = ctx.media._replace(return_m=np.zeros_like(ctx.media.return_m),
+                               bounds_m=np.array([[-1e9] * 3, [1e9] * 3]))
+        return sbr._Context(ctx.scene, m, ctx.receivers, ctx.settings, ctx.walk)
+
+    monkeypatch.setattr(sbr, "_context", unpruned)
+    full = sbr.shoot(*args, walk=True)
+    assert pruned.segments < full.segments  # it does prune something
+    assert len(full.receiver) > 0
+    assert _candidate_set(pruned) == _candidate_set(full)
+
+
 def test_concurrent_launch_batches_give_the_serial_candidates(phantom):
     """Launch batches shot in threads are merged in batch order: exactly the serial result."""
     media = MediaTable.build(phantom, np.array([402e6]))
@@ -127,3 +187,16 @@ def test_face_curvature_is_one_over_the_radius_on_a_sphere_and_zero_on_flat_face
     on_ball = scene.face_organ == ph.organ_index("ball")
     np.testing.assert_allclose(k[on_ball], 1.0 / radius, rtol=1e-3)
     assert np.all(k[~on_ball] == 0.0)
+
+
+def test_row_groups_are_numpys_unique_rows():
+    """The seeds' (receiver, signature) groups are labelled as ``np.unique(axis=0)`` labels them
+    (lexicographic order of the rows), through the mixed-radix path and the lexsort fallback."""
+    from raytrace.solver.tracer import _row_groups
+
+    rng = np.random.default_rng(17)
+    for hi in (3, 40, 10**6):  # the last does not fit the mixed radix with 6 columns
+        key = rng.integers(-1, hi, size=(4000, 6))
+        key[:2000:2] = key[1:2000:2]  # repeated rows
+        _, ref = np.unique(key, axis=0, return_inverse=True)
+        np.testing.assert_array_equal(_row_groups(key), ref.ravel())
