@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -85,12 +86,18 @@ def _row(name: str, fd: Metrics, tr: Metrics, validity: tuple[str, ...], medium:
 
 
 def compare(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions, directory: Path, *,
-            coarse_factor: float | None = 1.5, run: bool = True, threads: int = 2, reuse: bool = False) -> dict:
+            coarse_factor: float | None = 1.5, run: bool = True, threads: int = 2, reuse: bool = False,
+            grid_phantom: Callable[[float], Phantom] | None = None) -> dict:
     """The report (a JSON-able dict): per cell size the model's facts, gprMax's wall time and
     per receiver the FDTD and tracer metrics and their differences; then per receiver the
     discretisation estimate. With ``run`` false (or gprMax missing) only the inputs are written;
     with ``reuse``, a cell size whose identical input already ran in ``directory`` is not re-run
-    (:func:`previous_output`)."""
+    (:func:`previous_output`).
+
+    ``grid_phantom(cell_m)``, when given, is the phantom as a grid of that cell sees it (e.g. planar
+    layers moved to the nearest cell faces): the tracer answers on it, so that the change of
+    (tracer - FDTD) between the cell sizes is the FDTD's discretisation alone, not the change of
+    geometry the coarser voxels make (which the tracer would not see on ``phantom``)."""
     sizes = [options.cell_m] + ([options.cell_m * coarse_factor] if coarse_factor else [])
     report: dict = {"request": spec.to_dict(), "runs": [], "discretisation": []}
     for k, h in enumerate(sizes):
@@ -114,10 +121,12 @@ def compare(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions, directory
             continue
         out, wall = previous or run_gprmax(path, threads)
         entry["reused"] = previous is not None
-        ts = tracer_spec(model, spec, phantom)
-        n_tx, n_rx = media_indices(phantom, ts)
+        seen = grid_phantom(h) if grid_phantom else phantom
+        entry["tracer_phantom"] = seen.description.split("\n")[0] if grid_phantom else spec.phantom
+        ts = tracer_spec(model, spec, seen)
+        n_tx, n_rx = media_indices(seen, ts)
         a_fd, diag = fdtd_gains(model, out, n_tx, n_rx)
-        result = trace_channel(ts, phantom)
+        result = trace_channel(ts, seen)
         a_tr = tracer_gains(result)
         entry.update(ran=True, wall_s=wall, **diag)
         entry["tracer_receivers_m"] = [r.position_m.tolist() for r in ts.receivers]
@@ -155,7 +164,7 @@ def markdown(report: dict) -> str:
         if not run.get("ran"):
             lines.append("(not run)\n")
             continue
-        lines.append(f"gprMax wall time {run['wall_s']:.0f} s.\n")
+        lines.append(f"gprMax wall time {run['wall_s']:.0f} s. Tracer on: {run.get('tracer_phantom', '?')}.\n")
         lines.append("| receiver | FDTD dB | tracer dB | d dB | FDTD deg | d deg | FDTD group delay ns | d ps | "
                      "envelope d ps | validity | medium: tracer / FDTD cells |")
         lines.append("|---|---|---|---|---|---|---|---|---|---|---|")

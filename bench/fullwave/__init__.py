@@ -33,15 +33,25 @@ TX_DEPTH_M = 0.030
 HALF_M = 1.0
 
 
-def layered_phantom() -> Phantom:
-    """Nested boxes: skin (skin_dry) from y = 0, fat (infiltrated average) from 2 mm, muscle from
-    22 mm, each 10 mm inside its parent elsewhere (a closed mesh whose far faces no ray reaches)."""
-    layers = [("skin", "skin_dry", 0.0), ("fat", DEFAULT_FAT, SKIN_M), ("muscle", "muscle", SKIN_M + FAT_M)]
+def layered_phantom(skin_m: float = SKIN_M, fat_m: float = FAT_M) -> Phantom:
+    """Nested boxes: skin (skin_dry) from y = 0, fat (infiltrated average) behind it, muscle
+    behind the fat (default 2 and 20 mm), each 10 mm inside its parent elsewhere (a closed mesh
+    whose far faces no ray reaches)."""
+    layers = [("skin", "skin_dry", 0.0), ("fat", DEFAULT_FAT, skin_m), ("muscle", "muscle", skin_m + fat_m)]
     organs = []
     for k, (name, tissue, front) in enumerate(layers):
         h = HALF_M - 0.010 * k
         organs.append(Organ(name, Material(tissue=tissue), box([-h, front, -h], [h, h, h])))
-    return Phantom.build("layered-fat20", organs, description=layered_phantom.__doc__)
+    return Phantom.build("layered-fat20", organs,
+                         description=f"skin {skin_m * 1e3:g} mm / fat {fat_m * 1e3:g} mm / muscle, air at y < 0")
+
+
+def layered_on_grid(cell_m: float) -> Phantom:
+    """The layered phantom as a grid of ``cell_m`` aligned with y = 0 sees it: each interface on
+    the cell face nearest it, where a cell takes the medium at its centre (3 mm: skin 3, fat 18)."""
+    skin = round(SKIN_M / cell_m + 1e-9) * cell_m  # a face at x.5 cells goes up: the centre rule
+    muscle = round((SKIN_M + FAT_M) / cell_m + 1e-9) * cell_m
+    return layered_phantom(skin, muscle - skin)
 
 
 def _dipole(name: str, position_m) -> Antenna:
@@ -102,3 +112,5 @@ def torso_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
 #: sensors move by up to 1.5 mm across a 2 mm skin (the anterior one lands in air), so the two runs
 #: would compare different receivers, not one receiver at two resolutions.
 CASES = {"layered": (layered_case, 1.5), "torso": (torso_case, 0.0)}
+#: The phantom the tracer answers on per cell size (fullwave.run.compare's ``grid_phantom``).
+GRID_PHANTOMS = {"layered": layered_on_grid}

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.fullwave import CASES
+from bench.fullwave import CASES, GRID_PHANTOMS
 from fullwave.run import compare, gprmax_available
 
 
@@ -35,7 +35,8 @@ def main(argv: list[str] | None = None) -> int:
         run = False
     t0 = time.monotonic()
     report = compare(spec, phantom, options, out, coarse_factor=coarse or None, run=run,
-                     threads=args.threads, reuse=args.reuse)
+                     threads=args.threads, reuse=args.reuse,
+                     grid_phantom=GRID_PHANTOMS.get(args.case))
     for r in report["runs"]:
         if r.get("ran"):
             print(f"{r['cell_m'] * 1e3:g} mm cells: gprMax {r['wall_s']:.0f} s", file=sys.stderr)

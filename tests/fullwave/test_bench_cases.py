@@ -10,9 +10,9 @@ import json
 
 import numpy as np
 
-from bench.fullwave import CASES, layered_phantom
+from bench.fullwave import CASES, layered_on_grid, layered_phantom
 from bench.fullwave.__main__ import main as bench_main
-from fullwave.compare import OFF_SURFACE_STEP_M, tracer_spec
+from fullwave.compare import OFF_SURFACE_CELLS, tracer_spec
 from fullwave.model import build_model
 from fullwave.run import markdown, previous_output
 
@@ -40,12 +40,16 @@ def test_layered_case_interfaces_lie_on_cell_faces():
         assert np.allclose(faces["skin_dry"], skin, atol=1e-9), (h, faces)
         assert np.allclose(faces["fat_average_infiltrated"], fat, atol=1e-9), (h, faces)
         assert abs(faces["muscle"][0] - fat[1]) < 1e-9
+        # the tracer's phantom for this grid (compare's grid_phantom) has its layers on those faces
+        seen = layered_on_grid(h)
+        fronts = {o.name: float(np.asarray(o.mesh.vertices)[:, 1].min()) for o in seen.organs}
+        assert np.allclose([fronts["skin"], fronts["fat"], fronts["muscle"]], [0.0, skin[1], fat[1]], atol=1e-12)
 
 
 def test_snapped_contact_sensors_leave_the_surface_on_the_requested_side():
     """The contact sensors (requested 0.5 mm inside the skin) snap onto the skin surface y = 0 (the
-    Ez nodes lie on cell faces); the tracer gets them within OFF_SURFACE_STEP_M of the node, in
-    the skin, where the phantom itself (an independent ray-cast) says they are. The grid's cells
+    Ez nodes lie on cell faces); the tracer gets them 0.1 cell straight into the skin (+y), where
+    the phantom itself (an independent ray-cast) says they are. The grid's cells
     around those nodes are air and skin; mid-fat and air receivers sit among their own medium."""
     spec, ph, opts = CASES["layered"][0]()
     model = build_model(spec, ph, opts)
@@ -54,13 +58,13 @@ def test_snapped_contact_sensors_leave_the_surface_on_the_requested_side():
     media = ph.medium_index(np.array([r.position_m for r in ts.receivers]))
     organ = [o.name for o in ph.organs]
     for i, name in enumerate(names):
-        moved = np.linalg.norm(ts.receivers[i].position_m - model.rx_m[i])
         if name.startswith("contact"):
             assert abs(model.rx_m[i][1]) < 1e-9  # on the surface in the grid
-            assert 0 < moved <= OFF_SURFACE_STEP_M * (1 + 1e-9) and organ[media[i]] == "skin"
+            step = ts.receivers[i].position_m - model.rx_m[i]
+            assert np.allclose(step, [0, OFF_SURFACE_CELLS * 0.002, 0], atol=1e-12) and organ[media[i]] == "skin"
             assert model.rx_cell_media[i] == ("air", "skin")
         else:
-            assert moved == 0.0
+            assert np.array_equal(ts.receivers[i].position_m, model.rx_m[i])
     assert model.rx_cell_media[names.index("fat_mid")] == ("fat",)
     assert model.rx_cell_media[names.index("air_30mm")] == ("air",)
 
