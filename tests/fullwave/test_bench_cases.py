@@ -30,11 +30,12 @@ def _box_faces_y(model) -> dict[str, tuple[float, float]]:
 
 
 def test_layered_case_interfaces_lie_on_cell_faces():
-    """2 mm: skin [0, 2], fat [2, 22] mm exactly as the phantom; 3 mm: the nearest faces, skin
-    [0, 3] and fat [3, 21] mm (the docstring's statement). Tolerance 1 nm: the bounds are shrunk
+    """2 mm: skin [0, 2], fat [2, 22] mm exactly as the phantom; 3 and 1.5 mm: the nearest faces,
+    skin [0, 3] / fat [3, 21] and skin [0, 1.5] / fat [1.5, 22.5] mm (the docstring's statement). Tolerance 1 nm: the bounds are shrunk
     by 1 nm so that voxelize's ceil does not add a cell."""
     spec, ph, opts = CASES["layered"][0]()
-    for h, skin, fat in ((0.002, (0.0, 0.002), (0.002, 0.022)), (0.003, (0.0, 0.003), (0.003, 0.021))):
+    for h, skin, fat in ((0.002, (0.0, 0.002), (0.002, 0.022)), (0.003, (0.0, 0.003), (0.003, 0.021)),
+                         (0.0015, (0.0, 0.0015), (0.0015, 0.0225))):
         model = build_model(spec, ph, dataclasses.replace(opts, cell_m=h))
         faces = _box_faces_y(model)
         assert np.allclose(faces["skin_dry"], skin, atol=1e-9), (h, faces)
@@ -84,7 +85,7 @@ def test_previous_output_only_for_the_identical_finished_input(tmp_path):
 def test_bench_export_only_writes_both_cell_sizes(tmp_path):
     assert bench_main(["layered", "--export-only", "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
-    assert [r["cell_m"] for r in report["runs"]] == [0.002, 0.003] and not any(r["ran"] for r in report["runs"])
+    assert [r["cell_m"] for r in report["runs"]] == [0.002, 0.0015] and not any(r["ran"] for r in report["runs"])
     assert bench_main(["torso", "--export-only", "--out", str(tmp_path / "t")]) == 0
     assert len(json.loads((tmp_path / "t" / "report.json").read_text())["runs"]) == 1
 
