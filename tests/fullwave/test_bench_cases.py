@@ -31,8 +31,8 @@ def _box_faces_y(model) -> dict[str, tuple[float, float]]:
 
 def test_layered_case_interfaces_lie_on_cell_faces():
     """2 mm: skin [0, 2], fat [2, 22] mm exactly as the phantom; 3 and 1.5 mm: the nearest faces,
-    skin [0, 3] / fat [3, 21] and skin [0, 1.5] / fat [1.5, 22.5] mm (the docstring's statement). Tolerance 1 nm: the bounds are shrunk
-    by 1 nm so that voxelize's ceil does not add a cell."""
+    skin [0, 3] / fat [3, 21] and skin [0, 1.5] / fat [1.5, 22.5] mm (the docstring's statement).
+    Tolerance 1 nm: the bounds are shrunk by 1 nm so that voxelize's ceil does not add a cell."""
     spec, ph, opts = CASES["layered"][0]()
     for h, skin, fat in ((0.002, (0.0, 0.002), (0.002, 0.022)), (0.003, (0.0, 0.003), (0.003, 0.021)),
                          (0.0015, (0.0, 0.0015), (0.0015, 0.0225))):
