@@ -81,6 +81,9 @@ class FdtdModel:
     tx_components: dict[str, float]  # axis -> dipole amplitude (the polarization's components)
     materials: dict[str, DebyeFit] = field(default_factory=dict)  # gprMax id -> fit
     boxes: int = 0
+    #: per receiver, the media (organ names, "air") of the cells that share its node's edge: the
+    #: grid's view of where it is (a contact sensor in a 2 mm skin can sit on fat or air cells)
+    rx_cell_media: tuple[tuple[str, ...], ...] = ()
 
 
 _AXES = "xyz"
@@ -93,6 +96,15 @@ def _node(pos: np.ndarray, pol: np.ndarray, origin: np.ndarray, h: float) -> tup
     offset[a] = 0.5 * h
     idx = np.round((pos - offset - origin) / h).astype(np.int64)
     return idx, origin + idx * h + offset
+
+
+def _edge_cells(organ: np.ndarray, idx: np.ndarray, pol: np.ndarray) -> set[int]:
+    """Organ indices (-1: air) of the four cells sharing the Yee edge of ``pol``'s dominant
+    component at node ``idx`` (the edge runs along that axis from ``idx``; the cells lie at
+    ``idx - 1`` and ``idx`` on the two other axes)."""
+    a = int(np.argmax(np.abs(pol)))
+    ranges = [range(int(i) - 1, int(i) + 1) if ax != a else range(int(i), int(i) + 1) for ax, i in enumerate(idx)]
+    return {int(organ[i, j, k]) for i in ranges[0] for j in ranges[1] for k in ranges[2]}
 
 
 def _boxes(organ: np.ndarray) -> list[tuple[int, int, int, int, int, int, int]]:
@@ -213,9 +225,13 @@ def build_model(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions = Fdtd
         x, y, z = idx * h
         lines.append(f"#rx: {x:.9g} {y:.9g} {z:.9g} rx{i} Ex Ey Ez")
     kept = {medium_id[m]: fits[medium_id[m]] for m in used}
+    names_of = [o.name for o in phantom.organs]
+    cell_media = tuple(tuple(sorted("air" if m < 0 else names_of[m] for m in _edge_cells(organ, idx, p)))
+                       for idx, p in zip(rx_idx, resolved.rx_polarization))
     return FdtdModel(input_text="\n".join(lines) + "\n", spec=spec, options=options, dt_s=dt, iterations=iterations,
                      cells=tuple(int(c) for c in cells), origin_m=origin, tx_m=tx_m, rx_m=rx_m, rx_names=names,
-                     tx_components=components, materials=kept, boxes=len(boxes))
+                     tx_components=components, materials=kept, boxes=len(boxes),
+                     rx_cell_media=cell_media)
 
 
 __all__ = ["FdtdModel", "FdtdOptions", "build_model"]
