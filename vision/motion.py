@@ -47,6 +47,7 @@ once (a rotation grid at scale 1 sees nothing of a frame zoomed by 1.5); ``joint
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -161,16 +162,11 @@ class _Level:
     @classmethod
     def build(cls, ref: np.ndarray, mov: np.ndarray, center, radius_px: float, bins: int,
               max_pixels: float = math.inf, focal_px: float | None = None) -> "_Level":
-        r = np.arange(ref.shape[0])[:, None]
-        c = np.arange(ref.shape[1])[None, :]
-        disc = (r - center[0]) ** 2 + (c - center[1]) ** 2 <= radius_px**2
-        n = int(disc.sum())
+        n, disc, compared, rows, cols = _disc_geometry(ref.shape, center, radius_px, max_pixels)
         bins = int(min(bins, max(8, math.isqrt(n) // 2)))
-        ranges = (grey_range(ref[disc]), grey_range(mov[disc]))
-        stride = max(1, math.ceil(n / max_pixels))
-        compared = disc & ((r + c) % stride == 0) if stride > 1 else disc  # a diagonal lattice (2: checkerboard)
-        rows, cols = (x.astype(float) for x in np.nonzero(compared))
-        pixels = tuple((rows, cols, quantize(img[compared], bins, *rng)) for img, rng in zip((ref, mov), ranges))
+        flat = (ref.ravel(), mov.ravel())
+        ranges = tuple(grey_range(img[disc]) for img in flat)
+        pixels = tuple((rows, cols, quantize(img[compared], bins, *rng)) for img, rng in zip(flat, ranges))
         rays = None
         if focal_px is not None:
             x, y = cols - center[1], center[0] - rows
@@ -209,6 +205,25 @@ class _Level:
                                            self.radius_px, lo, width, self.bins, a)
             out[pick] = mutual_information_from_histogram(hist)
         return out
+
+
+@functools.lru_cache(maxsize=16)
+def _disc_geometry(shape: tuple[int, int], center: tuple[float, float], radius_px: float, max_pixels: float):
+    """(n, disc, compared, rows, cols) of a level (module doc): the disc's pixel count and flat
+    indices, the flat indices of the compared pixels (the disc, or a diagonal lattice of it when
+    it holds more than ``max_pixels``: a checkerboard for stride 2) and their rows and columns
+    (float). The same for every pair of one frame size, so made once (read-only arrays)."""
+    r = np.arange(shape[0])[:, None]
+    c = np.arange(shape[1])[None, :]
+    inside = (r - center[0]) ** 2 + (c - center[1]) ** 2 <= radius_px**2
+    n = int(inside.sum())
+    stride = max(1, math.ceil(n / max_pixels))
+    lattice = inside & ((r + c) % stride == 0) if stride > 1 else inside
+    disc, compared = np.flatnonzero(inside), np.flatnonzero(lattice)
+    rows, cols = (x.astype(float) for x in np.divmod(compared, shape[1]))
+    for x in (disc, compared, rows, cols):
+        x.flags.writeable = False
+    return n, disc, compared, rows, cols
 
 
 def _downsample(img: np.ndarray) -> np.ndarray:
@@ -272,6 +287,18 @@ class _Search:
         self.iterations = 0
         self.evaluations = 0
         self.grid_factor = 1.0  # > 1 when the coarsest grid was coarsened (work bound)
+        self._memo: dict = {}  # single probes already evaluated: (level, rot, ls, side, tilt) -> MI
+
+    def probe(self, index: int, rot: float, ls: float, side: int) -> float:
+        """The MI of one probe at level ``index``, evaluated once: a search's last probe is where
+        the next search, or the final MI, starts."""
+        key = (index, rot, ls, side, *self.tilt)
+        value = self._memo.get(key)
+        if value is None:
+            value = self._memo[key] = float(self.levels[index].mutual_information(rot, ls, side, self.a,
+                                                                                  self.tilt)[0])
+            self.evaluations += 1
+        return value
 
     @staticmethod
     def step(level: _Level) -> float:
@@ -331,28 +358,28 @@ class _Search:
                 ls = float(g_ls[np.argmax(self._mi(level, rot, g_ls, None))])
         return rot, ls
 
-    def _maximise(self, level: _Level, which: str, centre: float, span: float, tol: float,
+    def _maximise(self, index: int, which: str, centre: float, span: float, tol: float,
                   rot: float, ls: float) -> float:
         lo_lim, hi_lim = {"rot": self.rot_range, "ls": self.ls_range}.get(which, self.tilt_range)
         lo, hi = max(lo_lim, centre - span), min(hi_lim, centre + span)
         side = int(0.5 * (lo + hi) > 0.0) if which == "ls" else int(ls > 0.0)
-        a = self.a
         if which == "rot":
             def f(t):
-                return level.mutual_information(t, ls, side, a, self.tilt)[0]
+                return self.probe(index, t, ls, side)
         elif which == "ls":
             def f(g):
-                return level.mutual_information(rot, g, side, a, self.tilt)[0]
+                return self.probe(index, rot, g, side)
         else:
             axis = 0 if which == "tx" else 1
+            level = self.levels[index]
 
             def f(v):
                 tilt = list(self.tilt)
                 tilt[axis] = v
-                return level.mutual_information(rot, ls, side, a, tilt)[0]
+                self.evaluations += 1
+                return level.mutual_information(rot, ls, side, self.a, tilt)[0]
         result = maximise(f, lo, hi, tol, self.method)
         self.iterations += result.iterations
-        self.evaluations += result.evaluations
         return result.x
 
     def refine(self, index: int, rot: float, ls: float, tol_rot: float, tol_ls: float,
@@ -377,15 +404,17 @@ class _Search:
         if self.do_tilt:
             span_tilt = (FINE_BRACKET_STEPS if finest else BRACKET_STEPS) * self.tilt_step(coarser)
             t_tilt = tol_tilt if finest else 0.25 * self.tilt_step(level)
-        for _ in range(FINAL_CYCLES if finest and (self.do_rot and self.do_scale or self.do_tilt) else 1):
+        for cycle in range(FINAL_CYCLES if finest and (self.do_rot and self.do_scale or self.do_tilt) else 1):
             old = (rot, ls, *self.tilt)
             if self.do_tilt:
                 for axis, name in enumerate(("tx", "ty")):
-                    self.tilt[axis] = self._maximise(level, name, self.tilt[axis], span_tilt, t_tilt, rot, ls)
+                    self.tilt[axis] = self._maximise(index, name, self.tilt[axis], span_tilt, t_tilt, rot, ls)
             if self.do_rot:
-                rot = self._maximise(level, "rot", rot, span_rot, t_rot, rot, ls)
+                rot = self._maximise(index, "rot", rot, span_rot, t_rot, rot, ls)
+                if cycle > 0 and not self.do_tilt and abs(rot - old[0]) <= 2.0 * t_rot:
+                    break  # converged: the last scale search ran at (within tolerance) this rotation
             if self.do_scale:
-                ls = self._maximise(level, "ls", ls, span_ls, t_ls, rot, ls)
+                ls = self._maximise(index, "ls", ls, span_ls, t_ls, rot, ls)
             moved = abs(rot - old[0]) > 2.0 * t_rot or abs(ls - old[1]) > 2.0 * t_ls
             if self.do_tilt:
                 moved = moved or max(abs(self.tilt[0] - old[2]), abs(self.tilt[1] - old[3])) > 2.0 * t_tilt
@@ -496,9 +525,7 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     for index in range(len(levels) - 1, -1, -1):
         rot, ls = search_.refine(index, rot, ls, tol_rot, tol_ls, tol_tilt if tilt_range else 0.0)
 
-    finest = levels[0]
-    mi = float(finest.mutual_information(rot, ls, int(ls > 0.0), a, search_.tilt)[0])
-    search_.evaluations += 1
+    mi = search_.probe(0, rot, ls, int(ls > 0.0))
     settings = {"estimate": estimate, "strategy": strategy, "search": search, "bins": bins, "cutoff": cutoff,
                 "order": order, "kernel_a": a, "radius_px": radius, "max_pixels": int(max_pixels),
                 "fov_deg": fov_deg}
