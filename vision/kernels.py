@@ -1,8 +1,8 @@
 """The package's compiled (numba) code, all of it in this one module (docs/architecture.md, "One
 engine fence"): the motion search's warp + quantise + joint histogram, the solid noise and the
-mucosa of the texture (:mod:`vision.noise`, :mod:`vision.mucosa`), the LEDs' shading
-(:mod:`vision.render`) and the PNG scanline unfilter (:mod:`vision.png`). The modules named hold
-the models and their documentation; here is only their inner loops.
+mucosa of the texture (:mod:`vision.noise`, :mod:`vision.mucosa`), the wall hits' geometry and
+the LEDs' shading (:mod:`vision.render`) and the PNG scanline unfilter (:mod:`vision.png`). The
+modules named hold the models and their documentation; here is only their inner loops.
 
 The motion search: warp + quantise + joint histogram in one pass.
 
@@ -373,6 +373,58 @@ def mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent):
         shade = tone * (1.0 - valley * (1.0 - fold))
         for k in range(3):
             albedo[i, k] = min(max(shade * ((1.0 - vessel) * base[k] + vessel * vessel_rgb[k]), 0.0), 1.0)
+
+
+# --- the camera's rays (vision.render)
+
+@njit(cache=True, nogil=True)
+def wall_hits(prim, tfar, origin, dirs, face_map, face_normals, plane_d, frame, face, t, points, normals):
+    """From Embree's first hits (``prim``, float32 ``tfar``) of rays from ``origin`` along the
+    unit ``dirs``: the phantom face, the float64 distance to its plane (Embree's where the ray is
+    parallel to it), the wall point and the smooth unit normal turned to face the camera; the
+    same arithmetic as :meth:`raytrace.engine.scene.TracerScene.first_hit` and
+    :meth:`~raytrace.engine.scene.TracerScene.smooth_normals` (barycentrics from the face's
+    ``frame`` row clipped to [0, 1], corner normals interpolated, the facet normal if that
+    degenerates or flips), in one pass. A miss: face -1, t inf, point NaN, normal 0."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(prim.shape[0]):
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        if prim[i] < 0:
+            face[i], t[i] = -1, np.inf
+            points[i, 0] = points[i, 1] = points[i, 2] = np.nan
+            normals[i, 0] = normals[i, 1] = normals[i, 2] = 0.0
+            continue
+        f = face_map[prim[i]]
+        fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        denom = fx * dx + fy * dy + fz * dz
+        dist = np.float64(tfar[i])
+        if abs(denom) > 1e-12:
+            t64 = (plane_d[f] - (fx * ox + fy * oy + fz * oz)) / denom
+            if math.isfinite(t64):
+                dist = max(t64, 0.0)
+        x, y, z = ox + dist * dx, oy + dist * dy, oz + dist * dz
+        fr = frame[f]
+        v2x, v2y, v2z = x - fr[0], y - fr[1], z - fr[2]
+        d20 = v2x * fr[3] + v2y * fr[4] + v2z * fr[5]
+        d21 = v2x * fr[6] + v2y * fr[7] + v2z * fr[8]
+        bv = (fr[11] * d20 - fr[10] * d21) / fr[12]
+        bw = (fr[9] * d21 - fr[10] * d20) / fr[12]
+        bu = min(max(1.0 - bv - bw, 0.0), 1.0)
+        bv = min(max(bv, 0.0), 1.0)
+        bw = min(max(bw, 0.0), 1.0)
+        nx = bu * fr[13] + bv * fr[16] + bw * fr[19]
+        ny = bu * fr[14] + bv * fr[17] + bw * fr[20]
+        nz = bu * fr[15] + bv * fr[18] + bw * fr[21]
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if norm > 1e-12:
+            nx, ny, nz = nx / norm, ny / norm, nz / norm
+        if not norm > 1e-12 or nx * fx + ny * fy + nz * fz <= 0.0:
+            nx, ny, nz = fx, fy, fz
+        if nx * dx + ny * dy + nz * dz > 0.0:  # the side facing the camera
+            nx, ny, nz = -nx, -ny, -nz
+        face[i], t[i] = f, dist
+        points[i, 0], points[i, 1], points[i, 2] = x, y, z
+        normals[i, 0], normals[i, 1], normals[i, 2] = nx, ny, nz
 
 
 # --- the LEDs (vision.render)
