@@ -216,22 +216,22 @@ def fisheye_joint_histograms(theta: np.ndarray, cos_phi: np.ndarray, sin_phi: np
 
 # --- solid gradient noise (vision.noise: Perlin 2002, exact gradient)
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _fade(t):
     return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _dfade(t):
     return 30.0 * t * t * (t - 1.0) * (t - 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _dot(g, k, x, y, z):
     return g[k, 0] * x + g[k, 1] * y + g[k, 2] * z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _blend(g, c, i000, i100, i010, i110, i001, i101, i011, i111, u, v, w):
     g0, g1, g2, g3 = g[i000, c], g[i100, c], g[i010, c], g[i110, c]
     g4, g5, g6, g7 = g[i001, c], g[i101, c], g[i011, c], g[i111, c]
@@ -240,7 +240,7 @@ def _blend(g, c, i000, i100, i010, i110, i001, i101, i011, i111, u, v, w):
             + u * v * w * (-g0 + g1 + g2 - g3 + g4 - g5 - g6 + g7))
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def noise_grad(perm, g, x, y, z):
     """(value, d/dx, d/dy, d/dz) of the noise at (x, y, z) (lattice units)."""
     xf, yf, zf = np.floor(x), np.floor(y), np.floor(z)
@@ -280,7 +280,7 @@ def noise_grad(perm, g, x, y, z):
     return value, gx, gy, gz
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def noise_value(perm, g, x, y, z):
     """The noise at (x, y, z) without its gradient (the first half of :func:`noise_grad`)."""
     xf, yf, zf = np.floor(x), np.floor(y), np.floor(z)
@@ -315,13 +315,13 @@ def noise_field(perm, g, points):
 
 # --- the procedural mucosa (vision.mucosa)
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _smoothstep(e0, e1, x):
     t = min(max((x - e0) / (e1 - e0), 0.0), 1.0)
     return t * t * (3.0 - 2.0 * t)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent):
     """Per point: reflectance (N, 3) into ``albedo`` and bent unit normal into ``bent``
     (``normals`` face the lumen). ``params``: see vision.mucosa.MucosaTexture._params."""
