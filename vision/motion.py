@@ -32,8 +32,9 @@ What the thesis leaves open, decided here (docs/vision.md, "The estimator"):
   are not dominated by the (B - 1)^2 / (2 N) bias; full resolution uses ``bins``.
 * Pixels per level: at most ``max_pixels`` (default 2^17) are compared, a regular diagonal
   lattice of the disc beyond (a checkerboard for 512 px frames), as registration libraries
-  sample their metric: it halves the cost of the finest level of a 512 px pair; the bins and
-  grey ranges still come from every pixel of the disc.
+  sample their metric: it halves the cost of the finest level of a 512 px pair; the coarser
+  levels, which only bracket the next, compare at most a quarter of that (COARSE_PIXELS_FRACTION);
+  the bins and grey ranges still come from every pixel of the disc.
 * Parameters: the rotation in degrees, the scale through its logarithm (a step in log scale is
   the same image displacement at every scale).
 
@@ -80,6 +81,9 @@ BRACKET_STEPS, FINE_BRACKET_STEPS = 2.0, 1.0
 MAX_GRID_SAMPLES = 2e7
 #: Compared pixels per level at most (default of ``max_pixels``; a regular lattice beyond).
 MAX_PIXELS = 2**17
+#: ... and at the coarser levels, which only bracket the next one (to a quarter of their grid
+#: step), at most this fraction of it (a checkerboard of the 256 px level of a 512 px pair).
+COARSE_PIXELS_FRACTION = 0.25
 #: At full resolution, rotation and scale searches alternate at most this many times.
 FINAL_CYCLES = 2
 #: Tilt model: the largest tilt searched by default [deg] and the default tolerance [deg].
@@ -245,7 +249,8 @@ def _pyramid(ref, mov, radius_px: float, bins: int, coarse_size_px: int, min_rad
         center = ((center[0] - 0.5) / 2.0, (center[1] - 0.5) / 2.0)
         radius_px /= 2.0
         focal_px = None if focal_px is None else focal_px / 2.0
-        levels.append(_Level.build(ref, mov, center, radius_px, bins, focal_px=focal_px))
+        levels.append(_Level.build(ref, mov, center, radius_px, bins, max_pixels * COARSE_PIXELS_FRACTION,
+                                   focal_px=focal_px))
     return levels
 
 
