@@ -57,8 +57,8 @@ import numpy as np
 from .errors import VisionInputError
 from .filters import DEFAULT_CUTOFF, DEFAULT_ORDER, butterworth_lowpass, to_grey
 from .interpolation import THESIS_A, check_kernel_a, frame_center, similarity_matrix
-from .kernels import fisheye_joint_histograms, pad_frame, warped_joint_histograms
-from .mutual_information import DEFAULT_BINS, check_bins, grey_range, mutual_information_from_histogram, quantize
+from .kernels import fisheye_joint_histograms, histogram_mutual_information, pad_frame, warped_joint_histograms
+from .mutual_information import DEFAULT_BINS, check_bins, grey_range, quantize
 from .search import SEARCHES, maximise
 
 ESTIMATES = ("both", "rotation", "scale")
@@ -200,14 +200,14 @@ class _Level:
                 params = camera_rotation_params(rot[pick], ls[pick], tx[pick], ty[pick], s)
                 hist = fisheye_joint_histograms(*self.rays, qbins, self.frames[1 - s], params, self.center,
                                                 self.focal_px, self.radius_px, lo, width, self.bins, a)
-                out[pick] = mutual_information_from_histogram(hist)
+                out[pick] = histogram_mutual_information(hist)
                 continue
             # side 1 samples the reference at M^-1 = similarity(-rotation, 1 / scale)
             sign = 1.0 if s == 0 else -1.0
             mats = similarity_matrix(sign * rot[pick], np.exp(sign * ls[pick]))
             hist = warped_joint_histograms(rows, cols, qbins, self.frames[1 - s], mats, self.center,
                                            self.radius_px, lo, width, self.bins, a)
-            out[pick] = mutual_information_from_histogram(hist)
+            out[pick] = histogram_mutual_information(hist)
         return out
 
 
