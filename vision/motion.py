@@ -59,6 +59,7 @@ from .filters import DEFAULT_CUTOFF, DEFAULT_ORDER, butterworth_lowpass, to_grey
 from .interpolation import THESIS_A, check_kernel_a, frame_center, similarity_matrix
 from .kernels import fisheye_joint_histograms, histogram_mutual_information, pad_frame, warped_joint_histograms
 from .mutual_information import DEFAULT_BINS, check_bins, grey_range, quantize
+from .pool import pool
 from .search import SEARCHES, maximise
 
 ESTIMATES = ("both", "rotation", "scale")
@@ -511,7 +512,9 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
             raise VisionInputError(f"is constant ({inside[0]:g}) inside the compared disc of radius {radius:g} "
                                    "px: there is nothing to register", name)
     if cutoff is not None:
-        ref, mov = butterworth_lowpass(ref, cutoff, order), butterworth_lowpass(mov, cutoff, order)
+        # the two frames on the pool's two threads (scipy's FFTs release the GIL)
+        filtered = [pool().submit(butterworth_lowpass, frame, cutoff, order) for frame in (ref, mov)]
+        ref, mov = (f.result() for f in filtered)
     coarse = int(coarse_size_px)
     if not 16 <= coarse <= MAX_SIZE_PX:
         raise VisionInputError(f"must be in [16, {MAX_SIZE_PX}], got {coarse_size_px!r}", "coarse_size_px")
