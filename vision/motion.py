@@ -212,11 +212,11 @@ class _Level:
         return out
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=8)  # bounded: a 2048 px frame's entry holds ~7 MB
 def _disc_geometry(shape: tuple[int, int], center: tuple[float, float], radius_px: float, max_pixels: float):
     """(n, disc, compared, rows, cols) of a level (module doc): the disc's pixel count and flat
-    indices, the flat indices of the compared pixels (the disc, or a diagonal lattice of it when
-    it holds more than ``max_pixels``: a checkerboard for stride 2) and their rows and columns
+    mask, the flat indices of the compared pixels (the disc, or a diagonal lattice of it when it
+    holds more than ``max_pixels``: a checkerboard for stride 2) and their rows and columns
     (float). The same for every pair of one frame size, so made once (read-only arrays)."""
     r = np.arange(shape[0])[:, None]
     c = np.arange(shape[1])[None, :]
@@ -224,7 +224,7 @@ def _disc_geometry(shape: tuple[int, int], center: tuple[float, float], radius_p
     n = int(inside.sum())
     stride = max(1, math.ceil(n / max_pixels))
     lattice = inside & ((r + c) % stride == 0) if stride > 1 else inside
-    disc, compared = np.flatnonzero(inside), np.flatnonzero(lattice)
+    disc, compared = inside.ravel(), np.flatnonzero(lattice)
     rows, cols = (x.astype(float) for x in np.divmod(compared, shape[1]))
     for x in (disc, compared, rows, cols):
         x.flags.writeable = False
