@@ -65,7 +65,7 @@ def butterworth_response(shape: tuple[int, int], cutoff: float, order: int) -> n
     return 1.0 / np.sqrt(1.0 + w2**order)
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=4)  # bounded: ~9 MB for a 2048 px frame
 def _response32(shape: tuple[int, int], cutoff: float, order: int) -> np.ndarray:
     """:func:`butterworth_response` in single precision, once per (shape, cutoff, order)."""
     out = butterworth_response(shape, cutoff, order).astype(np.float32)
