@@ -12,11 +12,14 @@ the filter applied to the spectrum is the zero-phase ``H(w) = (1 + (w / w_c)^(2 
 
 The discrete Fourier transform treats a frame as periodic; the frame is padded by reflection
 (``pad_px``, default a few cut-off wavelengths) before the transform and cropped after, so the
-left edge does not bleed into the right one.
+left edge does not bleed into the right one. The transforms run in single precision on the frame
+less its mean (H(0) = 1 passes the mean exactly): a relative error ~1e-7 of the frame's range,
+far below an 8-bit grey level, at less than half the cost of double precision.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -62,6 +65,14 @@ def butterworth_response(shape: tuple[int, int], cutoff: float, order: int) -> n
     return 1.0 / np.sqrt(1.0 + w2**order)
 
 
+@functools.lru_cache(maxsize=4)  # bounded: ~9 MB for a 2048 px frame
+def _response32(shape: tuple[int, int], cutoff: float, order: int) -> np.ndarray:
+    """:func:`butterworth_response` in single precision, once per (shape, cutoff, order)."""
+    out = butterworth_response(shape, cutoff, order).astype(np.float32)
+    out.flags.writeable = False
+    return out
+
+
 def butterworth_lowpass(image: np.ndarray, cutoff: float = DEFAULT_CUTOFF, order: int = DEFAULT_ORDER,
                         pad_px: int | None = None) -> np.ndarray:
     """The frame low-passed by the 2-D Butterworth filter of Eq 3.1 (zero phase, applied as
@@ -81,9 +92,10 @@ def butterworth_lowpass(image: np.ndarray, cutoff: float = DEFAULT_CUTOFF, order
     if pad_px is None:
         pad_px = int(math.ceil(2.0 / cutoff))
     pad = int(min(max(pad_px, 0), a.shape[0] - 1, a.shape[1] - 1))
-    padded = np.pad(a, pad, mode="reflect") if pad else a
+    mean = float(a.mean())
+    padded = np.pad((a - mean).astype(np.float32), pad, mode="reflect") if pad else (a - mean).astype(np.float32)
     shape = (scipy.fft.next_fast_len(padded.shape[0], real=True), scipy.fft.next_fast_len(padded.shape[1], real=True))
-    spectrum = scipy.fft.rfft2(padded, s=shape, workers=-1)
-    spectrum *= butterworth_response(shape, float(cutoff), int(order))
-    out = scipy.fft.irfft2(spectrum, s=shape, workers=-1)
-    return out[pad:pad + a.shape[0], pad:pad + a.shape[1]]
+    spectrum = scipy.fft.rfft2(padded, s=shape)
+    spectrum *= _response32(shape, float(cutoff), int(order))
+    out = scipy.fft.irfft2(spectrum, s=shape)
+    return out[pad:pad + a.shape[0], pad:pad + a.shape[1]].astype(np.float64) + mean

@@ -1,8 +1,8 @@
 """The package's compiled (numba) code, all of it in this one module (docs/architecture.md, "One
 engine fence"): the motion search's warp + quantise + joint histogram, the solid noise and the
-mucosa of the texture (:mod:`vision.noise`, :mod:`vision.mucosa`), the LEDs' shading
-(:mod:`vision.render`) and the PNG scanline unfilter (:mod:`vision.png`). The modules named hold
-the models and their documentation; here is only their inner loops.
+mucosa of the texture (:mod:`vision.noise`, :mod:`vision.mucosa`), the wall hits' geometry and
+the LEDs' shading (:mod:`vision.render`) and the PNG scanline unfilter (:mod:`vision.png`). The
+modules named hold the models and their documentation; here is only their inner loops.
 
 The motion search: warp + quantise + joint histogram in one pass.
 
@@ -152,10 +152,51 @@ def _fisheye_histograms(theta, cos_phi, sin_phi, ref_bins, padded, params, cente
     return out
 
 
+@njit(cache=True, nogil=True)
+def histogram_mutual_information(hist):
+    """Eq 3.2-3.4 (nats) of each joint histogram (K, B, B) of counts: with N the count, c_x, c_y
+    the marginals, I = ln N + (sum c_xy ln c_xy - sum c_x ln c_x - sum c_y ln c_y) / N (0 ln 0 = 0),
+    the same as :func:`vision.mutual_information.mutual_information_from_histogram` in one pass
+    over the non-empty bins (no probabilities formed)."""
+    k_count, bx, by = hist.shape
+    out = np.zeros(k_count)
+    cx, cy = np.empty(bx), np.empty(by)
+    for k in range(k_count):
+        cx[:] = 0.0
+        cy[:] = 0.0
+        sxy = 0.0
+        for i in range(bx):
+            for j in range(by):
+                c = hist[k, i, j]
+                if c > 0:
+                    cf = float(c)
+                    cx[i] += cf
+                    cy[j] += cf
+                    sxy += cf * math.log(cf)
+        n = 0.0
+        sx = 0.0
+        for i in range(bx):
+            if cx[i] > 0.0:
+                n += cx[i]
+                sx += cx[i] * math.log(cx[i])
+        sy = 0.0
+        for j in range(by):
+            if cy[j] > 0.0:
+                sy += cy[j] * math.log(cy[j])
+        if n > 0.0:
+            out[k] = math.log(n) + (sxy - sx - sy) / n
+    return out
+
+
 def pad_frame(frame: np.ndarray) -> np.ndarray:
     """The frame (float64) with 2 edge-replicated pixels on every side, as :func:`_histograms`
     wants it (made once per pyramid level, not per probe)."""
-    return np.pad(np.asarray(frame, dtype=np.float64), 2, mode="edge")
+    a = np.asarray(frame, dtype=np.float64)
+    out = np.empty((a.shape[0] + 4, a.shape[1] + 4))
+    out[2:-2, 2:-2] = a  # np.pad(a, 2, mode="edge"), without its generality's cost
+    out[:2, 2:-2], out[-2:, 2:-2] = a[0], a[-1]
+    out[:, :2], out[:, -2:] = out[:, 2:3], out[:, -3:-2]
+    return out
 
 
 def warped_joint_histograms(rows: np.ndarray, cols: np.ndarray, ref_bins: np.ndarray, padded: np.ndarray,
@@ -211,22 +252,22 @@ def fisheye_joint_histograms(theta: np.ndarray, cos_phi: np.ndarray, sin_phi: np
 
 # --- solid gradient noise (vision.noise: Perlin 2002, exact gradient)
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _fade(t):
     return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _dfade(t):
     return 30.0 * t * t * (t - 1.0) * (t - 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _dot(g, k, x, y, z):
     return g[k, 0] * x + g[k, 1] * y + g[k, 2] * z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _blend(g, c, i000, i100, i010, i110, i001, i101, i011, i111, u, v, w):
     g0, g1, g2, g3 = g[i000, c], g[i100, c], g[i010, c], g[i110, c]
     g4, g5, g6, g7 = g[i001, c], g[i101, c], g[i011, c], g[i111, c]
@@ -235,7 +276,7 @@ def _blend(g, c, i000, i100, i010, i110, i001, i101, i011, i111, u, v, w):
             + u * v * w * (-g0 + g1 + g2 - g3 + g4 - g5 - g6 + g7))
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def noise_grad(perm, g, x, y, z):
     """(value, d/dx, d/dy, d/dz) of the noise at (x, y, z) (lattice units)."""
     xf, yf, zf = np.floor(x), np.floor(y), np.floor(z)
@@ -275,7 +316,7 @@ def noise_grad(perm, g, x, y, z):
     return value, gx, gy, gz
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def noise_value(perm, g, x, y, z):
     """The noise at (x, y, z) without its gradient (the first half of :func:`noise_grad`)."""
     xf, yf, zf = np.floor(x), np.floor(y), np.floor(z)
@@ -310,13 +351,13 @@ def noise_field(perm, g, points):
 
 # --- the procedural mucosa (vision.mucosa)
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=True)
 def _smoothstep(e0, e1, x):
     t = min(max((x - e0) / (e1 - e0), 0.0), 1.0)
     return t * t * (3.0 - 2.0 * t)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent):
     """Per point: reflectance (N, 3) into ``albedo`` and bent unit normal into ``bent``
     (``normals`` face the lumen). ``params``: see vision.mucosa.MucosaTexture._params."""
@@ -368,6 +409,58 @@ def mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent):
         shade = tone * (1.0 - valley * (1.0 - fold))
         for k in range(3):
             albedo[i, k] = min(max(shade * ((1.0 - vessel) * base[k] + vessel * vessel_rgb[k]), 0.0), 1.0)
+
+
+# --- the camera's rays (vision.render)
+
+@njit(cache=True, nogil=True)
+def wall_hits(prim, tfar, origin, dirs, face_map, face_normals, plane_d, frame, face, t, points, normals):
+    """From Embree's first hits (``prim``, float32 ``tfar``) of rays from ``origin`` along the
+    unit ``dirs``: the phantom face, the float64 distance to its plane (Embree's where the ray is
+    parallel to it), the wall point and the smooth unit normal turned to face the camera; the
+    same arithmetic as :meth:`raytrace.engine.scene.TracerScene.first_hit` and
+    :meth:`~raytrace.engine.scene.TracerScene.smooth_normals` (barycentrics from the face's
+    ``frame`` row clipped to [0, 1], corner normals interpolated, the facet normal if that
+    degenerates or flips), in one pass. A miss: face -1, t inf, point NaN, normal 0."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for i in range(prim.shape[0]):
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        if prim[i] < 0:
+            face[i], t[i] = -1, np.inf
+            points[i, 0] = points[i, 1] = points[i, 2] = np.nan
+            normals[i, 0] = normals[i, 1] = normals[i, 2] = 0.0
+            continue
+        f = face_map[prim[i]]
+        fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        denom = fx * dx + fy * dy + fz * dz
+        dist = np.float64(tfar[i])
+        if abs(denom) > 1e-12:
+            t64 = (plane_d[f] - (fx * ox + fy * oy + fz * oz)) / denom
+            if math.isfinite(t64):
+                dist = max(t64, 0.0)
+        x, y, z = ox + dist * dx, oy + dist * dy, oz + dist * dz
+        fr = frame[f]
+        v2x, v2y, v2z = x - fr[0], y - fr[1], z - fr[2]
+        d20 = v2x * fr[3] + v2y * fr[4] + v2z * fr[5]
+        d21 = v2x * fr[6] + v2y * fr[7] + v2z * fr[8]
+        bv = (fr[11] * d20 - fr[10] * d21) / fr[12]
+        bw = (fr[9] * d21 - fr[10] * d20) / fr[12]
+        bu = min(max(1.0 - bv - bw, 0.0), 1.0)
+        bv = min(max(bv, 0.0), 1.0)
+        bw = min(max(bw, 0.0), 1.0)
+        nx = bu * fr[13] + bv * fr[16] + bw * fr[19]
+        ny = bu * fr[14] + bv * fr[17] + bw * fr[20]
+        nz = bu * fr[15] + bv * fr[18] + bw * fr[21]
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if norm > 1e-12:
+            nx, ny, nz = nx / norm, ny / norm, nz / norm
+        if not norm > 1e-12 or nx * fx + ny * fy + nz * fz <= 0.0:
+            nx, ny, nz = fx, fy, fz
+        if nx * dx + ny * dy + nz * dz > 0.0:  # the side facing the camera
+            nx, ny, nz = -nx, -ny, -nz
+        face[i], t[i] = f, dist
+        points[i, 0], points[i, 1], points[i, 2] = x, y, z
+        normals[i, 0], normals[i, 1], normals[i, 2] = nx, ny, nz
 
 
 # --- the LEDs (vision.render)

@@ -32,8 +32,9 @@ What the thesis leaves open, decided here (docs/vision.md, "The estimator"):
   are not dominated by the (B - 1)^2 / (2 N) bias; full resolution uses ``bins``.
 * Pixels per level: at most ``max_pixels`` (default 2^17) are compared, a regular diagonal
   lattice of the disc beyond (a checkerboard for 512 px frames), as registration libraries
-  sample their metric: it halves the cost of the finest level of a 512 px pair; the bins and
-  grey ranges still come from every pixel of the disc.
+  sample their metric: it halves the cost of the finest level of a 512 px pair; the coarser
+  levels, which only bracket the next, compare at most a quarter of that (COARSE_PIXELS_FRACTION);
+  the bins and grey ranges still come from every pixel of the disc.
 * Parameters: the rotation in degrees, the scale through its logarithm (a step in log scale is
   the same image displacement at every scale).
 
@@ -47,6 +48,7 @@ once (a rotation grid at scale 1 sees nothing of a frame zoomed by 1.5); ``joint
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -55,8 +57,9 @@ import numpy as np
 from .errors import VisionInputError
 from .filters import DEFAULT_CUTOFF, DEFAULT_ORDER, butterworth_lowpass, to_grey
 from .interpolation import THESIS_A, check_kernel_a, frame_center, similarity_matrix
-from .kernels import fisheye_joint_histograms, pad_frame, warped_joint_histograms
-from .mutual_information import DEFAULT_BINS, check_bins, grey_range, mutual_information_from_histogram, quantize
+from .kernels import fisheye_joint_histograms, histogram_mutual_information, pad_frame, warped_joint_histograms
+from .mutual_information import DEFAULT_BINS, check_bins, grey_range, quantize
+from .pool import pool
 from .search import SEARCHES, maximise
 
 ESTIMATES = ("both", "rotation", "scale")
@@ -79,6 +82,9 @@ BRACKET_STEPS, FINE_BRACKET_STEPS = 2.0, 1.0
 MAX_GRID_SAMPLES = 2e7
 #: Compared pixels per level at most (default of ``max_pixels``; a regular lattice beyond).
 MAX_PIXELS = 2**17
+#: ... and at the coarser levels, which only bracket the next one (to a quarter of their grid
+#: step), at most this fraction of it (a checkerboard of the 256 px level of a 512 px pair).
+COARSE_PIXELS_FRACTION = 0.25
 #: At full resolution, rotation and scale searches alternate at most this many times.
 FINAL_CYCLES = 2
 #: Tilt model: the largest tilt searched by default [deg] and the default tolerance [deg].
@@ -161,16 +167,11 @@ class _Level:
     @classmethod
     def build(cls, ref: np.ndarray, mov: np.ndarray, center, radius_px: float, bins: int,
               max_pixels: float = math.inf, focal_px: float | None = None) -> "_Level":
-        r = np.arange(ref.shape[0])[:, None]
-        c = np.arange(ref.shape[1])[None, :]
-        disc = (r - center[0]) ** 2 + (c - center[1]) ** 2 <= radius_px**2
-        n = int(disc.sum())
+        n, disc, compared, rows, cols = _disc_geometry(ref.shape, center, radius_px, max_pixels)
         bins = int(min(bins, max(8, math.isqrt(n) // 2)))
-        ranges = (grey_range(ref[disc]), grey_range(mov[disc]))
-        stride = max(1, math.ceil(n / max_pixels))
-        compared = disc & ((r + c) % stride == 0) if stride > 1 else disc  # a diagonal lattice (2: checkerboard)
-        rows, cols = (x.astype(float) for x in np.nonzero(compared))
-        pixels = tuple((rows, cols, quantize(img[compared], bins, *rng)) for img, rng in zip((ref, mov), ranges))
+        flat = (ref.ravel(), mov.ravel())
+        ranges = tuple(grey_range(img[disc]) for img in flat)
+        pixels = tuple((rows, cols, quantize(img[compared], bins, *rng)) for img, rng in zip(flat, ranges))
         rays = None
         if focal_px is not None:
             x, y = cols - center[1], center[0] - rows
@@ -200,15 +201,34 @@ class _Level:
                 params = camera_rotation_params(rot[pick], ls[pick], tx[pick], ty[pick], s)
                 hist = fisheye_joint_histograms(*self.rays, qbins, self.frames[1 - s], params, self.center,
                                                 self.focal_px, self.radius_px, lo, width, self.bins, a)
-                out[pick] = mutual_information_from_histogram(hist)
+                out[pick] = histogram_mutual_information(hist)
                 continue
             # side 1 samples the reference at M^-1 = similarity(-rotation, 1 / scale)
             sign = 1.0 if s == 0 else -1.0
             mats = similarity_matrix(sign * rot[pick], np.exp(sign * ls[pick]))
             hist = warped_joint_histograms(rows, cols, qbins, self.frames[1 - s], mats, self.center,
                                            self.radius_px, lo, width, self.bins, a)
-            out[pick] = mutual_information_from_histogram(hist)
+            out[pick] = histogram_mutual_information(hist)
         return out
+
+
+@functools.lru_cache(maxsize=8)  # bounded: a 2048 px frame's entry holds ~7 MB
+def _disc_geometry(shape: tuple[int, int], center: tuple[float, float], radius_px: float, max_pixels: float):
+    """(n, disc, compared, rows, cols) of a level (module doc): the disc's pixel count and flat
+    mask, the flat indices of the compared pixels (the disc, or a diagonal lattice of it when it
+    holds more than ``max_pixels``: a checkerboard for stride 2) and their rows and columns
+    (float). The same for every pair of one frame size, so made once (read-only arrays)."""
+    r = np.arange(shape[0])[:, None]
+    c = np.arange(shape[1])[None, :]
+    inside = (r - center[0]) ** 2 + (c - center[1]) ** 2 <= radius_px**2
+    n = int(inside.sum())
+    stride = max(1, math.ceil(n / max_pixels))
+    lattice = inside & ((r + c) % stride == 0) if stride > 1 else inside
+    disc, compared = inside.ravel(), np.flatnonzero(lattice)
+    rows, cols = (x.astype(float) for x in np.divmod(compared, shape[1]))
+    for x in (disc, compared, rows, cols):
+        x.flags.writeable = False
+    return n, disc, compared, rows, cols
 
 
 def _downsample(img: np.ndarray) -> np.ndarray:
@@ -230,7 +250,8 @@ def _pyramid(ref, mov, radius_px: float, bins: int, coarse_size_px: int, min_rad
         center = ((center[0] - 0.5) / 2.0, (center[1] - 0.5) / 2.0)
         radius_px /= 2.0
         focal_px = None if focal_px is None else focal_px / 2.0
-        levels.append(_Level.build(ref, mov, center, radius_px, bins, focal_px=focal_px))
+        levels.append(_Level.build(ref, mov, center, radius_px, bins, max_pixels * COARSE_PIXELS_FRACTION,
+                                   focal_px=focal_px))
     return levels
 
 
@@ -272,6 +293,18 @@ class _Search:
         self.iterations = 0
         self.evaluations = 0
         self.grid_factor = 1.0  # > 1 when the coarsest grid was coarsened (work bound)
+        self._memo: dict = {}  # single probes already evaluated: (level, rot, ls, side, tilt) -> MI
+
+    def probe(self, index: int, rot: float, ls: float, side: int) -> float:
+        """The MI of one probe at level ``index``, evaluated once: a search's last probe is where
+        the next search, or the final MI, starts."""
+        key = (index, rot, ls, side, *self.tilt)
+        value = self._memo.get(key)
+        if value is None:
+            value = self._memo[key] = float(self.levels[index].mutual_information(rot, ls, side, self.a,
+                                                                                  self.tilt)[0])
+            self.evaluations += 1
+        return value
 
     @staticmethod
     def step(level: _Level) -> float:
@@ -331,28 +364,28 @@ class _Search:
                 ls = float(g_ls[np.argmax(self._mi(level, rot, g_ls, None))])
         return rot, ls
 
-    def _maximise(self, level: _Level, which: str, centre: float, span: float, tol: float,
+    def _maximise(self, index: int, which: str, centre: float, span: float, tol: float,
                   rot: float, ls: float) -> float:
         lo_lim, hi_lim = {"rot": self.rot_range, "ls": self.ls_range}.get(which, self.tilt_range)
         lo, hi = max(lo_lim, centre - span), min(hi_lim, centre + span)
         side = int(0.5 * (lo + hi) > 0.0) if which == "ls" else int(ls > 0.0)
-        a = self.a
         if which == "rot":
             def f(t):
-                return level.mutual_information(t, ls, side, a, self.tilt)[0]
+                return self.probe(index, t, ls, side)
         elif which == "ls":
             def f(g):
-                return level.mutual_information(rot, g, side, a, self.tilt)[0]
+                return self.probe(index, rot, g, side)
         else:
             axis = 0 if which == "tx" else 1
+            level = self.levels[index]
 
             def f(v):
                 tilt = list(self.tilt)
                 tilt[axis] = v
-                return level.mutual_information(rot, ls, side, a, tilt)[0]
+                self.evaluations += 1
+                return level.mutual_information(rot, ls, side, self.a, tilt)[0]
         result = maximise(f, lo, hi, tol, self.method)
         self.iterations += result.iterations
-        self.evaluations += result.evaluations
         return result.x
 
     def refine(self, index: int, rot: float, ls: float, tol_rot: float, tol_ls: float,
@@ -377,15 +410,17 @@ class _Search:
         if self.do_tilt:
             span_tilt = (FINE_BRACKET_STEPS if finest else BRACKET_STEPS) * self.tilt_step(coarser)
             t_tilt = tol_tilt if finest else 0.25 * self.tilt_step(level)
-        for _ in range(FINAL_CYCLES if finest and (self.do_rot and self.do_scale or self.do_tilt) else 1):
+        for cycle in range(FINAL_CYCLES if finest and (self.do_rot and self.do_scale or self.do_tilt) else 1):
             old = (rot, ls, *self.tilt)
             if self.do_tilt:
                 for axis, name in enumerate(("tx", "ty")):
-                    self.tilt[axis] = self._maximise(level, name, self.tilt[axis], span_tilt, t_tilt, rot, ls)
+                    self.tilt[axis] = self._maximise(index, name, self.tilt[axis], span_tilt, t_tilt, rot, ls)
             if self.do_rot:
-                rot = self._maximise(level, "rot", rot, span_rot, t_rot, rot, ls)
+                rot = self._maximise(index, "rot", rot, span_rot, t_rot, rot, ls)
+                if cycle > 0 and not self.do_tilt and abs(rot - old[0]) <= 2.0 * t_rot:
+                    break  # converged: the last scale search ran at (within tolerance) this rotation
             if self.do_scale:
-                ls = self._maximise(level, "ls", ls, span_ls, t_ls, rot, ls)
+                ls = self._maximise(index, "ls", ls, span_ls, t_ls, rot, ls)
             moved = abs(rot - old[0]) > 2.0 * t_rot or abs(ls - old[1]) > 2.0 * t_ls
             if self.do_tilt:
                 moved = moved or max(abs(self.tilt[0] - old[2]), abs(self.tilt[1] - old[3])) > 2.0 * t_tilt
@@ -477,7 +512,9 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
             raise VisionInputError(f"is constant ({inside[0]:g}) inside the compared disc of radius {radius:g} "
                                    "px: there is nothing to register", name)
     if cutoff is not None:
-        ref, mov = butterworth_lowpass(ref, cutoff, order), butterworth_lowpass(mov, cutoff, order)
+        # the two frames on the pool's two threads (scipy's FFTs release the GIL)
+        filtered = [pool().submit(butterworth_lowpass, frame, cutoff, order) for frame in (ref, mov)]
+        ref, mov = (f.result() for f in filtered)
     coarse = int(coarse_size_px)
     if not 16 <= coarse <= MAX_SIZE_PX:
         raise VisionInputError(f"must be in [16, {MAX_SIZE_PX}], got {coarse_size_px!r}", "coarse_size_px")
@@ -496,9 +533,7 @@ def estimate_motion(reference: np.ndarray, moving: np.ndarray, *, estimate: str 
     for index in range(len(levels) - 1, -1, -1):
         rot, ls = search_.refine(index, rot, ls, tol_rot, tol_ls, tol_tilt if tilt_range else 0.0)
 
-    finest = levels[0]
-    mi = float(finest.mutual_information(rot, ls, int(ls > 0.0), a, search_.tilt)[0])
-    search_.evaluations += 1
+    mi = search_.probe(0, rot, ls, int(ls > 0.0))
     settings = {"estimate": estimate, "strategy": strategy, "search": search, "bins": bins, "cutoff": cutoff,
                 "order": order, "kernel_a": a, "radius_px": radius, "max_pixels": int(max_pixels),
                 "fov_deg": fov_deg}

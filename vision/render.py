@@ -38,7 +38,7 @@ from raytrace.engine.scene import scene_for
 
 from .camera import FisheyeCamera, Pose
 from .errors import VisionInputError
-from .kernels import shade_points
+from .kernels import shade_points, wall_hits
 from .mucosa import MucosaTexture
 from .pool import THREADS, pool
 from .sensor import SensorModel
@@ -177,32 +177,30 @@ def render_frame(phantom: Phantom, pose: Pose, camera: FisheyeCamera | None = No
         raise VisionInputError(f"must be a finite number > 0 or None (automatic), got {exposure!r}", "exposure")
     lumen_organ(phantom, pose.position_m, organ)
     scene = scene_for(phantom)
+    tables = scene.kernel_tables
     mask = camera.mask
     dirs = pose.world_directions(camera)[mask]
-    origins = np.broadcast_to(pose.position_m, dirs.shape)
-    face, t = np.empty(len(dirs), np.int64), np.empty(len(dirs))
-    points, facing = np.full((len(dirs), 3), np.nan), np.zeros((len(dirs), 3))
+    origin = np.asarray(pose.position_m, dtype=np.float64)
+    query = (origin - scene.center).astype(np.float32)  # Embree's float32 frame (TracerScene.first_hit)
+    n = len(dirs)
+    face, t, points, normals = np.empty(n, np.int64), np.empty(n), np.empty((n, 3)), np.empty((n, 3))
 
     def trace(a: int, b: int) -> None:
-        """Embree's first hits, the float64 re-intersection and the smooth normals, turned to
-        face the camera, of rays a:b (GIL-free kernels and large numpy loops: 2 threads pay)."""
-        o, d = np.ascontiguousarray(origins[a:b]), np.ascontiguousarray(dirs[a:b])
-        f, dist = scene.first_hit(o, d)
-        face[a:b], t[a:b] = f, dist
-        ok = f >= 0
-        p = o[ok] + dist[ok, None] * d[ok]
-        n = scene.smooth_normals(f[ok], p)
-        away = np.einsum("ij,ij->i", n, d[ok]) > 0.0
-        n[away] *= -1.0
-        points[a:b][ok], facing[a:b][ok] = p, n
+        """Embree's first hits of rays a:b, then in one compiled pass the float64
+        re-intersection, the wall points and the smooth normals facing the camera (GIL-free:
+        2 threads pay)."""
+        d = dirs[a:b]
+        prim, tfar, _, _ = scene.embree.intersect(np.broadcast_to(query, d.shape), d)
+        wall_hits(prim, tfar, origin, d, tables.face_map, tables.face_normals, tables.plane_d, tables.frame,
+                  face[a:b], t[a:b], points[a:b], normals[a:b])
 
-    _in_parts(trace, len(dirs))
+    _in_parts(trace, n)
     hit = face >= 0
-    size = camera.size_px
-    pts, facing = points[hit], facing[hit]
-    albedo, bent = texture.shade_inputs(pts, facing)
+    pts = points[hit]
+    albedo, bent = texture.shade_inputs(pts, normals[hit])
     radiance = shade(pts, bent, np.asarray(albedo, float), dirs[hit], pose, lighting)
 
+    size = camera.size_px
     full = np.zeros((size, size), bool)
     full[mask] = hit
     linear = np.zeros((size, size, 3))
@@ -210,13 +208,13 @@ def render_frame(phantom: Phantom, pose: Pose, camera: FisheyeCamera | None = No
         exposure = auto_exposure(radiance)
     linear[full] = float(exposure) * radiance
     depth = np.full((size, size), np.nan)
-    depth[full] = t[hit]
-    points = np.full((size, size, 3), np.nan)
-    points[full] = pts
+    depth[mask] = np.where(hit, t, np.nan)
+    points_map = np.full((size, size, 3), np.nan)
+    points_map[mask] = points  # NaN where a ray missed
     organ_map = np.full((size, size), -1, np.int64)
-    organ_map[full] = phantom.face_organ[face[hit]]
+    organ_map[mask] = np.where(hit, phantom.face_organ[face], -1)
     radius_fraction = camera.theta / math.radians(camera.fov_deg / 2.0)
     image = sensor.apply(linear, radius_fraction, full, frame_index)
-    return Frame(image=image, linear=linear, depth_m=depth, points_m=points, organ=organ_map, mask=full,
+    return Frame(image=image, linear=linear, depth_m=depth, points_m=points_map, organ=organ_map, mask=full,
                  pose=pose, camera=camera, metadata={"phantom": phantom.name, "frame_index": int(frame_index),
                                                      "exposure": float(exposure)})

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from vision.errors import VisionInputError
+from vision.kernels import histogram_mutual_information
 from vision.mutual_information import independence_bias_nats, mutual_information
 
 
@@ -86,3 +87,27 @@ def test_mi_inputs_are_checked() -> None:
         mutual_information(x, x, mask=np.zeros((8, 8), bool))
     assert e.value.field == "mask"
     assert mutual_information(x, x, 16) == 0.0  # a constant frame carries no information
+
+
+def test_the_compiled_mi_of_histograms_equals_eq_3_2_written_out() -> None:
+    """The search's compiled MI of joint histograms (vision.kernels) against Eq 3.2 evaluated
+    here from the probabilities, on sparse and dense random histograms (rows and columns left
+    empty, one all zero: MI 0, one diagonal: MI = H(X)). Same quantity, different arithmetic: 1e-12."""
+    rng = np.random.default_rng(11)
+    hists = rng.integers(0, 40, (6, 16, 12)) * (rng.random((6, 16, 12)) < 0.3)
+    hists[1, 3, :] = 0
+    hists[2, :, 5] = 0
+    hists[3] = 0
+    hists[4] = 0
+    hists[4, np.arange(12), np.arange(12)] = np.arange(1, 13)  # Y a function of X
+    got = histogram_mutual_information(hists.astype(np.int64))
+    for h, value in zip(hists, got):
+        total = h.sum()
+        if total == 0:
+            assert value == 0.0
+            continue
+        p = h / total
+        px, py = p.sum(axis=1), p.sum(axis=0)
+        nz = p > 0
+        expected = float(np.sum(p[nz] * np.log(p[nz] / np.outer(px, py)[nz])))
+        assert value == pytest.approx(expected, rel=1e-12, abs=1e-12)
