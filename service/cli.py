@@ -306,7 +306,6 @@ def build_parser() -> argparse.ArgumentParser:
     from service import sweep_cli
 
     sweep_cli.add_parsers(sub)
-    __import__("service.routes.tracking", fromlist=["add_parser"]).add_parser(sub)
     f = sub.add_parser("fullwave", help="export a channel request to gprMax, run it and compare with the tracer")
     f.add_argument("file", help="JSON file with a POST /v1/channel body (ChannelSpec)")
     f.add_argument("--out", required=True, help="directory for the gprMax inputs, outputs and report.{json,md}")
@@ -318,10 +317,11 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--threads", type=int, default=2, help="OpenMP threads for gprMax (default 2)")
     f.add_argument("--export-only", action="store_true", help="write the gprMax inputs, do not run them")
     f.set_defaults(func=_cmd_fullwave)
-    from service import localize_cli, vision_cli
+    from service import localize_cli, track_cli, vision_cli
 
     vision_cli.add_parsers(sub)
     localize_cli.add_parsers(sub)
+    track_cli.add_parser(sub)
     return p
 
 

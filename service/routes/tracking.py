@@ -129,7 +129,7 @@ class EvaluateResponse(BaseModel):
     trajectory: dict[str, list[TrackStep]]
 
 
-def _track(req: TrackRequest, registry, budget: Budget) -> dict:
+def run_track(req: TrackRequest, registry, budget: Budget) -> dict:
     from tracking import (
         Observation,
         RfFix,
@@ -187,7 +187,7 @@ async def track(req: TrackRequest, request: Request) -> TrackResponse:
     particles on the centreline weighted by the fixes' 3-D likelihood (keeps both loops where the
     tract folds back)."""
     st = state(request)
-    out = await st.gate.run(lambda budget: _track(req, st.registry, budget),
+    out = await st.gate.run(lambda budget: run_track(req, st.registry, budget),
                             Budget(deadline_s=st.settings.request_deadline_s), disconnected=request.is_disconnected)
     return TrackResponse.model_validate(out)
 
@@ -206,60 +206,3 @@ async def track_evaluate(req: EvaluateRequest, request: Request) -> EvaluateResp
 
 
 # ----------------------------------------------------------------------- CLI: capsule-rt track
-def _cmd_track(args) -> int:
-    import json
-    import sys
-    from pathlib import Path
-
-    from pydantic import ValidationError
-
-    from raytrace.errors import CapsuleRTError
-
-    try:
-        if args.evaluate:
-            from evaluation.tracking import evaluate_tracking, markdown_table
-            from tracking import JourneySpec
-
-            ev = evaluate_tracking(JourneySpec(steps=args.steps, seed=args.seed), rays=args.rays,
-                                   cache_dir=args.cache_dir)
-            print(markdown_table(ev))
-            if args.plot:
-                from plots.figure import figure_bytes
-                from plots.tracking import tracking_trajectory
-
-                series = [{"name": n, "s_m": t.s_m.tolist(), "s_sigma_m": t.s_sigma_m.tolist()}
-                          for n, t in ev.tracks.items()]
-                fig = tracking_trajectory(ev.journey.t_s.tolist(), ev.journey.s_m.tolist(), series)
-                Path(args.plot).write_bytes(figure_bytes(fig, Path(args.plot).suffix.lstrip(".") or "png"))
-            return 0
-        if not args.file:
-            print(json.dumps({"detail": [{"loc": ["file"], "msg": "give a POST /v1/track body, or --evaluate"}]}),
-                  file=sys.stderr)
-            return 2
-        from service.local import local_registry
-
-        req = TrackRequest.model_validate_json(Path(args.file).read_text())
-        print(json.dumps(_track(req, local_registry(), Budget()), indent=1))
-        return 0
-    except ValidationError as exc:
-        print(json.dumps({"detail": [{"loc": ["body", *e["loc"]], "msg": e["msg"]} for e in exc.errors()]}),
-              file=sys.stderr)
-        return 2
-    except CapsuleRTError as exc:
-        print(json.dumps({"detail": [{"loc": ["body", *str(exc.field or "").split(".")], "msg": exc.reason}]}),
-              file=sys.stderr)
-        return 2
-
-
-def add_parser(sub) -> None:
-    """``capsule-rt track BODY.json`` (a POST /v1/track body, run locally) or ``--evaluate``."""
-    t = sub.add_parser("track", help="track the capsule from a POST /v1/track body, or run the journey evaluation")
-    t.add_argument("file", nargs="?", help="JSON file with a POST /v1/track body")
-    t.add_argument("--evaluate", action="store_true",
-                   help="run the default torso journey experiment (docs/tracking.md)")
-    t.add_argument("--steps", type=int, default=400, help="journey steps (with --evaluate)")
-    t.add_argument("--seed", type=int, default=0, help="journey seed (with --evaluate)")
-    t.add_argument("--rays", type=int, default=20_000, help="rays per RF trace (with --evaluate)")
-    t.add_argument("--cache-dir", default=None, help="keep traced RF grid positions here between runs")
-    t.add_argument("--plot", default=None, help="write the trajectory plot here (.png, .svg, .pdf)")
-    t.set_defaults(func=_cmd_track)
