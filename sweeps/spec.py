@@ -1,5 +1,8 @@
 """What a sweep asks: one validated, frozen :class:`SweepSpec` (``docs/sweeps.md``, "The spec").
 
+One module (~520 lines) because it is the one validator of the spec format: every rule and default
+of a sweep, each naming its field, in the order the format reads.
+
 A sweep is a grid of channel computations, capsule positions x frequencies, each traced
 to every receiver, then ranged by every requested method::
 

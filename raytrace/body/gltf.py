@@ -30,7 +30,11 @@ phantom, a room-sized test scene), so a millimetre mesh declared in metres,
 or the reverse, is refused with a message naming the units.
 
 This module holds the one validator of the manifest; the service's
-``Manifest`` model only documents it in the API schema.
+``Manifest`` model only documents it in the API schema. It is the upload
+contract end to end and stays one module (~740 lines) because the manifest's
+checks and the mesh's read each other: units against the mesh's extent, sites
+against the built phantom's bounds and surfaces, centrelines against the organs'
+media, organ names against the .glb's nodes.
 Centrelines (``raytrace.body.centreline``; the GI tract is named ``gi_tract``) are
 chains of polyline pieces, each inside the organ it names: every point, sampled every
 millimetre, must lie in that organ's medium, or the upload is refused naming the piece.

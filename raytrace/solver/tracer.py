@@ -1,6 +1,8 @@
 """Channel between a transmitter and receivers inside a phantom: exact ray paths.
 
-Pipeline (``docs/tracer.md``):
+Pipeline (``docs/tracer.md``). This module is the one place that runs the stages in order and
+shares their state (the worker pool, the budget, the seeds between stages); the stages themselves
+live in their own modules, so it stays whole (~560 lines).
 
 1. Validate the request (typed errors naming the field).
 2. Direct paths: the straight transmitter->receiver segment's crossings
