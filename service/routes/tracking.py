@@ -98,7 +98,7 @@ class TrackResponse(BaseModel):
 class JourneyIn(_Strict):
     steps: Int = Field(120, ge=2, le=MAX_EVALUATE_STEPS)
     seed: Int = Field(0, ge=0, le=2**53 - 1)  # a JSON number holds integers exactly to 2^53
-    dt_s: float = Field(0.5, gt=0.0, le=60.0)
+    dt_s: float = Field(0.5, gt=1e-3, le=60.0)
     start_m: float = Field(0.20, ge=0.0, le=100.0)
     mean_speed_m_per_s: float = Field(1.5e-3, ge=0.0, le=0.05)
     peristalsis_amplitude_m: float = Field(1.5e-3, ge=0.0, le=0.05)

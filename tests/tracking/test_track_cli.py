@@ -29,3 +29,18 @@ def test_track_command_names_the_bad_field(tmp_path, capsys):
     assert main(["track", str(path)]) == 2
     detail = json.loads(capsys.readouterr().err)["detail"]
     assert detail[0]["loc"] == ["body", "observations"]
+
+
+def test_the_evaluate_schema_states_the_journeys_own_bounds():
+    """The journey's numeric bounds live in tracking.journey; POST /v1/track/evaluate's schema must
+    say the same ones (a drift is a schema-valid request refused: the fuzzer found dt_s 5e-324)."""
+    from service.routes.tracking import JourneyIn
+    from tracking.journey import _BOUNDS
+
+    props = JourneyIn.model_json_schema()["properties"]
+    for name, (low, high, closed) in _BOUNDS.items():
+        if name not in props:
+            continue  # not exposed over HTTP
+        got = props[name]
+        assert got["maximum"] == high, name
+        assert got.get("minimum" if closed else "exclusiveMinimum") == low, (name, got)
