@@ -92,10 +92,7 @@ class ChannelOutputs(Strict):
 class ChannelRequest(Strict):
     """A channel computation (docs/api.md "Channel")."""
 
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
+    model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={
             # what ChannelSpec requires: a scenario, or a transmitter and receivers of one's own
             "anyOf": [{"required": ["scenario"], "properties": {"scenario": {"type": "string"}}},

@@ -112,10 +112,7 @@ class Manifest(Strict):
     ``raytrace.body.gltf.validate_manifest`` (with the loader's checks against the
     mesh), whose constants these bounds are."""
 
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
+    model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={
             "examples": [
                 {

@@ -163,10 +163,7 @@ class Waveform(Strict):
 
 
 class ToaRequest(RangingCommon):
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
+    model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={
             "not": {"required": ["snr_db", "link"]},  # the link budget sets the SNR: not both
             "examples": [
@@ -192,10 +189,7 @@ class ToaRequest(RangingCommon):
 
 
 class PdoaRequest(RangingCommon):
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
+    model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={
             "examples": [
                 {
@@ -241,10 +235,7 @@ class PdoaRequest(RangingCommon):
 
 
 class RssRequest(RangingCommon):
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
+    model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={
             "not": {"required": ["snr_db", "link"]},  # the link budget sets the SNR: not both
             "examples": [
@@ -328,10 +319,8 @@ def _snr_or_link(example: dict) -> dict:
     }
 
 class ToaBoundRequest(Strict):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True,
-                              json_schema_extra=_snr_or_link(
-                                  {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30,
-                                   "relative_permittivity": 27.9}))
+    model_config = ConfigDict(json_schema_extra=_snr_or_link(
+        {"carrier_hz": 402e6, "duration_s": 25e-9, "bandwidth_hz": 10e9, "snr_db": 30, "relative_permittivity": 27.9}))
     carrier_hz: float = Field(ge=1.0, le=1e12, description="Tone frequency [Hz].")
     duration_s: float = Field(ge=1e-15, le=1.0, description="Observation time T0 [s].")
     bandwidth_hz: float = Field(ge=1.0, le=1e12, description="Receiver (noise) bandwidth W [Hz].")
@@ -345,10 +334,9 @@ class ToaBoundRequest(Strict):
 
 
 class PdoaBoundRequest(Strict):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True,
-                              json_schema_extra=_snr_or_link(
-                                  {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "duration_s": 50e-9,
-                                   "relative_permittivity": 27.9}))
+    model_config = ConfigDict(json_schema_extra=_snr_or_link(
+        {"center_hz": 410e6, "tone_spacing_hz": 20e6, "snr_db": 30, "duration_s": 50e-9,
+         "relative_permittivity": 27.9}))
     center_hz: float = Field(ge=1.0, le=1e12, description="Centre frequency f0 [Hz].")
     tone_spacing_hz: float = Field(ge=1e-3, le=1e12, description="Tone spacing W [Hz] (< 2 center_hz).")
     snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="In-band signal-to-noise ratio [dB] (or "
@@ -364,10 +352,7 @@ class PdoaBoundRequest(Strict):
 
 
 class RssBoundRequest(Strict):
-    model_config = ConfigDict(
-        extra="forbid",
-        allow_inf_nan=False,
-        strict=True,
+    model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={"examples": [{"shadowing_db": 2.236, "path_loss_exponent": 3.0, "distance_m": 0.1}]},
     )
     shadowing_db: float = Field(ge=0.0, le=100.0, description="Shadowing standard deviation sigma [dB].")
