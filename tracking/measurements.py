@@ -50,9 +50,11 @@ class RfFix:
             raise TrackingInputError("must be a 3 x 3 matrix of finite numbers [m^2]", f"{where}.covariance_m2")
         if not np.allclose(c, c.T, rtol=1e-9, atol=1e-18):
             raise TrackingInputError("must be symmetric", f"{where}.covariance_m2")
-        if np.linalg.eigvalsh(0.5 * (c + c.T)).min() <= 0:
+        sym = 0.5 * c + 0.5 * c.T  # halves first: c + c.T overflows for entries near 1e308
+        eig = np.linalg.eigvalsh(sym)
+        if not (np.isfinite(eig).all() and eig.min() > 0):  # NaN eigenvalues (entries near 1e308) fail too
             raise TrackingInputError("must be positive definite", f"{where}.covariance_m2")
-        return RfFix(p, 0.5 * (c + c.T))
+        return RfFix(p, sym)
 
 
 @dataclass(frozen=True)

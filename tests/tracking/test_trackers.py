@@ -196,6 +196,12 @@ def test_bad_observations_name_the_field():
     with pytest.raises(TrackingInputError) as e:
         kalman_track(line, [Observation(0.0, RfFix(np.zeros(3), -np.eye(3)))])
     assert e.value.field == "observations[0].rf.covariance_m2"
+    # singular, with an entry near the float limit (the fuzzer's case: NaN eigenvalues used to pass as definite)
+    huge = np.zeros((3, 3))
+    huge[2, 2], huge[2, 0] = 1.7976931348623157e308, 6e-41
+    with pytest.raises(TrackingInputError) as e:
+        kalman_track(line, [Observation(0.0, RfFix(np.zeros(3), huge))])
+    assert e.value.field == "observations[0].rf.covariance_m2"
     with pytest.raises(TrackingInputError) as e:
         particle_track(line, [Observation(0.0, None, VisualMotion(1e-3, 0.0))])
     assert e.value.field == "observations[0].visual.advance_sigma_m"
