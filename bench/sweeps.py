@@ -6,7 +6,7 @@ One sweep (capsule every ``ds`` along the torso's GI tract, every skin sensor, 4
 GCC TOA) run five ways on this machine: a plain in-process loop (the serial engine: the
 reference), the local pool with 1 and 2 worker processes, and a Dask ``LocalCluster``
 (started here, ``tcp://127.0.0.1``) with 1 and 2 single-threaded worker processes. The
-workers are started and warmed by a one-position sweep before the timed one (start-up is a
+workers are started and each warmed by a short sweep before the timed one (start-up is a
 one-off cost, reported apart). Throughput counts links: positions x receivers per second.
 Overhead of an engine = its 1-worker time / the in-process loop's time - 1 (target <= 10 %):
 the work per worker is the same, so the difference is shipping tasks and results.
@@ -32,7 +32,9 @@ def _spec(ds_m: float, name: str = "bench") -> dict:
 
 
 def _timed(engine, spec: dict, root: Path) -> dict:
-    warm = {**spec, "name": "warm", "capsule_positions": [{"site": "stomach"}]}
+    # a few one-position tasks, so that every worker (not just the first) has its phantom, scene
+    # and kernels before the timed sweep
+    warm = {**spec, "name": "warm", "capsule_positions": {"along_tract": {"ds_m": 0.25}}, "chunk_positions": 1}
     t0 = time.perf_counter()
     run_sweep(load_spec(warm), root / f"{engine.name}-warm".replace(":", "-"), engine=engine)
     warm_s = time.perf_counter() - t0

@@ -38,6 +38,7 @@ from raytrace.solver.budget import Budget
 from raytrace.solver.tracer import trace_channel
 from raytrace.spec import Antenna
 from sweeps import localization as loc
+from sweeps.heap import task_heap
 from sweeps.spec import SweepSpec, rss_model
 from sweeps.table import HAS_GROUP_DELAY
 
@@ -180,10 +181,12 @@ def _append(columns: dict[str, list], row: dict, n_before: int) -> None:
 def run_task(job: TaskInput) -> TaskOutput:
     """Run one task (module docstring), with one BLAS thread: a multi-threaded BLAS sums in an order
     that depends on its thread count (Dask's workers default to 1, a plain process to the CPUs),
-    which moved the last bits of a GCC estimate; parallelism comes from the workers anyway."""
+    which moved the last bits of a GCC estimate; parallelism comes from the workers anyway. The C
+    heap is glibc's default while it runs (:func:`sweeps.heap.task_heap`: a Dask worker's trim
+    setting made every large temporary a fresh mmap, ~25 % of a task's time)."""
     from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1, user_api="blas"), task_heap():
         return _run_task(job)
 
 

@@ -89,7 +89,7 @@ def test_every_top_level_package_has_a_rule():
 
 
 #: The only modules that may import numba, llvmlite or ctypes (docs/architecture.md, "One engine fence").
-COMPILED = ("raytrace/engine/", "vision/kernels.py")
+COMPILED = ("raytrace/engine/", "vision/kernels.py", "sweeps/heap.py")
 
 
 def test_compiled_code_stays_behind_the_engine_fence():
