@@ -373,6 +373,9 @@ class ChannelSpec:
             for i, r in enumerate(rx):
                 phantom.medium_index(r[None, :], field=leaf(self.receivers[i], f"receivers[{i}]"))
             raise
+        phantom.check_antenna_clearance(np.vstack([tx[None, :], rx]),
+                                        [leaf(self.transmitter, "transmitter")]
+                                        + [leaf(r, f"receivers[{i}]") for i, r in enumerate(self.receivers)])
         self._check_geometric_optics(phantom, tx_medium)
         for i in range(len(rx)):
             if np.linalg.norm(rx[i] - tx) < MIN_SEPARATION_M:
