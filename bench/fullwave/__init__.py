@@ -3,6 +3,7 @@ layered muscle / fat / skin / air case and a transverse slice of the default tor
 (docs/validation.md, "Results"). Run one case at a time: each is minutes of CPU per cell size.
 
     python -m bench.fullwave layered [--out bench/results/fullwave/layered] [--cell-mm 2] [--coarse-factor 0.75]
+    python -m bench.fullwave lateral [--out bench/results/fullwave/lateral]   # contact sensors 0-55 mm off the normal
     python -m bench.fullwave torso   [--out bench/results/fullwave/torso] ...
     python -m bench.fullwave layered --export-only      # the gprMax inputs and the case, no run
     python -m bench.fullwave layered --reuse            # rebuild the report from finished runs
@@ -88,6 +89,27 @@ def layered_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
     return spec, ph, FdtdOptions(cell_m=0.002, bounds_m=np.array([lo, hi]), pml_cells=10)
 
 
+#: Lateral offsets of the contact sensors of :func:`lateral_case` [m].
+LATERAL_OFFSETS_M = (0.0, 0.010, 0.020, 0.025, 0.030, 0.035, 0.040, 0.045, 0.050, 0.055)
+
+
+def lateral_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
+    """The layered stack of :func:`layered_case` with only contact sensors (0.5 mm under the skin
+    surface), on the normal and every 5-10 mm up to 55 mm lateral: the direct path crosses the fat
+    from 0 to ~65 deg off its normal, approaching the 26.6 deg critical cone in the muscle. It
+    places the angle beyond which GO loses more than the on-normal ~1 dB (docs/validation.md,
+    "Validity per receiver"). Same grid alignment as the layered case."""
+    ph = layered_phantom()
+    tx = [0.0, SKIN_M + FAT_M + TX_DEPTH_M, 0.0]
+    rxs = tuple(_dipole(f"contact_{x * 1e3:g}mm", [x, 0.0005, 0.0]) for x in LATERAL_OFFSETS_M)
+    spec = ChannelSpec(_dipole("tx", tx), rxs, phantom=ph.name, frequency_hz=F0_HZ, max_interactions=6,
+                       rays=100_000)
+    pts = np.array([tx] + [r.position_m for r in rxs])
+    lo = np.floor((pts.min(axis=0) - 0.02) / 0.006) * 0.006
+    hi = np.ceil((pts.max(axis=0) + 0.02) / 0.006) * 0.006 - 1e-9
+    return spec, ph, FdtdOptions(cell_m=0.002, bounds_m=np.array([lo, hi]), pml_cells=10)
+
+
 def torso_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
     """The default torso (resolution 48), capsule at ``small_intestine_1``; contact sensors placed
     like the belt's (1 mm inside the skin) in the capsule's transverse plane at polar 0
@@ -113,6 +135,6 @@ def torso_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
 #: up to 1.9 dB; ``--coarse-factor 1.5`` runs it). The torso runs 2 mm only: on another grid the
 #: snapped contact sensors move by up to a cell across a 2 mm skin (at 3 mm the anterior one lands
 #: in air), so the two runs would compare different receivers, not one at two resolutions.
-CASES = {"layered": (layered_case, 0.75), "torso": (torso_case, 0.0)}
+CASES = {"layered": (layered_case, 0.75), "lateral": (lateral_case, 0.0), "torso": (torso_case, 0.0)}
 #: The phantom the tracer answers on per cell size (fullwave.run.compare's ``grid_phantom``).
-GRID_PHANTOMS = {"layered": layered_on_grid}
+GRID_PHANTOMS = {"layered": layered_on_grid, "lateral": layered_on_grid}
