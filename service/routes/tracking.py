@@ -13,8 +13,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from raytrace.solver.budget import Budget
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
-from service.errors import error_responses
-from service.schemas import Int
+from service.errors import Unprocessable, error_responses
+from service.schemas import Int, int_range
 
 router = APIRouter(prefix="/v1/track", tags=["tracking"], route_class=ThreadedJsonRoute)
 
@@ -25,6 +25,7 @@ MAX_PARTICLE_STEPS = 20_000_000
 #: The evaluation's bounds: journey steps and rays per trace.
 MAX_EVALUATE_STEPS = 1000
 MAX_EVALUATE_RAYS = 50_000
+DEFAULT_EVALUATE_RAYS = 20_000
 
 Vec3 = Annotated[list[Annotated[float, Field(ge=-10.0, le=10.0)]], Field(min_length=3, max_length=3)]
 Row3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -113,8 +114,12 @@ class EvaluateRequest(_Strict):
     journey: JourneyIn = Field(default_factory=JourneyIn)
     trackers: list[Literal["rf", "video", "fused", "fused_pf"]] = Field(
         default_factory=lambda: ["rf", "video", "fused"], min_length=1, max_length=4)
-    rays: Int = Field(20_000, ge=1000, le=MAX_EVALUATE_RAYS)
-    max_interactions: Int = Field(4, ge=1, le=6)
+    rays: int_range(1000, MAX_EVALUATE_RAYS) | None = Field(
+        None, description=f"Rays per trace (default {DEFAULT_EVALUATE_RAYS}, or this server's max_rays if lower); "
+                          "at most the server's max_rays.")
+    max_interactions: int_range(1, 6) | None = Field(
+        None, description="Interactions per trace (default 4, or this server's max_interactions if lower); at most "
+                          "the server's.")
     rf_grid_m: float = Field(5e-3, ge=1e-3, le=0.05)
     include_trajectory: bool = Field(True, description="Return every tracker's trajectory, and the truth.")
 
@@ -161,13 +166,19 @@ def _finite_or_none(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def _evaluate(req: EvaluateRequest, registry, budget: Budget) -> dict:
+def _evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
     from evaluation.tracking import evaluate_tracking
     from tracking import JourneySpec
 
+    rays = req.rays if req.rays is not None else min(DEFAULT_EVALUATE_RAYS, settings.max_rays)
+    interactions = req.max_interactions if req.max_interactions is not None else min(4, settings.max_interactions)
+    for name, value, cap in (("rays", rays, settings.max_rays),
+                             ("max_interactions", interactions, settings.max_interactions)):
+        if value > cap:
+            raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=["body", name])
     phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
     ev = evaluate_tracking(JourneySpec(**req.journey.model_dump()), req.trackers, phantom=phantom,
-                           rf_grid_m=req.rf_grid_m, rays=req.rays, max_interactions=req.max_interactions,
+                           rf_grid_m=req.rf_grid_m, rays=rays, max_interactions=interactions,
                            check=budget.charge)
     j = ev.journey
     truth = [{"t_s": float(j.t_s[k]), "s_m": float(j.s_m[k]), "position_m": j.position_m[k].tolist(),
@@ -200,7 +211,7 @@ async def track_evaluate(req: EvaluateRequest, request: Request) -> EvaluateResp
     the MI estimator's measured error model; RMSE along the tract and in 3-D per tracker. Bounded:
     at most 1000 steps and 200 traced grid positions, under the server's deadline (504 past it)."""
     st = state(request)
-    out = await st.gate.run(lambda budget: _evaluate(req, st.registry, budget),
+    out = await st.gate.run(lambda budget: _evaluate(req, st.registry, st.settings, budget),
                             Budget(deadline_s=st.settings.request_deadline_s), disconnected=request.is_disconnected)
     return EvaluateResponse.model_validate(out)
 

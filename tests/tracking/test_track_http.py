@@ -59,3 +59,21 @@ def test_evaluate_video_only_needs_no_trace(api):
     assert out["rf_positions_traced"] == 0
     assert 0.0 < out["rmse_m"]["video"] < 0.01
     assert len(out["trajectory"]["video"]) == 40 and len(out["truth"]) == 40
+
+
+def test_evaluate_keeps_to_the_servers_ray_and_interaction_limits(make_settings):
+    """The app of this test allows 5000 rays and 3 interactions: more is a 422 naming the field before
+    any work starts; the defaults (20 000 rays, 4 interactions) are lowered to the server's limits (a video-only
+    run answers)."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+
+    with TestClient(create_app(make_settings(max_rays=5000, max_interactions=3))) as client:
+        r = client.post("/v1/track/evaluate", json={"rays": 6000})
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "rays"], r.text
+        assert "5000" in r.json()["detail"][0]["msg"]
+        r = client.post("/v1/track/evaluate", json={"max_interactions": 4})
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "max_interactions"], r.text
+        r = client.post("/v1/track/evaluate", json={"journey": {"steps": 20, "seed": 2}, "trackers": ["video"]})
+        assert r.status_code == 200, r.text
