@@ -42,6 +42,11 @@ def gprmax_available() -> bool:
     return True
 
 
+def input_stem(cell_m: float) -> str:
+    """The file stem of the model at ``cell_m`` in a comparison's directory (``model_20``: 2.0 mm)."""
+    return f"model_{round(cell_m * 1e4)}"
+
+
 def export(model: FdtdModel, directory: Path, stem: str) -> Path:
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"{stem}.in"
@@ -203,13 +208,14 @@ def compare(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions, directory
     is killed) and the trace with :class:`~raytrace.errors.BudgetExceededError`; no report is
     written then, and the runs finished so far are what ``reuse`` finds next time.
     ``on_progress(event)`` is told ``{"run", "runs", "cell_m", "stage", "iteration", "iterations"}``
-    as the work goes (stage ``gprmax``: time steps done of gprMax's own count; ``tracer``; ``done``)."""
+    as the work goes (stage ``gprmax``: time steps done of gprMax's own count; ``reused``: an earlier
+    identical run is taken instead; ``tracer``; ``done``)."""
     sizes = [options.cell_m] + ([options.cell_m * coarse_factor] if coarse_factor else [])
     report: dict = {"request": spec.to_dict(), "runs": [], "discretisation": []}
     for k, h in enumerate(sizes):
         opts = dataclasses.replace(options, cell_m=h)
         model = build_model(spec, phantom, opts)
-        stem = f"model_{round(h * 1e4)}"  # e.g. model_20: 2.0 mm
+        stem = input_stem(h)
         previous = previous_output(model, directory, stem) if reuse else None
         path = export(model, directory, stem)
         entry = {
@@ -231,7 +237,7 @@ def compare(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions, directory
                 on_progress({"run": k, "runs": len(sizes), "cell_m": h, "stage": stage, "iteration": iteration,
                              "iterations": iterations})
 
-        tell("gprmax", 0, model.iterations)
+        tell("reused" if previous is not None else "gprmax", 0, model.iterations)
         out, wall = previous or run_gprmax(path, threads, cancel=cancel, deadline=deadline,
                                            on_progress=lambda i, n: tell("gprmax", i, n))
         entry["reused"] = previous is not None
