@@ -292,7 +292,7 @@ class FullwaveJobs(JobKind):
                 state["work_done"] = before + work[k]
             state.update(run=k, stage=stage if stage in ("gprmax", "tracer") else None,
                          runs_done=k + (1 if stage == "done" else 0))
-            publish(force=stage != "gprmax")
+            publish(force=stage != "gprmax" or event["iteration"] == 0)  # a new stage at once; steps throttled
 
         publish(force=True)
         try:
