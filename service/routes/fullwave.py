@@ -27,7 +27,7 @@ def _jobs(request: Request):
 
 
 @router.post("", status_code=202, response_model=FullwaveStatus, operation_id="submit_fullwave",
-             summary="Submit a full-wave cross-check", responses=error_responses(404, 413, 422, 501, 503))
+             summary="Submit a full-wave cross-check", responses=error_responses(400, 404, 413, 422, 501, 503))
 async def submit_fullwave(req: FullwaveRequest, request: Request) -> JSONResponse:  # type: ignore[valid-type]
     """Validate the channel request and the FDTD models (their size against the server's work bound,
     the antennas outside the absorbing layer), write the gprMax inputs and queue the job on the
