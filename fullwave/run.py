@@ -112,6 +112,8 @@ def run_gprmax(input_path: Path, threads: int = 2, *, cancel: threading.Event | 
     out = input_path.with_suffix(".h5")
     input_path.with_suffix(".wall_s").unlink(missing_ok=True)  # a finished run is marked only once it is
     t0 = time.monotonic()
+    if deadline is not None and t0 > deadline:
+        raise BudgetExceededError(f"no time left to run gprMax on {input_path.name}", kind="deadline")
     with open(log_path, "wb") as log:
         proc = subprocess.Popen([sys.executable, "-m", "gprMax", str(input_path.name), "--show-progress-bars"],
                                 cwd=input_path.parent, env=env, stdout=log, stderr=subprocess.STDOUT,

@@ -145,3 +145,23 @@ def test_unknown_jobs_bad_ids_and_the_queue_bound(client):
     cancelled = client.delete(f"/v1/fullwave/{job_id}").json()
     assert cancelled["cancel_requested"] and cancelled["deleted"] is False
     assert json.loads(client.get("/v1/fullwave").content)["jobs"][0]["id"] == job_id
+
+
+def test_a_job_past_its_wall_time_fails_saying_so(make_settings):
+    """The wall-time bound counts every start of a job: one whose earlier starts used it all (state.json
+    says 10 s of a 5 s bound) fails at once, without starting gprMax, naming the setting. (The app's
+    lifespan is not run here, so no runner takes the job before the test calls execute.)"""
+    import threading
+
+    app = create_app(make_settings(fullwave_max_wall_s=5.0))
+    app.state.capsule.registry.load_builtins(True)
+    client = TestClient(app, raise_server_exceptions=False)
+    job = client.post("/v1/fullwave", json={**TINY, "coarse_factor": 0})
+    assert job.status_code == 202 and job.json()["state"] == "queued", job.text
+    jobs = app.state.fullwave
+    d = jobs.job_dir(job.json()["id"])
+    jobs.write_state(d, {**jobs.read_state(d), "elapsed_s": 10.0})
+    assert jobs.execute(job.json()["id"], threading.Event()) == "failed"
+    status = client.get(f"/v1/fullwave/{job.json()['id']}").json()
+    assert status["state"] == "failed" and "fullwave_max_wall_s" in status["error"]
+    assert status["elapsed_s"] >= 10.0 and not (d / "run" / "model_40.log").exists()  # gprMax never started
