@@ -28,10 +28,15 @@ from raytrace.body.library import get_phantom
 from raytrace.spec import ChannelSpec
 from service.client import Client
 from tests.conftest import REPO, free_port, wait_ready
-from tests.service.test_fullwave_api import TINY
 
 pytestmark = pytest.mark.e2e
 
+#: A z dipole in the half-space's muscle, 0.5 m from any surface, and one receiver 3 cm away: at 4 mm
+#: cells and a 12 mm margin a 26 x 19 x 18-cell model (6 PML cells), 985 steps.
+TINY = {"phantom": "half-space",
+        "transmitter": {"position_m": [0.0, 0.5, 0.0], "polarization": [0, 0, 1], "pattern": "dipole"},
+        "receivers": [{"name": "r3", "position_m": [0.03, 0.5, 0.0], "pattern": "dipole"}], "rays": 2000,
+        "cell_m": 0.004, "margin_m": 0.012, "pml_cells": 6, "coarse_factor": 1.5}
 FDTD = ("cell_m", "margin_m", "pml_cells", "coarse_factor", "export_only")
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 
 from service.cli import main
-from tests.service.test_fullwave_api import TINY
+from tests.e2e.test_fullwave_http import TINY
 
 REQUEST = {k: v for k, v in TINY.items() if k not in ("cell_m", "margin_m", "pml_cells", "coarse_factor")}
 ARGS = ["--cell-mm", "4", "--margin-mm", "12", "--pml-cells", "6", "--coarse-factor", "0", "--threads", "1"]

@@ -14,14 +14,8 @@ from fullwave.model import FdtdOptions, build_model
 from raytrace.body.library import get_phantom
 from raytrace.spec import ChannelSpec
 from service.app import create_app
+from tests.e2e.test_fullwave_http import TINY
 from tests.service.test_uploads import upload
-
-#: A z dipole in the half-space's muscle, 0.5 m from any surface, and one receiver 3 cm away: at 4 mm
-#: cells and a 12 mm margin a 26 x 19 x 18-cell model (6 PML cells), 985 steps.
-TINY = {"phantom": "half-space",
-        "transmitter": {"position_m": [0.0, 0.5, 0.0], "polarization": [0, 0, 1], "pattern": "dipole"},
-        "receivers": [{"name": "r3", "position_m": [0.03, 0.5, 0.0], "pattern": "dipole"}], "rays": 2000,
-        "cell_m": 0.004, "margin_m": 0.012, "pml_cells": 6, "coarse_factor": 1.5}
 
 
 @pytest.fixture
