@@ -93,8 +93,8 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 def run_gprmax(input_path: Path, threads: int = 2, *, cancel: threading.Event | None = None,
-               deadline: float | None = None,
-               on_progress: Callable[[int, int], None] | None = None) -> tuple[Path, float]:
+               deadline: float | None = None, on_progress: Callable[[int, int], None] | None = None,
+               on_start: Callable[[int], None] | None = None) -> tuple[Path, float]:
     """Run gprMax on ``input_path`` in a child process (OpenMP ``threads``); its HDF5 output and
     the wall time [s]. Raises ``RuntimeError`` with gprMax's last log lines on failure.
 
@@ -102,7 +102,9 @@ def run_gprmax(input_path: Path, threads: int = 2, *, cancel: threading.Event | 
     :data:`POLL_S`: when ``cancel`` is set, or ``time.monotonic()`` passes ``deadline``, the group
     is killed (and reaped) and :class:`~raytrace.errors.BudgetExceededError` raised (kind
     ``cancelled`` / ``deadline``); ``on_progress(iteration, iterations)`` gets the time steps done,
-    read from the tail of gprMax's progress bar in the log."""
+    read from the tail of gprMax's progress bar in the log; ``on_start(pid)`` is told the child's pid
+    (its process group's id too), e.g. to be recorded so that a process that outlived a crash of its
+    parent can be found and stopped."""
     # OMP_WAIT_POLICY: gprMax's OpenMP threads spin at every barrier by default, so on a machine whose
     # cores are busy with other work a descheduled thread stalls the others: a 1.8e8 cell-update model
     # took 492 s with spinning threads and 13 s with passive ones on 2 cores shared with one busy process
@@ -119,6 +121,8 @@ def run_gprmax(input_path: Path, threads: int = 2, *, cancel: threading.Event | 
                                 cwd=input_path.parent, env=env, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)
         try:
+            if on_start is not None:
+                on_start(proc.pid)
             seen = None
             while True:
                 try:
@@ -194,7 +198,8 @@ def _row(name: str, fd: Metrics, tr: Metrics, validity: tuple[str, ...], medium:
 def compare(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions, directory: Path, *,
             coarse_factor: float | None = 1.5, run: bool = True, threads: int = 2, reuse: bool = False,
             grid_phantom: Callable[[float], Phantom] | None = None, cancel: threading.Event | None = None,
-            deadline: float | None = None, on_progress: Callable[[dict], None] | None = None) -> dict:
+            deadline: float | None = None, on_progress: Callable[[dict], None] | None = None,
+            on_start: Callable[[int], None] | None = None) -> dict:
     """The report (a JSON-able dict): per cell size the model's facts, gprMax's wall time and
     per receiver the FDTD and tracer metrics and their differences; then per receiver the
     discretisation estimate. With ``run`` false (or gprMax missing) only the inputs are written;
@@ -211,7 +216,7 @@ def compare(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions, directory
     written then, and the runs finished so far are what ``reuse`` finds next time.
     ``on_progress(event)`` is told ``{"run", "runs", "cell_m", "stage", "iteration", "iterations"}``
     as the work goes (stage ``gprmax``: time steps done of gprMax's own count; ``reused``: an earlier
-    identical run is taken instead; ``tracer``; ``done``)."""
+    identical run is taken instead; ``tracer``; ``done``); ``on_start`` is :func:`run_gprmax`'s."""
     sizes = [options.cell_m] + ([options.cell_m * coarse_factor] if coarse_factor else [])
     report: dict = {"request": spec.to_dict(), "runs": [], "discretisation": []}
     for k, h in enumerate(sizes):
@@ -241,7 +246,7 @@ def compare(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions, directory
 
         tell("reused" if previous is not None else "gprmax", 0, model.iterations)
         out, wall = previous or run_gprmax(path, threads, cancel=cancel, deadline=deadline,
-                                           on_progress=lambda i, n: tell("gprmax", i, n))
+                                           on_progress=lambda i, n: tell("gprmax", i, n), on_start=on_start)
         entry["reused"] = previous is not None
         tell("tracer")
         seen = grid_phantom(h) if grid_phantom else phantom

@@ -27,6 +27,7 @@ import json
 import logging
 import os
 import shutil
+import signal
 import threading
 import time
 from pathlib import Path
@@ -67,6 +68,26 @@ def _threads(settings: Settings) -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
         return os.cpu_count() or 1
+
+
+def _stop_orphan(pid: int | None, run_dir: Path) -> None:
+    """Kill the gprMax process group an earlier start of the job left running (the service was killed
+    while gprMax ran: it is in a session of its own, so it outlives its parent and would write the
+    same output as the new run). Only a process that is gprMax and works in the job's own ``run_dir``
+    (Linux ``/proc``), so a recycled pid is left alone."""
+    if not pid:
+        return
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        cwd = os.readlink(f"/proc/{pid}/cwd")
+    except OSError:
+        return
+    if b"gprMax" in argv and cwd == str(run_dir):
+        log.warning("killing the gprMax an earlier start left running", extra={"pid": pid})
+        try:
+            os.killpg(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
 
 
 class FullwaveJobs(JobKind):
@@ -294,6 +315,11 @@ class FullwaveJobs(JobKind):
                          runs_done=k + (1 if stage == "done" else 0))
             publish(force=stage != "gprmax" or event["iteration"] == 0)  # a new stage at once; steps throttled
 
+        def started_gprmax(pid: int) -> None:
+            state["gprmax_pid"] = pid
+            publish(force=True)
+
+        _stop_orphan(previous.get("gprmax_pid"), d / RUN_DIR)
         publish(force=True)
         try:
             spec = ChannelSpec.from_dict(job["spec"])
@@ -305,7 +331,7 @@ class FullwaveJobs(JobKind):
                 raise RuntimeError(f"phantom {spec.phantom!r} is no longer available: {exc.reason}") from None
             compare(spec, phantom, FdtdOptions(**job["options"]), d / RUN_DIR, coarse_factor=job["coarse_factor"],
                     run=True, threads=_threads(self.settings), reuse=True, cancel=cancel, deadline=deadline,
-                    on_progress=on_progress)
+                    on_progress=on_progress, on_start=started_gprmax)
         except BudgetExceededError as exc:
             if exc.kind == "cancelled":
                 state["state"] = "cancelled"  # the runner makes it "queued" again when the service is stopping
@@ -318,7 +344,7 @@ class FullwaveJobs(JobKind):
             state.update(state="failed", error=f"{type(exc).__name__}: {exc}")
         else:
             state.update(state="done", runs_done=len(work), work_done=float(sum(work)), eta_s=0.0)
-        state.update(finished_at=time.time(), run=None, stage=None)
+        state.update(finished_at=time.time(), run=None, stage=None, gprmax_pid=None)
         if state["state"] != "done":
             state["eta_s"] = None
         publish(force=True)

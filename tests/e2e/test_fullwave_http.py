@@ -2,7 +2,8 @@
 dir, with gprMax: a tiny two-cell-size job followed to done across a restart of the service (its
 first, finished gprMax run is re-used, not re-run), its report in both formats against the library's
 ``compare()`` on the same gprMax outputs, its files; a running job cancelled (its gprMax process is
-gone); malformed, oversize and export-only submissions.
+gone); a crash of the service while gprMax runs (the next start kills the orphaned gprMax and finishes
+the job); malformed, oversize and export-only submissions.
 
 Determinism without timing: the test finds a job's gprMax process by its command line and working
 directory (``/proc``) and stops it (SIGSTOP), so the job cannot finish while the test restarts the
@@ -183,6 +184,25 @@ def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
         gone = server.api.fullwave_cancel(second.id)
         assert gone.deleted is True and http.get(f"/v1/fullwave/{second.id}").status_code == 404
         assert [j.id for j in server.api.fullwave_jobs().jobs] == [exported.id, job.id]
+
+        # a crash (SIGKILL) while gprMax runs: gprMax, in a session of its own, outlives the service; the next
+        # start kills it before it runs the job again, which then finishes
+        third = server.api.fullwave_submit({**TINY, "coarse_factor": 0})
+        run_dir = data / "fullwave" / third.id / "run"
+        pid = _catch_gprmax(http, third.id, run_dir, "model_40.in")
+    finally:
+        server.http.close()
+        server.api.close()
+        server.proc.kill()
+        server.proc.wait()
+    assert not _gone(pid)  # the orphan, stopped
+    server = Server(data, log)
+    try:
+        final = server.api.fullwave_wait(third.id, poll_s=0.2, timeout_s=600)
+        assert final.state == "done" and final.runs_done == 1, final
+        assert _gone(pid)
     finally:
         server.stop()
+        if not _gone(pid):
+            os.kill(pid, signal.SIGKILL)
     shutil.rmtree(data, ignore_errors=True)
