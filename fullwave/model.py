@@ -155,15 +155,59 @@ def _boxes(organ: np.ndarray) -> list[tuple[int, int, int, int, int, int, int]]:
     return [(r[0], r[2], k0, r[1], r[3], k1, r[4]) for k0, k1, r in out]
 
 
+def _domain(spec: ChannelSpec, resolved, options: FdtdOptions) -> tuple[np.ndarray, np.ndarray]:
+    """The model's box without the PML: ``options.bounds_m``, or the antennas' box grown by ``margin_m``."""
+    if options.bounds_m is not None:
+        lo, hi = np.asarray(options.bounds_m, float).reshape(2, 3)
+        return lo, hi
+    pts = np.vstack([resolved.tx_m[None, :], resolved.rx_m])
+    return pts.min(axis=0) - options.margin_m, pts.max(axis=0) + options.margin_m
+
+
+def _time_window(spec: ChannelSpec, resolved, n_max: float, options: FdtdOptions) -> tuple[float, float, int]:
+    """(window [s], dt [s], iterations) for media whose largest Re n is ``n_max`` (module docstring)."""
+    f0 = spec.frequency_hz
+    dist = float(np.max(np.linalg.norm(resolved.rx_m - resolved.tx_m, axis=1)))
+    window = options.time_window_s or (2.0 / f0 + 1.3 * n_max * dist / C0 + 1.5e-9)
+    dt = COURANT * options.cell_m / (C0 * np.sqrt(3.0))
+    return window, dt, int(np.ceil(window / dt)) + 1
+
+
+@dataclass(frozen=True)
+class ModelSize:
+    """A model's cells (PML included) and time steps, known before it is built."""
+
+    cells: tuple[int, int, int]
+    iterations: int
+
+    @property
+    def cell_updates(self) -> int:
+        """Cells x time steps: the FDTD's work (its wall time is about proportional to it)."""
+        return int(np.prod(self.cells)) * self.iterations
+
+
+def model_size(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions = FdtdOptions()) -> ModelSize:
+    """The size of :func:`build_model`'s model without voxelizing or fitting anything: the same
+    domain and grid shape (the voxel grid's ``ceil(extent / cell)`` per axis, plus the PML), and
+    an upper bound on the time steps (the slowest medium of the whole phantom at the carrier, where
+    the model takes the slowest of the media inside its box). A service bounds a job's work with it
+    before the job is accepted. The bound takes Re n of the Cole-Cole model 1 % up: the Debye fit
+    the model uses is within 0.3 % of it in permittivity (:mod:`fullwave.debye`)."""
+    resolved = spec.resolve(phantom)
+    lo, hi = _domain(spec, resolved, options)
+    h = float(options.cell_m)
+    shape = np.maximum(np.ceil((hi - lo) / h).astype(np.int64), 1) + 2 * int(options.pml_cells)
+    materials = [spec.homogeneous] if spec.homogeneous is not None else [o.material for o in phantom.organs]
+    f0 = np.array([spec.frequency_hz])
+    n_max = max([1.0] + [1.01 * float(np.sqrt(m.complex_relative_permittivity(f0)[0]).real) for m in materials])
+    return ModelSize(cells=tuple(int(c) for c in shape), iterations=_time_window(spec, resolved, n_max, options)[2])
+
+
 def build_model(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions = FdtdOptions()) -> FdtdModel:
     """The gprMax model of ``spec`` in ``phantom`` (module docstring)."""
     resolved = spec.resolve(phantom)
     h = float(options.cell_m)
-    pts = np.vstack([resolved.tx_m[None, :], resolved.rx_m])
-    if options.bounds_m is not None:
-        lo, hi = np.asarray(options.bounds_m, float).reshape(2, 3)
-    else:
-        lo, hi = pts.min(axis=0) - options.margin_m, pts.max(axis=0) + options.margin_m
+    lo, hi = _domain(spec, resolved, options)
     grid = voxelize(phantom, h, bounds_m=np.array([lo, hi]), pad_cells=0)
     organ = grid.organ.astype(np.int64)
     if spec.homogeneous is not None:
@@ -197,10 +241,7 @@ def build_model(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions = Fdtd
             raise ValueError(f"{name} lies in or outside the absorbing layer; grow margin_m or bounds_m")
     # time window
     n_max = max([1.0] + [float(np.sqrt(fits[medium_id[m]].permittivity(f0)).real) for m in used])
-    dist = float(np.max(np.linalg.norm(resolved.rx_m - resolved.tx_m, axis=1)))
-    window = options.time_window_s or (2.0 / f0 + 1.3 * n_max * dist / C0 + 1.5e-9)
-    dt = COURANT * h / (C0 * np.sqrt(3.0))
-    iterations = int(np.ceil(window / dt)) + 1
+    window, dt, iterations = _time_window(spec, resolved, n_max, options)
 
     lines = [f"#title: CapsuleRT fullwave export of phantom {spec.phantom} at {f0:g} Hz",
              f"#domain: {cells[0] * h:.9g} {cells[1] * h:.9g} {cells[2] * h:.9g}",
@@ -242,4 +283,4 @@ def build_model(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions = Fdtd
                      rx_cell_media=cell_media)
 
 
-__all__ = ["FdtdModel", "FdtdOptions", "build_model"]
+__all__ = ["FdtdModel", "FdtdOptions", "ModelSize", "build_model", "model_size"]

@@ -20,7 +20,8 @@ from service import __version__
 from service.compute import ComputeGate
 from service.deps import AppState
 from service.errors import install_error_handlers
-from service.jobs import SweepJobs
+from service.fullwave_jobs import FullwaveJobs
+from service.jobs import JobRunner
 from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
@@ -29,6 +30,7 @@ from service.routes import (
     bounds,
     catalogue,
     channel,
+    fullwave,
     localize,
     ops,
     pages,
@@ -42,6 +44,7 @@ from service.routes import (
 from service.security import API_KEY_HEADER, OriginGuard
 from service.settings import Settings
 from service.storage import PhantomStore
+from service.sweep_jobs import SweepJobs
 
 log = logging.getLogger("capsule_rt.app")
 
@@ -69,6 +72,8 @@ TAGS = [
     {"name": "plots", "description": "Figures of channels, bounds and ranging errors (PNG, SVG, PDF)."},
     {"name": "vision", "description": "The capsule camera's frames and MI motion tracking (thesis Ch. 3)."},
     {"name": "sweeps", "description": "Sweep jobs: positions x receivers x frequencies, run in worker processes."},
+    {"name": "fullwave", "description": "Full-wave (gprMax FDTD) cross-checks of the tracer, as jobs on the sweeps' "
+                                        "queue."},
     {"name": "operations", "description": "Health, readiness, metrics."},
 ]
 
@@ -79,7 +84,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     metrics = Metrics()
     registry = Registry(store=PhantomStore(settings.data_dir))
     gate = ComputeGate(settings.max_concurrency, settings.max_queue, settings.retry_after_s, metrics)
-    sweep_jobs = SweepJobs(settings, registry)
+    jobs = JobRunner(settings.data_dir)  # one queue and one runner for every kind of job
+    sweep_jobs = SweepJobs(settings, registry, jobs)
+    fullwave_jobs = FullwaveJobs(settings, registry, jobs)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -91,7 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # move them out of the cyclic collector's sight, or each full collection walks them all
         # (~70 ms with the GIL held, about every fifth channel request; docs/tracer.md)
         gc.freeze()
-        sweep_jobs.start()
+        jobs.start()
         log.info(
             "ready",
             extra={"phantoms": registry.ids(), "scenarios": sorted(registry.scenarios),
@@ -102,7 +109,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             gate.cancel_all()
-            await anyio.to_thread.run_sync(sweep_jobs.stop)
+            await anyio.to_thread.run_sync(jobs.stop)
 
     app = FastAPI(
         title="CapsuleRT",
@@ -115,8 +122,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     app.state.sweeps = sweep_jobs
+    app.state.fullwave = fullwave_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, vision, tracking, ops):
+    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, vision,
+                   tracking, ops):
         app.include_router(module.router)
     pages.install(app)
     # outermost last: request id and metrics see every answer, CORS answers its preflights,
@@ -130,6 +139,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                         ("/v1/bounds/", settings.max_json_body_bytes),
                                         ("/v1/plots/", settings.max_ranging_body_bytes),
                                         ("/v1/sweeps", settings.max_json_body_bytes),
+                                        ("/v1/fullwave", settings.max_json_body_bytes),
                                         ("/v1/vision/render", settings.max_json_body_bytes)])
     app.add_middleware(OriginGuard, allowed_origins=settings.cors_origins)
     if settings.cors_origins:
@@ -157,6 +167,9 @@ _LIMITS = [
     ("LocalizeEvaluateRequest", "max_interactions", "maximum", "max_interactions"),
     ("LocalizeEvaluateRequest", "sensors", "maxItems", "max_receivers"),
     ("LocalizeEvaluateRequest", "trials", "maximum", "max_trials"),
+    ("FullwaveRequest", "rays", "maximum", "max_rays"),
+    ("FullwaveRequest", "max_interactions", "maximum", "max_interactions"),
+    ("FullwaveRequest", "receivers", "maxItems", "max_receivers"),
 ]
 
 

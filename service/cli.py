@@ -7,7 +7,7 @@
     capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
     capsule-rt sweep SPEC --out DIR [--cluster ADDRESS] [--resume]   (service.sweep_cli)
     capsule-rt experiment NAME --out DIR                             (service.sweep_cli)
-    capsule-rt fullwave REQUEST.json --out DIR [--cell-mm 2] [--coarse-factor 1.5] [--margin-mm 20]
+    capsule-rt fullwave REQUEST.json --out DIR [--cell-mm 2] [--coarse-factor 1.5] [--margin-mm 20] [--reuse]
     capsule-rt vision render --out DIR [--start-s-m S] [--frames N] [--advance-m D] ...   (service.vision_cli)
     capsule-rt vision motion DIR|FRAME.png... [--output OUT.csv|.json] [--estimate both] ... (service.vision_cli)
     capsule-rt localize REQUEST.json [--output OUT.json]            (service.localize_cli)
@@ -185,10 +185,11 @@ def _cmd_fullwave(args: argparse.Namespace) -> int:
         print("gprMax is not installed (pip install 'capsule-rt[fullwave]'); writing the inputs only", file=sys.stderr)
         run = False
     report = compare(spec, phantom, options, Path(args.out), coarse_factor=args.coarse_factor or None, run=run,
-                     threads=args.threads)
+                     threads=args.threads, reuse=args.reuse)
     for r in report["runs"]:
         if r.get("ran"):
-            print(f"{r['cell_m'] * 1e3:g} mm cells: gprMax {r['wall_s']:.0f} s", file=sys.stderr)
+            how = "re-used from an earlier run in --out" if r.get("reused") else "ran"
+            print(f"{r['cell_m'] * 1e3:g} mm cells: gprMax {r['wall_s']:.0f} s ({how})", file=sys.stderr)
     sys.stdout.write((Path(args.out) / "report.md").read_text())
     return 0
 
@@ -316,6 +317,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--pml-cells", type=int, default=10, help="absorbing-layer thickness [cells] (default 10)")
     f.add_argument("--threads", type=int, default=2, help="OpenMP threads for gprMax (default 2)")
     f.add_argument("--export-only", action="store_true", help="write the gprMax inputs, do not run them")
+    f.add_argument("--reuse", action="store_true",
+                   help="a cell size whose identical input already ran to the end in --out is not run again (its "
+                        "output is compared anew): rebuild a report, or finish an interrupted comparison")
     f.set_defaults(func=_cmd_fullwave)
     from service import localize_cli, track_cli, vision_cli
 

@@ -17,7 +17,9 @@ raises :class:`APIError` carrying the status, the ``detail`` list and the
 
 from __future__ import annotations
 
+import asyncio
 import json
+import time
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -28,6 +30,7 @@ from service.routes import localize as loc
 from service.routes import vision as v
 from service.schemas import Health, Readiness
 from service.schemas.channel import ChannelRequest, ChannelResponse
+from service.schemas.fullwave import FullwaveList, FullwaveRequest, FullwaveStatus
 from service.schemas.phantoms import (
     Manifest,
     PhantomOut,
@@ -224,6 +227,36 @@ class _Endpoints:
                 files[name] = (f"{name}.json", json.dumps(_body(model, value)), "application/json")
         return _Call("POST", "/v1/vision/motion", v.MotionResponse, {"files": files})
 
+    @staticmethod
+    def fullwave_submit(req: dict | BaseModel) -> _Call:
+        return _Call("POST", "/v1/fullwave", FullwaveStatus, {"json": _body(FullwaveRequest, req)})
+
+    @staticmethod
+    def fullwave_status(job_id: str) -> _Call:
+        return _Call("GET", f"/v1/fullwave/{job_id}", FullwaveStatus, {})
+
+    @staticmethod
+    def fullwave_jobs() -> _Call:
+        return _Call("GET", "/v1/fullwave", FullwaveList, {})
+
+    @staticmethod
+    def fullwave_report(job_id: str, format: str) -> _Call:
+        if format == "json":
+            return _Call("GET", f"/v1/fullwave/{job_id}/report", dict, {"params": {"format": "json"}})
+        return _Call("GET", f"/v1/fullwave/{job_id}/report", str, {"params": {"format": format}}, raw=True)
+
+    @staticmethod
+    def fullwave_file(job_id: str, name: str) -> _Call:
+        return _Call("GET", f"/v1/fullwave/{job_id}/files/{name}", None, {}, raw=True)
+
+    @staticmethod
+    def fullwave_cancel(job_id: str) -> _Call:
+        return _Call("DELETE", f"/v1/fullwave/{job_id}", FullwaveStatus, {})
+
+
+#: States a full-wave job (or a sweep) does not leave.
+FINISHED = ("done", "failed", "cancelled")
+
 
 class Client:
     """Synchronous client. ``Client(base_url, timeout=..., transport=...)``; a context manager."""
@@ -324,6 +357,43 @@ class Client:
                       headers: dict[str, str] | None = None) -> v.MotionResponse:
         """Rotation, scale (and advance, with the reference's render request as ``geometry``)."""
         return self._do(_Endpoints.vision_motion(reference_png, moving_png, options, geometry), headers)
+
+    def fullwave_submit(self, req: FullwaveRequest | dict, *,  # type: ignore[valid-type]
+                        headers: dict[str, str] | None = None) -> FullwaveStatus:
+        """POST /v1/fullwave: queue a full-wave cross-check (a channel request + FDTD options); its status."""
+        return self._do(_Endpoints.fullwave_submit(req), headers)
+
+    def fullwave_status(self, job_id: str, *, headers: dict[str, str] | None = None) -> FullwaveStatus:
+        return self._do(_Endpoints.fullwave_status(job_id), headers)
+
+    def fullwave_jobs(self, *, headers: dict[str, str] | None = None) -> FullwaveList:
+        return self._do(_Endpoints.fullwave_jobs(), headers)
+
+    def fullwave_wait(self, job_id: str, *, poll_s: float = 1.0, timeout_s: float | None = None,
+                      headers: dict[str, str] | None = None) -> FullwaveStatus:
+        """Poll the job until it is done, failed or cancelled; its last status (``TimeoutError`` after
+        ``timeout_s``)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            status = self.fullwave_status(job_id, headers=headers)
+            if status.state in FINISHED:
+                return status
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"full-wave job {job_id} is still {status.state} after {timeout_s} s")
+            time.sleep(poll_s)
+
+    def fullwave_report(self, job_id: str, format: str = "json", *,
+                        headers: dict[str, str] | None = None) -> dict | str:
+        """The report of a done job: a dict (``json``) or Markdown text (``md``)."""
+        return self._do(_Endpoints.fullwave_report(job_id, format), headers)
+
+    def fullwave_file(self, job_id: str, name: str, *, headers: dict[str, str] | None = None) -> bytes:
+        """One of the files its status lists (``model_20.in``, ``model_20.h5``, ``report.md``, ...)."""
+        return self._do(_Endpoints.fullwave_file(job_id, name), headers)
+
+    def fullwave_cancel(self, job_id: str, *, headers: dict[str, str] | None = None) -> FullwaveStatus:
+        """Cancel a queued or running job (gprMax is killed); delete a finished one."""
+        return self._do(_Endpoints.fullwave_cancel(job_id), headers)
 
 
 class AsyncClient:
@@ -431,3 +501,40 @@ class AsyncClient:
                             headers: dict[str, str] | None = None) -> v.MotionResponse:
         """Rotation, scale (and advance, with the reference's render request as ``geometry``)."""
         return await self._do(_Endpoints.vision_motion(reference_png, moving_png, options, geometry), headers)
+
+    async def fullwave_submit(self, req: FullwaveRequest | dict, *,  # type: ignore[valid-type]
+                        headers: dict[str, str] | None = None) -> FullwaveStatus:
+        """POST /v1/fullwave: queue a full-wave cross-check (a channel request + FDTD options); its status."""
+        return await self._do(_Endpoints.fullwave_submit(req), headers)
+
+    async def fullwave_status(self, job_id: str, *, headers: dict[str, str] | None = None) -> FullwaveStatus:
+        return await self._do(_Endpoints.fullwave_status(job_id), headers)
+
+    async def fullwave_jobs(self, *, headers: dict[str, str] | None = None) -> FullwaveList:
+        return await self._do(_Endpoints.fullwave_jobs(), headers)
+
+    async def fullwave_wait(self, job_id: str, *, poll_s: float = 1.0, timeout_s: float | None = None,
+                      headers: dict[str, str] | None = None) -> FullwaveStatus:
+        """Poll the job until it is done, failed or cancelled; its last status (``TimeoutError`` after
+        ``timeout_s``)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            status = await self.fullwave_status(job_id, headers=headers)
+            if status.state in FINISHED:
+                return status
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"full-wave job {job_id} is still {status.state} after {timeout_s} s")
+            await asyncio.sleep(poll_s)
+
+    async def fullwave_report(self, job_id: str, format: str = "json", *,
+                        headers: dict[str, str] | None = None) -> dict | str:
+        """The report of a done job: a dict (``json``) or Markdown text (``md``)."""
+        return await self._do(_Endpoints.fullwave_report(job_id, format), headers)
+
+    async def fullwave_file(self, job_id: str, name: str, *, headers: dict[str, str] | None = None) -> bytes:
+        """One of the files its status lists (``model_20.in``, ``model_20.h5``, ``report.md``, ...)."""
+        return await self._do(_Endpoints.fullwave_file(job_id, name), headers)
+
+    async def fullwave_cancel(self, job_id: str, *, headers: dict[str, str] | None = None) -> FullwaveStatus:
+        """Cancel a queued or running job (gprMax is killed); delete a finished one."""
+        return await self._do(_Endpoints.fullwave_cancel(job_id), headers)

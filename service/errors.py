@@ -22,6 +22,7 @@ schema violation                   422
 ``raytrace.errors.NotFoundError``   404
 ``Unauthorized`` / ``Forbidden``    401 / 403 (API keys, origins)
 ``UploadTooLarge``                  413
+``NotInstalled``                    501 (gprMax missing on the server)
 ``ServerSaturated``                 503 + Retry-After
 ``BudgetExceededError`` deadline    504
 ``BudgetExceededError`` work/memory 503 + Retry-After (kind ``work`` is not
@@ -91,6 +92,13 @@ class Conflict(ServiceError):
 class StorageFull(ServiceError):
     status_code = 507
     type = "storage_full"
+
+
+class NotInstalled(ServiceError):
+    """The server lacks an optional tool the request needs (gprMax): not the request's fault, not transient."""
+
+    status_code = 501
+    type = "not_installed"
 
 
 class NotFound(ServiceError):
@@ -220,6 +228,7 @@ def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
         413: "Request body over its size cap.",
         415: "Unsupported upload format.",
         422: "Schema violation or a physical precondition broken; `detail[].loc` names the field.",
+        501: "The server lacks an optional tool the request needs (gprMax); the message says what works without.",
         503: "Saturated or work budget exceeded; retry after `Retry-After` seconds.",
         504: "Deadline exceeded.",
         507: "Upload storage full.",

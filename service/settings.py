@@ -140,6 +140,25 @@ class Settings(BaseSettings):
         20_000, ge=1, le=100_000, description="Max traces (capsule positions x frequencies) of one sweep."
     )
 
+    # Full-wave cross-checks (docs/validation.md, "Over HTTP").
+    fullwave_max_cell_updates: int = Field(
+        10_000_000_000, ge=1,
+        description="Work bound of one full-wave job: FDTD cells x time steps over all its gprMax runs, refused "
+        "(422 naming `cell_m`) before it is queued beyond it [-]. The default admits the layered validation case "
+        "at 2 and 1.5 mm cells (2.3e9); gprMax does about 2.6e7 per second on 2 idle cores (1e10: ~6.5 min).",
+    )
+    fullwave_max_wall_s: float = Field(
+        7200.0, gt=0, le=7 * 86400,
+        description="Wall time of one full-wave job over all its runs [s]; beyond it gprMax is killed and the job "
+        "fails saying so.",
+    )
+    fullwave_max_queue: int = Field(
+        4, ge=1, le=1024, description="Full-wave jobs queued or running at once; beyond: 503."
+    )
+    fullwave_threads: int | None = Field(
+        None, ge=1, le=256, description="OpenMP threads of gprMax (default: the CPUs this process may use)."
+    )
+
     # Access (docs/service.md, "Security").
     api_keys: CommaList = Field(
         default_factory=list,

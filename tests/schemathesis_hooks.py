@@ -53,6 +53,20 @@ CROSS_FIELD_RULES = [
     *(("compute_channel", ["body", *part], "invalid", "a request whose estimated work and memory fit the server's "
        "budget (docs/service.md, memory and work model)")
       for part in (["rays"], ["max_interactions"], ["receivers"], ["band", "points"])),
+    # a full-wave job is a channel request (the same rules) whose FDTD models fit the server
+    *(("submit_fullwave", ["body", part], kind, "an antenna inside the phantom's bounds and off its surfaces, "
+       "a non-zero polarization") for part in ("transmitter", "receivers")
+      for kind in ("invalid_geometry", "ambiguous_position")),
+    *(("submit_fullwave", ["body", part], "frequency_out_of_range", "a frequency whose wavelength in the "
+       "transmitter's tissue fits in the phantom (geometric optics' floor)") for part in ("frequency_hz", "band")),
+    ("submit_fullwave", ["body", "receivers"], "input", "receiver names distinct"),
+    ("submit_fullwave", ["body", "band"], "value_error", "a band's stop above its start"),
+    *(("submit_fullwave", ["body", *part], "invalid", "a request whose estimated work and memory fit the server's "
+       "budget (docs/service.md, memory and work model)")
+      for part in (["rays"], ["max_interactions"], ["receivers"], ["band", "points"])),
+    *(("submit_fullwave", ["body", part], "invalid", "FDTD models whose cells x time steps fit the server's "
+       "bound, with the antennas inside the grid and outside its absorbing layer, a second cell size in bounds "
+       "(docs/validation.md, 'Over HTTP')") for part in ("cell_m", "coarse_factor", "margin_m")),
     ("upload_phantom", ["body", "mesh"], "phantom_validation", "the mesh part is a valid binary glTF"),
     *(("submit_sweep", ["body", part], "sweep_spec", "sites, positions and centrelines of the phantom; bands, "
        "methods and localizers consistent with each other (sweeps.spec)")
@@ -118,8 +132,9 @@ def _forgiven(operation_id: str, item: dict) -> bool:
 
 #: The 5xx answers a bounded server gives by design (docs/service.md, "Concurrency and limits"): 503 when
 #: every compute slot or the sweep queue is taken (with Retry-After), 504 when a computation reaches the
-#: deadline. Any other 5xx (a 500 above all) stays a failure.
-UNAVAILABLE = {503: "saturated", 504: "deadline_exceeded"}
+#: deadline, 501 when a full-wave job needs gprMax and the server has none. Any other 5xx (a 500 above all)
+#: stays a failure.
+UNAVAILABLE = {503: "saturated", 504: "deadline_exceeded", 501: "not_installed"}
 
 
 def _documented_unavailable(case, response) -> bool:

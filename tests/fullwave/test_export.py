@@ -68,3 +68,20 @@ def test_cli_export_only(tmp_path):
     assert [r["ran"] for r in report["runs"]] == [False, False]
     assert (out / report["runs"][0]["input"]).read_text().startswith("#title:")
     assert main(["fullwave", str(tmp_path / "missing.json"), "--out", str(out)]) == 2
+
+
+def test_model_size_is_the_built_models_grid_and_bounds_its_steps():
+    """model_size (no voxelization, no fit) gives build_model's exact cell counts, and time steps at or
+    just above it: the bound takes the slowest medium of the whole phantom 1 % up, the model the slowest
+    in its box (here the same muscle / skin / fat: <= 1 % + 1 step more)."""
+    from fullwave.model import model_size
+    from raytrace.body.library import get_phantom
+
+    ph = get_phantom("layered-slab")
+    spec = ChannelSpec(Antenna(site="tx", polarization=[0, 0, 1], pattern="dipole"),
+                       (Antenna(site="rx_normal", pattern="dipole"),), phantom="layered-slab")
+    for opts in (FdtdOptions(cell_m=0.002), FdtdOptions(cell_m=0.003, margin_m=0.01, pml_cells=6)):
+        size, model = model_size(spec, ph, opts), build_model(spec, ph, opts)
+        assert size.cells == model.cells
+        assert model.iterations <= size.iterations <= 1.01 * model.iterations + 1
+        assert size.cell_updates == int(np.prod(model.cells)) * size.iterations

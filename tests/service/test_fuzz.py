@@ -49,6 +49,8 @@ def _app(tmp_dir: str):
             sweep_max_queue=1,  # sweeps accepted run in worker processes: one at a time, the rest get 503
             sweep_max_traces=2,
             sweep_workers=1,
+            fullwave_max_queue=1,  # accepted full-wave jobs wait (the runner may not start here), the rest get 503
+            fullwave_max_cell_updates=10**7,  # models are validated in milliseconds
         )
     )
     # Load the built-ins now: the ASGI transport of schemathesis may not run the lifespan.

@@ -34,6 +34,12 @@ OPERATIONS = {
     ("get", "/v1/sweeps/{sweep_id}"): "get_sweep",
     ("delete", "/v1/sweeps/{sweep_id}"): "cancel_sweep",
     ("get", "/v1/sweeps/{sweep_id}/results"): "get_sweep_results",
+    ("post", "/v1/fullwave"): "submit_fullwave",
+    ("get", "/v1/fullwave"): "list_fullwave",
+    ("get", "/v1/fullwave/{job_id}"): "get_fullwave",
+    ("delete", "/v1/fullwave/{job_id}"): "cancel_fullwave",
+    ("get", "/v1/fullwave/{job_id}/report"): "get_fullwave_report",
+    ("get", "/v1/fullwave/{job_id}/files/{name}"): "get_fullwave_file",
     ("get", "/healthz"): "healthz",
     ("get", "/readyz"): "readyz",
     ("get", "/metrics"): "metrics",
@@ -89,7 +95,7 @@ def test_operation_ids_are_stable_and_errors_declared():
 def test_request_models_are_strict_documented_and_have_examples():
     schema = json.loads((ROOT / "openapi.json").read_text())["components"]["schemas"]
     for name in ("ChannelRequest", "ToaRequest", "PdoaRequest", "RssRequest", "ToaBoundRequest", "PdoaBoundRequest",
-                 "RssBoundRequest", "LocalizeRequest", "LocalizeEvaluateRequest"):
+                 "RssBoundRequest", "LocalizeRequest", "LocalizeEvaluateRequest", "FullwaveRequest"):
         model = schema[name]
         assert model["additionalProperties"] is False, name
         assert model.get("examples"), name
@@ -105,9 +111,10 @@ def test_request_models_are_strict_documented_and_have_examples():
 def test_request_examples_validate_against_their_models():
     from service.schemas import channel as sc
     from service.schemas import ranging as sr
+    from service.schemas.fullwave import FullwaveRequest
 
     for model in (sc.ChannelRequest, sr.ToaRequest, sr.PdoaRequest, sr.RssRequest, sr.ToaBoundRequest,
-                  sr.PdoaBoundRequest, sr.RssBoundRequest):
+                  sr.PdoaBoundRequest, sr.RssBoundRequest, FullwaveRequest):
         for example in model.model_config["json_schema_extra"]["examples"]:
             model.model_validate(example)
 
