@@ -185,6 +185,21 @@ class ModelSize:
         """Cells x time steps: the FDTD's work (its wall time is about proportional to it)."""
         return int(np.prod(self.cells)) * self.iterations
 
+    @property
+    def memory_bytes(self) -> int:
+        """An upper bound on gprMax's memory for the model: :data:`GPRMAX_BYTES_PER_CELL` per cell plus
+        :data:`GPRMAX_OVERHEAD_BYTES`."""
+        return int(np.prod(self.cells)) * GPRMAX_BYTES_PER_CELL + GPRMAX_OVERHEAD_BYTES
+
+
+#: gprMax's memory per cell, bounded: its own estimate ("Memory used") was 183 B per cell for the
+#: torso slice at 1.5 mm (6.4e5 cells, five two-pole media averaged at interfaces) and 252 B for the
+#: layered case at 2 mm (2.7e5 cells, more of them PML), beyond a fixed ~65 MB; 400 B leaves room
+#: for more poles where several media meet.
+GPRMAX_BYTES_PER_CELL = 400
+#: ... plus this for the interpreter and gprMax's own arrays (measured ~65 MB).
+GPRMAX_OVERHEAD_BYTES = 100 * 1024**2
+
 
 def model_size(spec: ChannelSpec, phantom: Phantom, options: FdtdOptions = FdtdOptions()) -> ModelSize:
     """The size of :func:`build_model`'s model without voxelizing or fitting anything: the same

@@ -159,3 +159,30 @@ def test_a_job_past_its_wall_time_fails_saying_so(make_settings):
     status = client.get(f"/v1/fullwave/{job.json()['id']}").json()
     assert status["state"] == "failed" and "fullwave_max_wall_s" in status["error"]
     assert status["elapsed_s"] >= 10.0 and not (d / "run" / "model_40.log").exists()  # gprMax never started
+
+
+def test_a_model_over_the_memory_share_is_refused_before_it_is_queued(make_settings):
+    """gprMax holds its whole grid: a model whose bound (GPRMAX_BYTES_PER_CELL per cell, PML included,
+    plus the overhead) exceeds this server's memory share per computation is refused naming the field
+    that sets its cells. The share here is the 4 mm model's bound + 1 MiB: 4 mm passes, 2 mm does not."""
+    from fullwave.model import GPRMAX_BYTES_PER_CELL, GPRMAX_OVERHEAD_BYTES
+
+    def bound(cell_m: float) -> int:
+        # the grid as gprMax sees it, counted here: ceil(box / cell) per axis plus the PML both sides;
+        # the box is the antennas' box grown by the margin
+        lo = np.minimum(TINY["transmitter"]["position_m"], TINY["receivers"][0]["position_m"]) - TINY["margin_m"]
+        hi = np.maximum(TINY["transmitter"]["position_m"], TINY["receivers"][0]["position_m"]) + TINY["margin_m"]
+        cells = np.ceil((hi - lo) / cell_m - 1e-9) + 2 * TINY["pml_cells"]
+        return int(np.prod(cells)) * GPRMAX_BYTES_PER_CELL + GPRMAX_OVERHEAD_BYTES
+
+    share = bound(0.004) + 2**20
+    assert bound(0.002) > share
+    with TestClient(create_app(make_settings(max_compute_memory_bytes=share, max_concurrency=1)),
+                    raise_server_exceptions=False) as c:
+        r = c.post("/v1/fullwave", json={**TINY, "coarse_factor": 0, "export_only": True})
+        assert r.status_code == 202, r.text
+        r = c.post("/v1/fullwave", json={**TINY, "cell_m": 0.002, "coarse_factor": 0, "export_only": True})
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "cell_m"], r.text
+        assert "MiB" in r.json()["detail"][0]["msg"]
+        r = c.post("/v1/fullwave", json={**TINY, "coarse_factor": 0.5, "export_only": True})
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "coarse_factor"], r.text
