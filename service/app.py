@@ -167,6 +167,8 @@ _LIMITS = [
     ("LocalizeEvaluateRequest", "max_interactions", "maximum", "max_interactions"),
     ("LocalizeEvaluateRequest", "sensors", "maxItems", "max_receivers"),
     ("LocalizeEvaluateRequest", "trials", "maximum", "max_trials"),
+    ("EvaluateRequest", "rays", "maximum", "max_rays"),  # POST /v1/track/evaluate
+    ("EvaluateRequest", "max_interactions", "maximum", "max_interactions"),
     ("FullwaveRequest", "rays", "maximum", "max_rays"),
     ("FullwaveRequest", "max_interactions", "maximum", "max_interactions"),
     ("FullwaveRequest", "receivers", "maxItems", "max_receivers"),
