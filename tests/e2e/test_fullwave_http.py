@@ -29,6 +29,7 @@ from raytrace.body.library import get_phantom
 from raytrace.spec import ChannelSpec
 from service.client import Client
 from tests.conftest import REPO, free_port, wait_ready
+from tests.e2e.jobs import wait_for_job
 
 pytestmark = pytest.mark.e2e
 
@@ -96,14 +97,8 @@ def _catch_gprmax(http: httpx.Client, job_id: str, run_dir: Path, input_name: st
     raise AssertionError(f"no gprMax process on {input_name} for {job_id}")
 
 
-def _wait(http: httpx.Client, job_id: str, until, timeout_s: float = 300.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        status = http.get(f"/v1/fullwave/{job_id}").json()
-        if until(status):
-            return status
-        time.sleep(0.1)
-    raise AssertionError(f"job {job_id} never got there: {status}")
+def _wait(http: httpx.Client, job_id: str, until) -> dict:
+    return wait_for_job(http, f"/v1/fullwave/{job_id}", until, timeout_s=300.0)
 
 
 def _gone(pid: int) -> bool:

@@ -10,7 +10,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import httpx
@@ -18,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from tests.conftest import REPO, free_port, wait_ready
+from tests.e2e.jobs import wait_for_job
 
 pytestmark = pytest.mark.e2e
 
@@ -51,14 +51,8 @@ class Server:
             self.proc.wait()
 
 
-def _wait(http: httpx.Client, sweep_id: str, until, timeout_s: float = 180.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        status = http.get(f"/v1/sweeps/{sweep_id}").json()
-        if until(status):
-            return status
-        time.sleep(0.2)
-    raise AssertionError(f"sweep {sweep_id} never got there: {status}")
+def _wait(http: httpx.Client, sweep_id: str, until) -> dict:
+    return wait_for_job(http, f"/v1/sweeps/{sweep_id}", until, timeout_s=180.0)
 
 
 def test_sweep_jobs_over_http_survive_a_restart(tmp_path):
