@@ -1,10 +1,44 @@
-"""Waiting on a job of the service (a sweep or a full-wave cross-check) over real HTTP."""
+"""A real ``capsule-rt serve`` for the job flows (sweeps, full-wave cross-checks), and waiting on a job."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import httpx
+
+from service.client import Client
+from tests.conftest import REPO, free_port, wait_ready
+
+
+class JobServer:
+    """The service in a child process on 127.0.0.1 with ``data_dir`` and extra environment ``env``
+    (settings), logging to ``log``; ``http`` a raw client, ``api`` the typed one."""
+
+    def __init__(self, data_dir: Path, log: Path, env: dict[str, str]) -> None:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        environ = {**os.environ, "CAPSULE_RT_DATA_DIR": str(data_dir), "CAPSULE_RT_LOG_LEVEL": "warning", **env}
+        with open(log, "ab") as fh:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port)],
+                cwd=REPO, env=environ, stdout=fh, stderr=subprocess.STDOUT)
+        wait_ready(self.url, proc=self.proc)
+        self.http = httpx.Client(base_url=self.url, timeout=60)
+        self.api = Client(self.url, timeout=60)
+
+    def stop(self) -> None:
+        self.http.close()
+        self.api.close()
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
 
 
 def wait_for_job(http: httpx.Client, path: str, until, timeout_s: float, poll_s: float = 0.1) -> dict:

@@ -15,8 +15,6 @@ import json
 import os
 import shutil
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -27,9 +25,7 @@ from fullwave.model import FdtdOptions
 from fullwave.run import compare
 from raytrace.body.library import get_phantom
 from raytrace.spec import ChannelSpec
-from service.client import Client
-from tests.conftest import REPO, free_port, wait_ready
-from tests.e2e.jobs import wait_for_job
+from tests.e2e.jobs import JobServer, wait_for_job
 
 pytestmark = pytest.mark.e2e
 
@@ -42,29 +38,8 @@ TINY = {"phantom": "half-space",
 FDTD = ("cell_m", "margin_m", "pml_cells", "coarse_factor", "export_only")
 
 
-class Server:
-    def __init__(self, data_dir: Path, log: Path) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        env = {**os.environ, "CAPSULE_RT_DATA_DIR": str(data_dir), "CAPSULE_RT_LOG_LEVEL": "warning",
-               "CAPSULE_RT_FULLWAVE_THREADS": "1", "CAPSULE_RT_FULLWAVE_MAX_CELL_UPDATES": "100000000"}
-        with open(log, "ab") as fh:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port)],
-                cwd=REPO, env=env, stdout=fh, stderr=subprocess.STDOUT)
-        wait_ready(self.url, proc=self.proc)
-        self.http = httpx.Client(base_url=self.url, timeout=60)
-        self.api = Client(self.url, timeout=60)
-
-    def stop(self) -> None:
-        self.http.close()
-        self.api.close()
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+#: The server's settings for these tests.
+SERVER_ENV = {"CAPSULE_RT_FULLWAVE_THREADS": "1", "CAPSULE_RT_FULLWAVE_MAX_CELL_UPDATES": "100000000"}
 
 
 def _gprmax(run_dir: Path, input_name: str) -> int | None:
@@ -112,7 +87,7 @@ def _gone(pid: int) -> bool:
 
 def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
     data, log = tmp_path / "data", tmp_path / "server.log"
-    server = Server(data, log)
+    server = JobServer(data, log, SERVER_ENV)
     try:
         http = server.http
         r = http.post("/v1/fullwave", json={**TINY, "pml_cells": 1})
@@ -139,7 +114,7 @@ def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
     first_h5 = (run_dir / "model_40.h5").stat().st_mtime_ns
     assert not (run_dir / "model_60.wall_s").exists()
 
-    server = Server(data, log)
+    server = JobServer(data, log, SERVER_ENV)
     try:
         http = server.http
         final = server.api.fullwave_wait(job.id, poll_s=0.2, timeout_s=600)
@@ -191,7 +166,7 @@ def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
         server.proc.kill()
         server.proc.wait()
     assert not _gone(pid)  # the orphan, stopped
-    server = Server(data, log)
+    server = JobServer(data, log, SERVER_ENV)
     try:
         final = server.api.fullwave_wait(third.id, poll_s=0.2, timeout_s=600)
         assert final.state == "done" and final.runs_done == 1, final

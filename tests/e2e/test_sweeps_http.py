@@ -7,17 +7,12 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import httpx
 import pyarrow.parquet as pq
 import pytest
 
-from tests.conftest import REPO, free_port, wait_ready
-from tests.e2e.jobs import wait_for_job
+from tests.e2e.jobs import JobServer, wait_for_job
 
 pytestmark = pytest.mark.e2e
 
@@ -28,27 +23,8 @@ LONG = {**SMALL, "name": "long", "capsule_positions": {"along_tract": {"ds_m": 0
         "channel": {"rays": 4000, "max_interactions": 3}}
 
 
-class Server:
-    def __init__(self, data_dir: Path, log: Path) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        env = {**os.environ, "CAPSULE_RT_DATA_DIR": str(data_dir), "CAPSULE_RT_LOG_LEVEL": "warning",
-               "CAPSULE_RT_SWEEP_WORKERS": "1"}
-        with open(log, "ab") as fh:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port)],
-                cwd=REPO, env=env, stdout=fh, stderr=subprocess.STDOUT)
-        wait_ready(self.url, proc=self.proc)
-        self.http = httpx.Client(base_url=self.url, timeout=60)
-
-    def stop(self) -> None:
-        self.http.close()
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+#: The server's settings for these tests.
+SERVER_ENV = {"CAPSULE_RT_SWEEP_WORKERS": "1"}
 
 
 def _wait(http: httpx.Client, sweep_id: str, until) -> dict:
@@ -57,7 +33,7 @@ def _wait(http: httpx.Client, sweep_id: str, until) -> dict:
 
 def test_sweep_jobs_over_http_survive_a_restart(tmp_path):
     data, log = tmp_path / "data", tmp_path / "server.log"
-    server = Server(data, log)
+    server = JobServer(data, log, SERVER_ENV)
     try:
         http = server.http
         r = http.post("/v1/sweeps", json={**SMALL, "channel": {"rays": 0}})
@@ -97,7 +73,7 @@ def test_sweep_jobs_over_http_survive_a_restart(tmp_path):
     before = {p.name: p.stat().st_mtime_ns for p in parts.glob("task-*.parquet")}
     assert 2 <= len(before) < 12
 
-    server = Server(data, log)
+    server = JobServer(data, log, SERVER_ENV)
     try:
         http = server.http
         assert http.get(f"/v1/sweeps/{small_id}").json()["state"] == "done"
