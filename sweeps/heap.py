@@ -22,7 +22,6 @@ sets it, the last one out restores it.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 import threading
 from contextlib import contextmanager
@@ -47,12 +46,10 @@ _depth = 0
 
 
 def _libc():
-    name = ctypes.util.find_library("c")
-    if name is None:
-        return None
+    """The process's own C library (``CDLL(None)``: no search, no subprocess), if it is glibc."""
     try:
-        libc = ctypes.CDLL(name)
-    except OSError:  # pragma: no cover - no C library to load
+        libc = ctypes.CDLL(None)
+    except OSError:  # pragma: no cover - no dynamic symbols to load
         return None
     if not (hasattr(libc, "mallopt") and hasattr(libc, "malloc_trim")):
         return None  # not glibc (musl has neither)
