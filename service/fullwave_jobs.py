@@ -139,9 +139,15 @@ class FullwaveJobs(JobKind):
             raise Unprocessable(f"the second run's cells would be {sizes[1]:.4g} m, outside [1e-4, 0.02] m",
                                 loc=["body", "coarse_factor"])
         runs = []
-        for h in sizes:
+        memory_cap = self.settings.compute_memory_share_bytes
+        for k, h in enumerate(sizes):
             opts = FdtdOptions(cell_m=h, margin_m=options.margin_m, pml_cells=options.pml_cells)
             size = model_size(spec, phantom, opts)
+            if size.memory_bytes > memory_cap:  # gprMax holds the whole grid: bounded before it starts
+                raise Unprocessable(
+                    f"{h * 1e3:g} mm cells: the FDTD grid ({'x'.join(map(str, size.cells))} cells) needs about "
+                    f"{size.memory_bytes / 2**20:.0f} MiB, over this server's {memory_cap / 2**20:.0f} MiB per "
+                    "computation: larger cells or a smaller margin_m", loc=["body", "coarse_factor" if k else "cell_m"])
             runs.append({"cell_m": h, "input": f"{input_stem(h)}.in", "cells": list(size.cells),
                          "iterations": size.iterations, "cell_updates": size.cell_updates})
         total = sum(r["cell_updates"] for r in runs)
@@ -155,15 +161,6 @@ class FullwaveJobs(JobKind):
                 f"the FDTD work is {total:.3g} cell updates ({sizes_text}), over this server's limit of {cap:.3g} "
                 f"(about {cap / UPDATES_PER_S / 60:.0f} min of gprMax on 2 cores): larger cell_m, a smaller "
                 "margin_m, or coarse_factor 0 (one run)", loc=["body", field])
-        memory_cap = self.settings.compute_memory_share_bytes
-        for k, (h, r) in enumerate(zip(sizes, runs)):  # gprMax holds the whole grid: bounded before it starts
-            opts = FdtdOptions(cell_m=h, margin_m=options.margin_m, pml_cells=options.pml_cells)
-            need = model_size(spec, phantom, opts).memory_bytes
-            if need > memory_cap:
-                raise Unprocessable(
-                    f"{h * 1e3:g} mm cells: the FDTD grid ({'x'.join(map(str, r['cells']))} cells) needs about "
-                    f"{need / 2**20:.0f} MiB, over this server's {memory_cap / 2**20:.0f} MiB per computation: "
-                    "larger cells or a smaller margin_m", loc=["body", "coarse_factor" if k else "cell_m"])
         for k, r in enumerate(runs):  # the models themselves: antennas outside the PML, the phantom's voxels
             opts = FdtdOptions(cell_m=r["cell_m"], margin_m=options.margin_m, pml_cells=options.pml_cells)
             try:
