@@ -172,6 +172,22 @@ class Settings(BaseSettings):
         "(CORS). Empty: none; writes carrying any other `Origin` are refused (403).",
     )
 
+    def trace_knobs(self, rays: int | None, max_interactions: int | None, *, default_rays: int,
+                    default_interactions: int) -> tuple[int, int]:
+        """The rays and interactions of an evaluation's traces: the request's, or its defaults lowered
+        to this server's limits; a request above a limit is a 422 naming ``body.rays`` /
+        ``body.max_interactions``."""
+        from service.errors import Unprocessable
+
+        rays = rays if rays is not None else min(default_rays, self.max_rays)
+        interactions = max_interactions if max_interactions is not None else min(default_interactions,
+                                                                                 self.max_interactions)
+        for name, value, cap in (("rays", rays, self.max_rays), ("max_interactions", interactions,
+                                                                 self.max_interactions)):
+            if value > cap:
+                raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=["body", name])
+        return rays, interactions
+
     @property
     def compute_memory_share_bytes(self) -> int:
         """Bytes one running computation may hold (the ceiling shared by ``max_concurrency``)."""

@@ -421,12 +421,8 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
     trials_cap = min(MAX_EVALUATE_TRIALS, settings.max_trials)
     if req.trials > trials_cap:
         raise Unprocessable(f"{req.trials} exceeds this server's limit of {trials_cap}", loc=["body", "trials"])
-    rays = req.rays if req.rays is not None else min(DEFAULT_RAYS, settings.max_rays)
-    interactions = req.max_interactions if req.max_interactions is not None else min(6, settings.max_interactions)
-    for name, value, cap in (("rays", rays, settings.max_rays), ("max_interactions", interactions,
-                                                                 settings.max_interactions)):
-        if value > cap:
-            raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=["body", name])
+    rays, interactions = settings.trace_knobs(req.rays, req.max_interactions, default_rays=DEFAULT_RAYS,
+                                              default_interactions=6)
     phantom = _phantom(registry, req.phantom)
     capsule = _place(phantom, req.capsule, "capsule")
     sensors = np.array([_place(phantom, s, f"sensors[{i}]") for i, s in enumerate(req.sensors)])

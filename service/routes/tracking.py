@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from raytrace.solver.budget import Budget
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
-from service.errors import Unprocessable, error_responses
+from service.errors import error_responses
 from service.schemas import Int, int_range
 
 router = APIRouter(prefix="/v1/track", tags=["tracking"], route_class=ThreadedJsonRoute)
@@ -170,12 +170,8 @@ def _evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
     from evaluation.tracking import evaluate_tracking
     from tracking import JourneySpec
 
-    rays = req.rays if req.rays is not None else min(DEFAULT_EVALUATE_RAYS, settings.max_rays)
-    interactions = req.max_interactions if req.max_interactions is not None else min(4, settings.max_interactions)
-    for name, value, cap in (("rays", rays, settings.max_rays),
-                             ("max_interactions", interactions, settings.max_interactions)):
-        if value > cap:
-            raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=["body", name])
+    rays, interactions = settings.trace_knobs(req.rays, req.max_interactions, default_rays=DEFAULT_EVALUATE_RAYS,
+                                              default_interactions=4)
     phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
     ev = evaluate_tracking(JourneySpec(**req.journey.model_dump()), req.trackers, phantom=phantom,
                            rf_grid_m=req.rf_grid_m, rays=rays, max_interactions=interactions,
