@@ -59,6 +59,16 @@ def _dipole(name: str, position_m) -> Antenna:
     return Antenna(position_m=np.asarray(position_m, float), name=name, polarization=[0, 0, 1], pattern="dipole")
 
 
+def _aligned_bounds(tx, rxs) -> np.ndarray:
+    """20 mm (at least) of margin round every antenna, rounded out to multiples of 6 mm (so that the
+    layers' faces are cell faces of the 1.5, 2 and 3 mm grids); 1 nm less at the top, since the
+    voxel grid takes ceil(span / cell) cells."""
+    pts = np.array([tx] + [r.position_m for r in rxs])
+    lo = np.floor((pts.min(axis=0) - 0.02) / 0.006) * 0.006
+    hi = np.ceil((pts.max(axis=0) + 0.02) / 0.006) * 0.006 - 1e-9
+    return np.array([lo, hi])
+
+
 def layered_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
     """z dipoles (tangential to the layers) in the plane z = 0. Receivers: contact (just under the
     skin surface; the grid puts them on it, tracer_spec moves them 10 um into the skin) on the
@@ -82,11 +92,7 @@ def layered_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
     )
     spec = ChannelSpec(_dipole("tx", tx), rxs, phantom=ph.name, frequency_hz=F0_HZ, max_interactions=6,
                        rays=100_000)
-    # 20 mm (at least) of margin round every antenna, rounded out to multiples of 6 mm
-    pts = np.array([tx] + [r.position_m for r in rxs])
-    lo = np.floor((pts.min(axis=0) - 0.02) / 0.006) * 0.006
-    hi = np.ceil((pts.max(axis=0) + 0.02) / 0.006) * 0.006 - 1e-9  # voxelize takes ceil(span / cell) cells
-    return spec, ph, FdtdOptions(cell_m=0.002, bounds_m=np.array([lo, hi]), pml_cells=10)
+    return spec, ph, FdtdOptions(cell_m=0.002, bounds_m=_aligned_bounds(tx, rxs), pml_cells=10)
 
 
 #: Lateral offsets of the contact sensors of :func:`lateral_case` [m].
@@ -104,10 +110,7 @@ def lateral_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
     rxs = tuple(_dipole(f"contact_{x * 1e3:g}mm", [x, 0.0005, 0.0]) for x in LATERAL_OFFSETS_M)
     spec = ChannelSpec(_dipole("tx", tx), rxs, phantom=ph.name, frequency_hz=F0_HZ, max_interactions=6,
                        rays=100_000)
-    pts = np.array([tx] + [r.position_m for r in rxs])
-    lo = np.floor((pts.min(axis=0) - 0.02) / 0.006) * 0.006
-    hi = np.ceil((pts.max(axis=0) + 0.02) / 0.006) * 0.006 - 1e-9
-    return spec, ph, FdtdOptions(cell_m=0.002, bounds_m=np.array([lo, hi]), pml_cells=10)
+    return spec, ph, FdtdOptions(cell_m=0.002, bounds_m=_aligned_bounds(tx, rxs), pml_cells=10)
 
 
 def torso_case() -> tuple[ChannelSpec, Phantom, FdtdOptions]:
