@@ -28,6 +28,7 @@ import argparse
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -146,8 +147,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
                           cell_size_m: float = DEFAULT_CELL_SIZE_M, rays: int = 100_000, max_interactions: int = 6,
                           waveform: Any = None, pdoa_band: dict | None = None, rss_model: Any = "cm2_deep_tissue",
                           loss: str = "soft_l1", near_field: bool = True, delay_kind: str | None = None,
-                          budget: Budget | None = None, config: rt.TracerConfig | None = None
-                          ) -> LocalizationEvaluation:
+                          budget: Budget | None = None, config: rt.TracerConfig | None = None,
+                          field_cache_dir: str | Path | None = None) -> LocalizationEvaluation:
     """Run the pipeline of the module docstring.
 
     capsule: site name or position; sensors: site names and/or positions (>= 4; >= 5 for
@@ -162,7 +163,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     None: the kind the ranging measures. Setting the other kind shows what a mismatch costs.
     Raises EstimatorInputError (``capsule``, ``sensors[i]``, ``ranging``, ``methods[i]``,
     ``trials``...) or the tracer's InputError; ``budget`` bounds the trace and is checked
-    between sensors' fields and between trials; ``config`` is the tracer's (threads, batches).
+    between sensors' fields and between trials; ``config`` is the tracer's (threads, batches);
+    ``field_cache_dir`` keeps the travel-time fields on disk (evaluation.fields.sensor_fields).
     """
     if ranging not in RANGING:
         raise EstimatorInputError(f"unknown ranging {ranging!r} ({' | '.join(RANGING)})", "ranging")
@@ -234,7 +236,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
 
     fields = None
     if "model_based" in chosen:
-        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m, delay_kind=kind, check=check)
+        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m, delay_kind=kind, check=check,
+                               cache_dir=field_cache_dir)
     model = path_loss_model(rss_model) if ranging == "rss" else None
 
     stats = {}

@@ -79,6 +79,9 @@ def fields_for_sensors(grid_key: str, sensors_m: Any, index_grid: Callable[[], t
     if not len(sensors):
         raise EstimatorInputError("give at least one sensor", field)
     keys = [field_key(grid_key, s, order, source_radius_cells) for s in sensors]
+    stacked = tt.stack_get(tuple(keys))
+    if stacked is not None:
+        return stacked
     disk = None if cache_dir is None else Path(cache_dir)
     out: list[tt.TravelTimeField | None] = [None] * len(sensors)
     missing: list[int] = []
@@ -94,16 +97,29 @@ def fields_for_sensors(grid_key: str, sensors_m: Any, index_grid: Callable[[], t
     if missing:
         if check is not None:
             check()
-        n, origin, h = tt.check_index_grid(*index_grid())
-        for i in missing:  # every sensor checked before any work
-            tt.check_sensor(sensors[i], origin, h, n.shape, f"{field}[{i}].position_m")
-        for i, solved in _solve_all(n, origin, h, sensors, missing, order, source_radius_cells, workers, check,
-                                    field):
-            tt.memory_put(keys[i], solved)
-            if disk is not None:
-                _store(disk, keys[i] + _SUFFIX, solved, max_bytes)
-            out[i] = solved
-    return tt.TravelTimeFields(out)
+        count = _worker_count(workers, len(missing))
+        pool = None if count == 1 else _start_pool(count)  # its processes start while the grid is built
+        finished = False
+        try:
+            n, origin, h = tt.check_index_grid(*index_grid())
+            for i in missing:  # every sensor checked before any work
+                tt.check_sensor(sensors[i], origin, h, n.shape, f"{field}[{i}].position_m")
+            solved = (_serial if pool is None else _parallel)(pool, n, origin, h, sensors, missing, order,
+                                                              source_radius_cells, check, field)
+            for i, f in solved:
+                tt.memory_put(keys[i], f)
+                if disk is not None:
+                    _store(disk, keys[i] + _SUFFIX, f, max_bytes)
+                out[i] = f
+            finished = True
+        finally:
+            if pool is not None:
+                # done: the idle workers exit at once and are reaped here; stopped (a budget, an
+                # error): queued solves are cancelled and nobody waits for the running ones
+                pool.shutdown(wait=finished, cancel_futures=True)
+    stacked = tt.TravelTimeFields(out)
+    tt.stack_put(tuple(keys), stacked)
+    return stacked
 
 
 # ------------------------------------------------------------------------ solving
@@ -113,6 +129,11 @@ def _solve_one(n, origin, h, sensor, order, radius_cells):
         return "ok", tt.solve(n, origin, h, sensor, order, radius_cells)
     except EstimatorInputError as exc:
         return "error", exc.reason
+
+
+def _ready() -> bool:
+    """Pool warm-up task: the worker has started and imported the solver."""
+    return True
 
 
 def _worker_count(workers: int | None, tasks: int) -> int:
@@ -126,26 +147,32 @@ def _worker_count(workers: int | None, tasks: int) -> int:
     return max(1, min(int(workers), tasks))
 
 
-def _solve_all(n, origin, h, sensors, missing, order, radius_cells, workers, check, field):
-    count = _worker_count(workers, len(missing))
-    if count == 1:
-        for i in missing:
-            if check is not None:
-                check()
-            yield i, _named(_solve_one(n, origin, h, sensors[i], order, radius_cells), field, i)
-        return
+def _start_pool(count: int) -> ProcessPoolExecutor:
+    """A spawned pool whose ``count`` processes are started now (one warm-up task each): a
+    spawned interpreter takes ~1 s to import numpy, scipy and scikit-fmm, which then overlaps
+    the voxelization of the grid in the caller."""
     pool = ProcessPoolExecutor(max_workers=count, mp_context=multiprocessing.get_context("spawn"))
-    try:
-        pending = {pool.submit(_solve_one, n, origin, h, sensors[i], order, radius_cells): i for i in missing}
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
-                i = pending.pop(future)
-                yield i, _named(future.result(), field, i)
-            if check is not None and pending:
-                check()
-    finally:
-        pool.shutdown(wait=False, cancel_futures=True)
+    for _ in range(count):
+        pool.submit(_ready)
+    return pool
+
+
+def _serial(pool, n, origin, h, sensors, missing, order, radius_cells, check, field):
+    for i in missing:
+        if check is not None:
+            check()
+        yield i, _named(_solve_one(n, origin, h, sensors[i], order, radius_cells), field, i)
+
+
+def _parallel(pool, n, origin, h, sensors, missing, order, radius_cells, check, field):
+    pending = {pool.submit(_solve_one, n, origin, h, sensors[i], order, radius_cells): i for i in missing}
+    while pending:
+        done, _ = wait(pending, return_when=FIRST_COMPLETED)
+        for future in done:
+            i = pending.pop(future)
+            yield i, _named(future.result(), field, i)
+        if check is not None and pending:
+            check()
 
 
 def _named(result, field: str, i: int) -> tt.TravelTimeField:

@@ -55,6 +55,8 @@ MAX_CELLS = 64_000_000
 SOURCE_RADIUS_CELLS = 1.5
 #: In-process cache of fields: bytes of time arrays kept at most (least recently used evicted).
 CACHE_MAX_BYTES = 768 * 2**20
+#: Stacked fields of recent sensor sets kept for repeated fixes (besides the fields themselves) [bytes].
+STACKS_MAX_BYTES = 256 * 2**20
 
 _DIRECTIONS = 256
 _LINE_SAMPLES = 64
@@ -282,10 +284,33 @@ def memory_put(key: str, field: TravelTimeField) -> None:
             _cache_bytes -= old.time_s.nbytes + old.domain.nbytes
 
 
+_stacks: OrderedDict = OrderedDict()
+
+
+def stack_get(keys: tuple) -> TravelTimeFields | None:
+    """The stacked fields of these field keys from an earlier call (with their lattice of starts
+    already computed): a repeated fix with the same sensors costs the fit alone."""
+    with _cache_lock:
+        hit = _stacks.get(keys)
+        if hit is not None:
+            _stacks.move_to_end(keys)
+        return hit
+
+
+def stack_put(keys: tuple, stacked: TravelTimeFields) -> None:
+    """Keep a stack for :func:`stack_get`, within :data:`STACKS_MAX_BYTES` (least recently used go)."""
+    with _cache_lock:
+        _stacks[keys] = stacked
+        while len(_stacks) > 1 and sum(v.time_s.nbytes for v in _stacks.values()) > STACKS_MAX_BYTES:
+            _stacks.popitem(last=False)
+
+
 def clear_cache() -> None:
+    """Forget every field and stack kept in memory."""
     global _cache_bytes
     with _cache_lock:
         _cache.clear()
+        _stacks.clear()
         _cache_bytes = 0
 
 

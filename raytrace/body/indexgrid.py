@@ -30,7 +30,7 @@ from raytrace.body.voxels import VoxelGrid, voxelize
 from raytrace.errors import InputError
 from raytrace.physics.em import refractive_index
 
-__all__ = ["INDEX_KINDS", "grid_key", "index_grid", "organ_indices", "phantom_digest", "voxel_grid"]
+__all__ = ["INDEX_KINDS", "clear_cache", "grid_key", "index_grid", "organ_indices", "phantom_digest", "voxel_grid"]
 
 INDEX_KINDS = ("group", "phase")
 _VOXEL_CACHE_SIZE = 6
@@ -105,3 +105,10 @@ def grid_key(phantom: Phantom, frequency_hz: float, cell_size_m: float, kind: st
     if kind not in INDEX_KINDS:
         raise InputError(f"must be one of {' | '.join(INDEX_KINDS)}, got {kind!r}", field="delay_kind")
     return f"{phantom_digest(phantom)}|{float(frequency_hz)!r}|{kind}|{float(cell_size_m)!r}"
+
+
+def clear_cache() -> None:
+    """Forget the voxel grids and content hashes kept in memory."""
+    with _lock:
+        _voxels.clear()
+        _digests.clear()

@@ -22,6 +22,7 @@ and measurement checks and the mapping of estimator errors to 422s, which servic
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -309,6 +310,12 @@ def _loc(where: str) -> list:
     return [name, int(index.rstrip("]"))] if index else [name]
 
 
+def field_cache_dir(settings: Settings) -> Path:
+    """Where the model-based travel-time fields are kept between restarts (docs/localization.md,
+    "Speed"): ``<data_dir>/cache/traveltime``, bounded (estimators.localization.fieldstore)."""
+    return Path(settings.data_dir) / "cache" / "traveltime"
+
+
 def _grid_cells(phantom: Phantom) -> int:
     lo, hi = np.asarray(phantom.bounds_m[0], float), np.asarray(phantom.bounds_m[1], float)
     return int(np.prod(np.ceil((hi - lo) / CELL_SIZE_M).astype(np.int64) + 2))
@@ -389,7 +396,7 @@ def localize(req: LocalizeRequest, registry: Registry, settings: Settings, budge
             sensor_positions(sensors)  # duplicates / coplanar refused before any grid is built
             _check_grid(phantom)
             fields = sensor_fields(phantom, sensors, req.frequency_hz, CELL_SIZE_M, delay_kind=req.delay_kind,
-                                   check=lambda: _stop(budget))
+                                   check=lambda: _stop(budget), cache_dir=field_cache_dir(settings))
             _stop(budget)
             fix = model_based_fix(fields, values, None if sigma_m is None else sigma_m / v, **loss)
     except EstimatorInputError as exc:
@@ -454,7 +461,8 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
             phantom, capsule, list(sensors), ranging=req.ranging, methods=methods, frequency_hz=req.frequency_hz,
             snr_db=req.snr_db, trials=req.trials, seed=req.seed, relative_permittivity=req.relative_permittivity,
             cell_size_m=CELL_SIZE_M, rays=rays, max_interactions=interactions, pdoa_band=band,
-            near_field=req.near_field, delay_kind=req.delay_kind, budget=budget, config=settings.tracer_config())
+            near_field=req.near_field, delay_kind=req.delay_kind, budget=budget, config=settings.tracer_config(),
+            field_cache_dir=field_cache_dir(settings))
     except InputError as exc:  # the tracer names its antennas transmitter / receivers[i]
         field = field_text(exc.field).replace("transmitter", "capsule").replace("receivers", "sensors")
         raise type(exc)(exc.reason, field=field) from exc

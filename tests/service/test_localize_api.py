@@ -283,3 +283,37 @@ def test_evaluate_refusals_named(api):
     assert_field(api.post("/v1/localize", json={"method": "model_based", "delay_kind": "envelope",
                                                 "sensors": _sensors(kind="delay_s", scale=1e-8)}),
                  422, "body", "delay_kind")
+
+
+def test_a_restarted_server_reuses_the_fields_on_disk(make_settings, monkeypatch):
+    """The model-based fields are kept under <data_dir>/cache/traveltime: a second app on the same
+    data dir, with nothing in memory (a restart), answers the same fix without voxelizing the
+    phantom or solving a field (both made to fail here)."""
+    from fastapi.testclient import TestClient
+
+    import raytrace.body.indexgrid as indexgrid
+    from estimators.localization import traveltime
+    from service.app import create_app
+
+    settings = make_settings()
+    body = {"phantom": "homogeneous-sphere", "method": "model_based", "delay_kind": "phase",
+            "sensors": _sensors(SPHERE_LAYOUT, kind="delay_s", scale=7.0 / C0, truth=SPHERE_TRUTH)}
+    traveltime.clear_cache()
+    with TestClient(create_app(settings)) as client:
+        first = client.post("/v1/localize", json=body)
+    assert first.status_code == 200, first.text
+    stored = list((settings.data_dir / "cache" / "traveltime").glob("*.npz"))
+    assert len(stored) == len(SPHERE_LAYOUT)
+
+    traveltime.clear_cache()
+    indexgrid.clear_cache()
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a restarted server rebuilt what its disk cache holds")
+
+    monkeypatch.setattr(indexgrid, "voxelize", no_work)
+    monkeypatch.setattr(traveltime, "solve", no_work)
+    with TestClient(create_app(settings)) as client:
+        again = client.post("/v1/localize", json=body)
+    assert again.status_code == 200, again.text
+    assert again.json() == first.json()
