@@ -128,7 +128,17 @@ class TrackerConfig:
     never; a frame pair can be an outlier, e.g. a periodic fold texture aliased by one period,
     docs/tracking.md). ``lateral_sigma_m``: added isotropically
     to every fix's covariance in the particle filter's 3-D likelihood (the capsule's offset from the
-    centreline inside the lumen)."""
+    centreline inside the lumen).
+
+    ``rf_min_spacing_m``: an RF fix is used only once the estimate has moved at least this far along
+    the tract from where the last used fix was taken (0: every fix). A fix's error is mostly the
+    body's bias at that position (heterogeneity, multipath), which the next fixes a millimetre
+    away share; used as independent measurements they would be counted many times over. With the
+    spacing set to the measured decorrelation length of the fix errors (docs/tracking.md), the
+    used fixes' errors are nearly independent and their covariance is the measured one.
+    ``max_consecutive_gated``: after this many consecutive fixes (or visual advances) refused by a
+    gate, the next one is used with the state's variance widened to explain its innovation (the
+    gate cannot starve a filter that has lost the capsule)."""
 
     accel_psd_m2_per_s3: float = 4e-6
     roll_psd_deg2_per_s: float = 20.0
@@ -140,6 +150,8 @@ class TrackerConfig:
     gate_probability: float | None = 0.9999
     visual_gate_probability: float | None = None
     lateral_sigma_m: float = 0.0
+    rf_min_spacing_m: float = 0.0
+    max_consecutive_gated: int = 5
     particles: int = 2000
     resample_fraction: float = 0.5
     seed: int = 0
@@ -158,6 +170,13 @@ class TrackerConfig:
                     raise TrackingInputError(f"must be in (0.5, 1), got {g!r}", f"config.{name}")
         if _finite(self.lateral_sigma_m, "config.lateral_sigma_m") < 0:
             raise TrackingInputError("must be >= 0", "config.lateral_sigma_m")
+        if not 0.0 <= _finite(self.rf_min_spacing_m, "config.rf_min_spacing_m") <= 1.0:
+            raise TrackingInputError("must be in [0, 1] m", "config.rf_min_spacing_m")
+        if isinstance(self.max_consecutive_gated, bool) or not isinstance(self.max_consecutive_gated,
+                                                                          (int, np.integer)) \
+                or not 1 <= self.max_consecutive_gated <= 10_000:
+            raise TrackingInputError(f"must be an integer in [1, 10000], got {self.max_consecutive_gated!r}",
+                                     "config.max_consecutive_gated")
         if isinstance(self.particles, bool) or not isinstance(self.particles, (int, np.integer)) \
                 or not 10 <= self.particles <= 200_000:
             raise TrackingInputError(f"must be an integer in [10, 200000], got {self.particles!r}", "config.particles")
@@ -175,8 +194,12 @@ class Track:
     its rate; ``roll_deg`` / ``roll_sigma_deg``; ``position_m`` (n, 3) and ``position_cov_m2``
     (n, 3, 3): the 3-D point and its covariance (Kalman: the centreline point at s with
     var(s) t t^T, t the tangent; particle: the particles' points' weighted mean and covariance);
-    ``rf_used``: whether the step's RF fix was used (False when absent or gated out);
-    ``extra``: tracker-specific arrays (the particle filter's ``ess`` per step)."""
+    ``rf_used``: whether the step's RF fix was used (False when absent, gated out or within
+    ``rf_min_spacing_m`` of the last used one);
+    ``extra``: per step ``state_covariance`` (n, 3, 3) of (s, v, roll), ``nis_rf`` and
+    ``nis_visual`` (the normalised innovation squared of the RF fix and of the visual advance used
+    at that step, NaN where none; chi-square with ``nis_rf_dof`` and 1 degrees of freedom for a
+    consistent filter), and tracker-specific arrays (the particle filter's ``ess``)."""
 
     tracker: str
     t_s: np.ndarray

@@ -19,10 +19,18 @@ et al. 2002). Prior: s ~ N(initial_s_m, sigma^2), or uniform on [0, L] when ``in
 * **Roll** depends on no RF measurement, only on the visual roll increments: it is filtered
   exactly by a scalar Kalman filter beside the particles (a Rao-Blackwellised component).
 
+A fix closer than ``rf_min_spacing_m`` along the tract (the weighted mean s) to where the last used
+fix was taken is not used, as in the Kalman filter; so is an advance refused by the visual gate,
+until ``max_consecutive_gated`` refusals in a row (then it is used: the particles, not the frame
+pair, are the likelier outlier).
+
 Reported per step: s = sum w_i s_i and its weighted standard deviation, the same for v; the 3-D
 point = sum w_i c(s_i) with the particles' weighted covariance (which keeps the two loops'
-spread when both are alive). ``extra``: ``ess`` per step; with ``keep_particles=True`` also
-``particles_s_m`` and ``weights`` (n, N).
+spread when both are alive). ``extra``: ``ess`` per step, ``state_covariance`` (the weighted
+covariance of (s, v) and the roll's variance), ``nis_rf`` (the fix's innovation against the
+particles' mean point, y^T (Cov[c(s)] + C + lateral^2 I)^-1 y, ~chi-square(3) when consistent),
+``nis_visual`` (the advance's innovation against the particles' predicted advance, chi-square(1));
+with ``keep_particles=True`` also ``particles_s_m`` and ``weights`` (n, N).
 """
 
 from __future__ import annotations
@@ -68,6 +76,11 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
 
     n = len(obs)
     cols = {k: np.empty(n) for k in ("s", "ss", "v", "vs", "r", "rs", "ess")}
+    nis_rf = np.full(n, np.nan)
+    nis_vis = np.full(n, np.nan)
+    states = np.zeros((n, 3, 3))
+    vis_refused = 0
+    s_last_fix = None
     pos = np.empty((n, 3))
     pcov = np.empty((n, 3, 3))
     used = np.zeros(n, bool)
@@ -79,15 +92,19 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
             mean_s, mean_v = s + v * dt, v
             visual = o.visual
-            if visual is not None and vgate is not None:  # an outlier pair (Kalman's gate)
+            if visual is not None:
                 w = np.exp(logw - logw.max())
                 w /= w.sum()
                 pred = float(w @ (v * dt))
                 spread = float(w @ (v * dt - pred) ** 2)
                 y0 = visual.advance_m - pred
-                if y0 * y0 / (spread + Q[0, 0] + visual.advance_sigma_m ** 2) > vgate:
+                nis0 = y0 * y0 / (spread + Q[0, 0] + visual.advance_sigma_m ** 2)
+                if vgate is not None and nis0 > vgate and vis_refused < cfg.max_consecutive_gated:
+                    vis_refused += 1  # an outlier pair (Kalman's gate)
                     visual = None
             if visual is not None:
+                vis_refused = 0
+                nis_vis[k] = nis0
                 S = Q[0, 0] + visual.advance_sigma_m ** 2
                 y = visual.advance_m - v * dt
                 K = Q[:, 0] / S
@@ -109,10 +126,21 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             s = _reflect(mean_s + e[:, 0], L)
             v = mean_v + e[:, 1]
         if o.rf is not None:
-            C = o.rf.covariance_m2 + lat2 * np.eye(3)
-            d = o.rf.position_m - line.point_m(s)
-            logw += -0.5 * np.einsum("ij,ij->i", d, np.linalg.solve(C, d.T).T)
-            used[k] = True
+            w = np.exp(logw - logw.max())
+            w /= w.sum()
+            mean_s = float(w @ s)
+            if s_last_fix is None or abs(mean_s - s_last_fix) >= cfg.rf_min_spacing_m:
+                C = o.rf.covariance_m2 + lat2 * np.eye(3)
+                pts = line.point_m(s)
+                mean_p = w @ pts
+                dp = pts - mean_p
+                y = o.rf.position_m - mean_p
+                nis_rf[k] = float(y @ np.linalg.solve((dp * w[:, None]).T @ dp + C, y))
+                d = o.rf.position_m - pts
+                logw += -0.5 * np.einsum("ij,ij->i", d, np.linalg.solve(C, d.T).T)
+                used[k] = True
+                w = np.exp(logw - logw.max())
+                s_last_fix = float((w / w.sum()) @ s)
         logw -= logw.max()
         w = np.exp(logw)
         w /= w.sum()
@@ -121,6 +149,9 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
         cols["v"][k] = float(w @ v)
         cols["vs"][k] = float(np.sqrt(max(w @ (v - cols["v"][k]) ** 2, 0.0)))
         cols["r"][k], cols["rs"][k] = roll, np.sqrt(roll_var)
+        ds, dv = s - cols["s"][k], v - cols["v"][k]
+        states[k, :2, :2] = [[w @ (ds * ds), w @ (ds * dv)], [w @ (ds * dv), w @ (dv * dv)]]
+        states[k, 2, 2] = roll_var
         pts = line.point_m(s)
         pos[k] = w @ pts
         dp = pts - pos[k]
@@ -135,7 +166,8 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             logw = np.full(N, -np.log(N))
         else:
             logw = np.log(np.maximum(w, 1e-300))
-    extra = {"ess": cols["ess"]}
+    extra = {"ess": cols["ess"], "state_covariance": states, "nis_rf": nis_rf, "nis_visual": nis_vis,
+             "nis_rf_dof": 3}
     if keep_particles:
         extra.update(particles_s_m=keep_s, weights=keep_w)
     return Track(tracker=name, t_s=np.array([o.t_s for o in obs]), s_m=cols["s"], s_sigma_m=cols["ss"],
