@@ -21,8 +21,9 @@ Caches, per field key ``(grid_key, sensor position to 1 nm, order, source radius
 
 Misses are solved in ``workers`` processes (scikit-fmm holds the GIL, so threads would run one at
 a time): a spawned process pool, one task per sensor, each sending back its field; the budget's
-``check`` runs as each finishes and may stop the rest. One miss, one worker, or a process that may
-not have children (a daemonic pool worker) solve in the caller. The numbers do not depend on where
+``check`` runs as each finishes and may stop the rest. One miss, one worker, a process that may
+not have children (a daemonic pool worker), or a plain script without a ``__main__`` guard
+(:func:`spawn_safe`) solve in the caller; so do the rest if a worker dies. The numbers do not depend on where
 a field was solved (the same code on the same arrays).
 """
 
@@ -31,11 +32,13 @@ from __future__ import annotations
 import hashlib
 import multiprocessing
 import os
+import sys
 import tempfile
 import time
 import zipfile
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -138,6 +141,8 @@ def _ready() -> bool:
 
 def _worker_count(workers: int | None, tasks: int) -> int:
     if workers is None:
+        if not spawn_safe():
+            return 1
         try:
             workers = len(os.sched_getaffinity(0))
         except AttributeError:  # not Linux
@@ -145,6 +150,25 @@ def _worker_count(workers: int | None, tasks: int) -> int:
     if multiprocessing.current_process().daemon:  # a pool's worker may not start processes
         return 1
     return max(1, min(int(workers), tasks))
+
+
+def spawn_safe() -> bool:
+    """Whether spawned workers can start from this process: a spawned interpreter imports the
+    parent's ``__main__`` again. A module run with ``-m``, an entry point (``capsule-rt``, pytest,
+    uvicorn) or an interactive session is imported by name or not at all; a plain script is run
+    again, which is harmless only behind ``if __name__ == "__main__"`` -- a script that never
+    mentions ``__main__`` gets the serial path (``workers=None``) rather than its own body run
+    once per worker."""
+    main = sys.modules.get("__main__")
+    if main is None or getattr(main, "__spec__", None) is not None:
+        return True
+    path = getattr(main, "__file__", None)
+    if path is None:
+        return True
+    try:
+        return "__main__" in Path(path).read_text(errors="replace")
+    except OSError:
+        return False
 
 
 def _start_pool(count: int) -> ProcessPoolExecutor:
@@ -170,7 +194,14 @@ def _parallel(pool, n, origin, h, sensors, missing, order, radius_cells, check, 
         done, _ = wait(pending, return_when=FIRST_COMPLETED)
         for future in done:
             i = pending.pop(future)
-            yield i, _named(future.result(), field, i)
+            try:
+                result = future.result()
+            except BrokenProcessPool:  # a worker died (killed, out of memory): solve the rest here
+                rest = [i, *pending.values()]
+                pending.clear()
+                yield from _serial(None, n, origin, h, sensors, rest, order, radius_cells, check, field)
+                return
+            yield i, _named(result, field, i)
         if check is not None and pending:
             check()
 

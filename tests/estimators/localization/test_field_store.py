@@ -132,3 +132,28 @@ def test_a_budget_stops_between_solves(workers):
     with pytest.raises(Stop):
         fieldstore.fields_for_sensors("grid-s", SENSORS, grid_builder([]), workers=workers, check=check)
     assert cache_info()["fields"] < len(SENSORS)
+
+
+def test_a_plain_script_without_a_main_guard_is_not_run_again_by_the_workers(tmp_path):
+    """Spawned workers import the parent's __main__ again: a script without ``if __name__ ==
+    "__main__"`` would run once per worker (and start pools of its own). Such a script gets the serial
+    path: its body runs once and the fields are the same."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "fix.py"
+    script.write_text(
+        "import numpy as np\n"
+        "from estimators.localization import fieldstore\n"
+        "print('body', flush=True)\n"
+        "index = np.full((12, 12, 12), 5.0)\n"
+        "s = np.array([[0.01, 0.01, 0.01], [0.03, 0.02, 0.02], [0.02, 0.035, 0.03]])\n"
+        "f = fieldstore.fields_for_sensors('g', s, lambda: (index, np.zeros(3), 0.004))\n"
+        "print('fields', len(f), flush=True)\n")
+    root = Path(fieldstore.__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "PYTHONPATH": str(root)})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["body", "fields", "3"], out.stdout
