@@ -84,19 +84,24 @@ class ConsistencyBand:
 
 
 def average_band(runs: list[np.ndarray], dof: int, probability: float = 0.95,
-                 correlated: bool = True) -> ConsistencyBand:
+                 correlated: bool | str = True) -> ConsistencyBand:
     """The average of the finite values of ``runs`` (one array per Monte Carlo run, e.g. a track's
     NEES per step or its NIS at the steps with a measurement) and its band (:class:`ConsistencyBand`).
-    ``correlated``: the values within a run are autocorrelated (NEES: the estimation error of
-    successive steps), and each run counts n / tau values (:func:`integrated_autocorrelation`);
-    False for innovations, which a consistent filter makes white."""
+    ``correlated``: False for values that a consistent filter makes independent (innovations: NIS);
+    True when the values within a run are autocorrelated (NEES: the estimation error of successive
+    steps) and each run counts n / tau values (:func:`integrated_autocorrelation`); ``"runs"`` when a
+    run's values may share one error for its whole length (a prior draw or a body bias that the run
+    never averages away): each run counts as one value, the widest and safest band."""
     values = [np.asarray(r, float)[np.isfinite(np.asarray(r, float))] for r in runs]
     values = [v for v in values if len(v)]
     if not values:
         nan = float("nan")
         return ConsistencyBand(nan, nan, nan, int(dof), 0, 0.0)
     total = sum(len(v) for v in values)
-    effective = sum(len(v) / (integrated_autocorrelation(v) if correlated else 1.0) for v in values)
+    if correlated == "runs":
+        effective = float(len(values))
+    else:
+        effective = sum(len(v) / (integrated_autocorrelation(v) if correlated else 1.0) for v in values)
     k = effective * dof
     tail = 0.5 * (1.0 - probability)
     return ConsistencyBand(float(np.mean(np.concatenate(values))), float(chi2.ppf(tail, k) / effective),

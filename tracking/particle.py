@@ -15,20 +15,31 @@ et al. 2002). Prior: s ~ N(initial_s_m, sigma^2), or uniform on [0, L] when ``in
   likelihood at the particle's point -- not its projection, so a fix between two loops favours
   both equally, and the sequence of fixes picks the loop whose motion matches.
 * **Resampling**: systematic (Kitagawa 1996) when the effective sample size 1 / sum w_i^2 falls
-  below ``resample_fraction`` N.
+  below ``resample_fraction`` N, regularised (each copy jittered by the kernel of Musso, Oudjane & Le
+  Gland 2001, bandwidth (1/N)^(1/6) of the weighted spread), so that duplicated particles do not
+  shrink the reported spread below the posterior's.
 * **Roll** depends on no RF measurement, only on the visual roll increments: it is filtered
   exactly by a scalar Kalman filter beside the particles (a Rao-Blackwellised component).
 
-A fix closer than ``rf_min_spacing_m`` along the tract (the weighted mean s) to where the last used
-fix was taken is not used, as in the Kalman filter; so is an advance refused by the visual gate,
-until ``max_consecutive_gated`` refusals in a row (then it is used: the particles, not the frame
-pair, are the likelier outlier).
+Correlated RF errors (a fix's ``bias_covariance_m2`` B with ``rf_correlation_length_m`` ell, as in
+the Kalman filter): each particle carries the mean of the bias and its rate along s, (b_i, b'_i) in
+3-D, given its own path, with one (6, 6) covariance P_b for all (Rao-Blackwellised: given the path
+the bias is linear-Gaussian). A fix p weighs particle i by N(p; c(s_i) + b_i, C + P_bb) and updates
+(b_i, b'_i) by the Kalman gain; between steps both follow the smooth second-order process of
+:func:`tracking.kalman.bias_transition` over d, the
+particles' mean distance travelled. Without ell the bias counts as white noise (C + B). A fix is
+not used while neither the mean s nor the fix's projection has moved ``rf_min_spacing_m`` from the
+last used one. An advance
+refused by the visual gate is dropped until ``max_consecutive_gated`` refusals in a row (then it is
+used: the particles, not the frame pair, are the likelier outlier); one outside ``speed_range_m_per_s``
+times dt always.
 
 Reported per step: s = sum w_i s_i and its weighted standard deviation, the same for v; the 3-D
 point = sum w_i c(s_i) with the particles' weighted covariance (which keeps the two loops'
 spread when both are alive). ``extra``: ``ess`` per step, ``state_covariance`` (the weighted
 covariance of (s, v) and the roll's variance), ``nis_rf`` (the fix's innovation against the
-particles' mean point, y^T (Cov[c(s)] + C + lateral^2 I)^-1 y, ~chi-square(3) when consistent),
+particles' mean point, y^T (Cov[c(s) + b] + C + P_b + lateral^2 I)^-1 y, ~chi-square(3) when
+consistent),
 ``nis_visual`` (the advance's innovation against the particles' predicted advance, chi-square(1));
 with ``keep_particles=True`` also ``particles_s_m`` and ``weights`` (n, N).
 """
@@ -38,6 +49,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
+from .kalman import bias_transition
 from .measurements import Observation, Track, TrackerConfig, check_observations
 
 __all__ = ["particle_track"]
@@ -80,7 +92,11 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
     nis_vis = np.full(n, np.nan)
     states = np.zeros((n, 3, 3))
     vis_refused = 0
-    s_last_fix = None
+    ell = cfg.rf_correlation_length_m
+    bias = np.zeros((N, 6))  # per particle the mean of the RF bias and its rate along s given its path
+    bias_cov = None  # their (6, 6) covariance, shared by the particles, once a fix declared a bias
+    bias_stat = None  # the stationary covariance of the bias (the last fix's organ)
+    last_fix = None  # (mean s, the fix's projection) when the last fix was used
     pos = np.empty((n, 3))
     pcov = np.empty((n, 3, 3))
     used = np.zeros(n, bool)
@@ -92,6 +108,9 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
             mean_s, mean_v = s + v * dt, v
             visual = o.visual
+            if visual is not None and cfg.speed_range_m_per_s is not None and not (
+                    cfg.speed_range_m_per_s[0] * dt <= visual.advance_m <= cfg.speed_range_m_per_s[1] * dt):
+                visual = None  # not a motion the capsule can make
             if visual is not None:
                 w = np.exp(logw - logw.max())
                 w /= w.sum()
@@ -123,24 +142,49 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             vals, vecs = np.linalg.eigh(0.5 * (Q + Q.T))
             Lq = vecs * np.sqrt(np.maximum(vals, 0.0))
             e = rng.standard_normal((N, 2)) @ Lq.T
+            s_before = s
             s = _reflect(mean_s + e[:, 0], L)
             v = mean_v + e[:, 1]
-        if o.rf is not None:
+            if bias_cov is not None:  # the bias decorrelates with the distance travelled (one for all)
+                w = np.exp(logw - logw.max())
+                Fb, Qb = bias_transition(float((w / w.sum()) @ np.abs(s - s_before)), ell)
+                F6 = np.kron(Fb, np.eye(3))
+                bias = bias @ F6.T
+                bias_cov = F6 @ bias_cov @ F6.T + np.kron(Qb, bias_stat)
+        rf = o.rf
+        if rf is not None and last_fix is not None and cfg.rf_min_spacing_m > 0.0:
+            w = np.exp(logw - logw.max())
+            z = float(line.project(rf.position_m))
+            if abs(float((w / w.sum()) @ s) - last_fix[0]) < cfg.rf_min_spacing_m \
+                    and abs(z - last_fix[1]) < cfg.rf_min_spacing_m:
+                rf = None  # too close to the last used fix: the same bias
+        if rf is not None:
             w = np.exp(logw - logw.max())
             w /= w.sum()
-            mean_s = float(w @ s)
-            if s_last_fix is None or abs(mean_s - s_last_fix) >= cfg.rf_min_spacing_m:
-                C = o.rf.covariance_m2 + lat2 * np.eye(3)
-                pts = line.point_m(s)
-                mean_p = w @ pts
-                dp = pts - mean_p
-                y = o.rf.position_m - mean_p
-                nis_rf[k] = float(y @ np.linalg.solve((dp * w[:, None]).T @ dp + C, y))
-                d = o.rf.position_m - pts
-                logw += -0.5 * np.einsum("ij,ij->i", d, np.linalg.solve(C, d.T).T)
-                used[k] = True
-                w = np.exp(logw - logw.max())
-                s_last_fix = float((w / w.sum()) @ s)
+            C = rf.covariance_m2 + lat2 * np.eye(3)
+            B = rf.bias_covariance_m2
+            if B is not None and ell is None:  # no correlation model: the bias counts as white noise
+                C = C + B
+            elif B is not None:
+                if bias_cov is None:
+                    bias_cov = np.kron(np.diag([1.0, 1.0 / (ell * ell)]), B)
+                bias_stat = B
+            S = C if bias_cov is None else C + bias_cov[:3, :3]
+            pts = line.point_m(s) + bias[:, :3]
+            mean_p = w @ pts
+            dp = pts - mean_p
+            y = rf.position_m - mean_p
+            nis_rf[k] = float(y @ np.linalg.solve((dp * w[:, None]).T @ dp + S, y))
+            d = rf.position_m - pts
+            logw += -0.5 * np.einsum("ij,ij->i", d, np.linalg.solve(S, d.T).T)
+            if bias_cov is not None:
+                K = np.linalg.solve(S, bias_cov[:3, :]).T  # (6, 3): Cov(bias, b) S^-1
+                bias = bias + d @ K.T
+                bias_cov = bias_cov - K @ bias_cov[:3, :]
+                bias_cov = 0.5 * (bias_cov + bias_cov.T)
+            used[k] = True
+            w = np.exp(logw - logw.max())
+            last_fix = (float((w / w.sum()) @ s), float(line.project(rf.position_m)))
         logw -= logw.max()
         w = np.exp(logw)
         w /= w.sum()
@@ -162,7 +206,7 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             keep_s[k], keep_w[k] = s, w
         if ess < cfg.resample_fraction * N:
             idx = _systematic(w, rng)
-            s, v = s[idx], v[idx]
+            s, v, bias = s[idx], v[idx], bias[idx]
             logw = np.full(N, -np.log(N))
         else:
             logw = np.log(np.maximum(w, 1e-300))
