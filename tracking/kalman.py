@@ -35,7 +35,9 @@ part (``covariance_m2``). A stopped capsule's repeated fixes then tell nothing n
 average out over ell; the bias is smooth (a first-order process would decorrelate it between fixes a
 millimetre apart and let a filter that knows the motion from the video average it away too fast).
 Without ell the bias counts as white noise (R = t^T (C + B) t). A fix is not used while neither the
-estimate nor the fix's projection has moved ``rf_min_spacing_m`` from the last used one. Updates in
+estimate nor the fix's projection has moved ``rf_min_spacing_m`` from the last used one, unless the
+filter's own 3-D point is less certain than the fix (near an organ junction, where c(s) jumps and a
+fix tells the side). Updates in
 Joseph form (Bar-Shalom Eq 5.2.3-18).
 
 The reported 3-D point is the expected point E[c(s)] under s ~ N(s_hat, var(s)) (quadrature split
@@ -120,6 +122,12 @@ near: 20-node Gauss-Hermite
     return mean, (d * w[:, None]).T @ d
 
 
+def _fix_spread(fix) -> float:
+    """trace of a fix's whole covariance (white and bias) [m^2]."""
+    return float(np.trace(fix.covariance_m2) + (0.0 if fix.bias_covariance_m2 is None
+                                                 else np.trace(fix.bias_covariance_m2)))
+
+
 def kalman_track(line, observations: list[Observation], config: TrackerConfig | None = None,
                  *, name: str = "kalman") -> Track:
     """Filter ``observations`` along ``line`` (a :class:`raytrace.body.centreline.Centreline`);
@@ -193,8 +201,9 @@ def kalman_track(line, observations: list[Observation], config: TrackerConfig | 
             PX[:5, :5] = P
         z = None if o.rf is None else float(line.project(o.rf.position_m))
         if z is not None and last_fix is not None and abs(X[0] - last_fix[0]) < cfg.rf_min_spacing_m \
-                and abs(z - last_fix[1]) < cfg.rf_min_spacing_m:
-            z = None  # too close to the last used fix: the same bias
+                and abs(z - last_fix[1]) < cfg.rf_min_spacing_m \
+                and np.trace(expected_point(line, X[0], PX[0, 0])[1]) < _fix_spread(o.rf):
+            z = None  # too close to the last used fix (the same bias), and the filter knows the point as well
         if z is not None:
             t = line.tangent(z)
             R = float(t @ o.rf.covariance_m2 @ t)

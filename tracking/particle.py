@@ -29,7 +29,7 @@ the bias is linear-Gaussian). A fix p weighs particle i by N(p; c(s_i) + b_i, C 
 :func:`tracking.kalman.bias_transition` over d, the
 particles' mean distance travelled. Without ell the bias counts as white noise (C + B). A fix is
 not used while neither the mean s nor the fix's projection has moved ``rf_min_spacing_m`` from the
-last used one. An advance
+last used one, unless the particles' points are more spread than the fix (near a junction). An advance
 refused by the visual gate is dropped until ``max_consecutive_gated`` refusals in a row (then it is
 used: the particles, not the frame pair, are the likelier outlier); one outside ``speed_range_m_per_s``
 times dt always.
@@ -85,6 +85,8 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
     roll, roll_var = 0.0, cfg.initial_roll_sigma_deg ** 2
     q, lat2 = cfg.accel_psd_m2_per_s3, cfg.lateral_sigma_m ** 2
     vgate = None if cfg.visual_gate_probability is None else float(chi2.ppf(cfg.visual_gate_probability, 1))
+    rfgate = None if cfg.gate_probability is None else float(chi2.ppf(cfg.gate_probability, 3))
+    rf_refused = 0
 
     n = len(obs)
     cols = {k: np.empty(n) for k in ("s", "ss", "v", "vs", "r", "rs", "ess")}
@@ -155,9 +157,14 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
         if rf is not None and last_fix is not None and cfg.rf_min_spacing_m > 0.0:
             w = np.exp(logw - logw.max())
             z = float(line.project(rf.position_m))
-            if abs(float((w / w.sum()) @ s) - last_fix[0]) < cfg.rf_min_spacing_m \
-                    and abs(z - last_fix[1]) < cfg.rf_min_spacing_m:
-                rf = None  # too close to the last used fix: the same bias
+            w = w / w.sum()
+            pts0 = line.point_m(s)
+            spread = float(w @ np.sum((pts0 - w @ pts0) ** 2, axis=1))
+            fix_spread = float(np.trace(rf.covariance_m2) + (0.0 if rf.bias_covariance_m2 is None
+                                                              else np.trace(rf.bias_covariance_m2)))
+            if abs(float(w @ s) - last_fix[0]) < cfg.rf_min_spacing_m \
+                    and abs(z - last_fix[1]) < cfg.rf_min_spacing_m and spread < fix_spread:
+                rf = None  # too close to the last used fix (the same bias), and the particles know the point
         if rf is not None:
             w = np.exp(logw - logw.max())
             w /= w.sum()
@@ -174,7 +181,14 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
             mean_p = w @ pts
             dp = pts - mean_p
             y = rf.position_m - mean_p
-            nis_rf[k] = float(y @ np.linalg.solve((dp * w[:, None]).T @ dp + S, y))
+            nis = float(y @ np.linalg.solve((dp * w[:, None]).T @ dp + S, y))
+            if rfgate is not None and nis > rfgate:
+                if rf_refused < cfg.max_consecutive_gated:  # far off every particle: one would take all the weight
+                    rf_refused += 1
+                    rf = None
+        if rf is not None:
+            rf_refused = 0
+            nis_rf[k] = nis
             d = rf.position_m - pts
             logw += -0.5 * np.einsum("ij,ij->i", d, np.linalg.solve(S, d.T).T)
             if bias_cov is not None:
