@@ -373,7 +373,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     print(markdown_table(ev))
     j = ev.journey
     print(f"\njourney: {args.steps} steps of {j.spec.dt_s} s, seed {args.seed}, s {j.s_m.min():.3f}..{j.s_m.max():.3f} "
-          f"m through {', '.join(dict.fromkeys(j.organ))}; {ev.rf_positions_traced} RF grid positions traced, "
+          f"m through {', '.join(dict.fromkeys(j.organ))}; {ev.rf_positions_traced} RF grid positions, "
           f"{ev.settings['rf_fixes_per_run']} fixes and {ev.visual_pairs} visual pairs per run, {ev.runs} runs, "
           f"visual: {args.visual}; {ev.elapsed_s:.0f} s")
 
