@@ -73,8 +73,9 @@ def fields_for_sensors(grid_key: str, sensors_m: Any, index_grid: Callable[[], t
                        source_radius_cells: float = tt.SOURCE_RADIUS_CELLS,
                        field: str = "sensors") -> tt.TravelTimeFields:
     """Every sensor's field (module docstring), stacked. ``workers`` None: the CPUs this process
-    may use. Errors: EstimatorInputError naming ``{field}[i].position_m`` for a sensor outside the
-    grid or its propagation domain, or the grid's field for a bad grid."""
+    may use that the load average leaves idle, plus one (one: solved here). Errors:
+    EstimatorInputError naming ``{field}[i].position_m`` for a sensor outside the grid or its
+    propagation domain, or the grid's field for a bad grid."""
     try:
         sensors = np.asarray(sensors_m, dtype=float).reshape(-1, 3)
     except (TypeError, ValueError):
@@ -144,9 +145,12 @@ def _worker_count(workers: int | None, tasks: int) -> int:
         if not spawn_safe():
             return 1
         try:
-            workers = len(os.sched_getaffinity(0))
+            cpus = len(os.sched_getaffinity(0))
         except AttributeError:  # not Linux
-            workers = os.cpu_count() or 1
+            cpus = os.cpu_count() or 1
+        # the idle CPUs (by the 1-minute load average): on a busy machine spawned solvers only add
+        # their interpreters' start to the same CPU time (measured: bench/localization.py)
+        workers = max(1, min(cpus, int(round(cpus - os.getloadavg()[0])) + 1))
     if multiprocessing.current_process().daemon:  # a pool's worker may not start processes
         return 1
     return max(1, min(int(workers), tasks))
