@@ -119,6 +119,7 @@ class TrackingEvaluation:
     visual_pairs: int
     rf_positions_traced: int
     consistency: dict[str, dict[str, ConsistencyBand]] = field(default_factory=dict)
+    cep90_3d_m: dict[str, float] = field(default_factory=dict)  # 90th percentile of the 3-D error, pooled
     runs: int = 1
     settings: dict = field(default_factory=dict)
     elapsed_s: float = 0.0
@@ -320,6 +321,7 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
         journey=truth, tracks=tracks,
         rmse_along_m={n: rms(errors[n]["along"]) for n in trackers},
         rmse_3d_m={n: rms(errors[n]["3d"]) for n in trackers},
+        cep90_3d_m={n: float(np.percentile(np.concatenate(errors[n]["3d"]), 90)) for n in trackers},
         rf_fix_rmse_3d_m=rms(fix_err), rf_projection_rmse_along_m=rms(proj_err),
         visual_pairs=pairs, rf_positions_traced=len(links), consistency=consistency, runs=int(runs),
         settings={"rf_grid_m": rf_grid_m, "rays": rays, "max_interactions": max_interactions, "trials": trials,
