@@ -59,7 +59,9 @@ def default_app(tmp_path_factory):
     from service.app import create_app
     from service.settings import Settings
 
-    settings = Settings(data_dir=tmp_path_factory.mktemp("examples-data"), log_level="warning")
+    # the default settings but the deadline: no verdict may depend on the speed of a busy machine
+    settings = Settings(data_dir=tmp_path_factory.mktemp("examples-data"), log_level="warning",
+                        request_deadline_s=3600)
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
         yield client
 

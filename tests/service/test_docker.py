@@ -48,9 +48,9 @@ def _compose() -> str:
     return str(binary)
 
 
-def _run(cmd: list[str]) -> subprocess.CompletedProcess:
+def _run(cmd: list[str], env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     try:
-        return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+        return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120, env=env)
     except OSError as exc:  # e.g. a binary for another architecture
         pytest.skip(f"{cmd[0]} cannot run here: {exc}")
 
@@ -71,12 +71,18 @@ def test_hadolint_catches_a_bad_dockerfile(tmp_path):
 
 def test_compose_file_is_valid_and_wired():
     compose = _compose()
-    out = _run([compose, "-f", str(DOCKER / "compose.yaml"), "config", "--quiet"])
+    keyless = {k: v for k, v in os.environ.items() if k != "CAPSULE_RT_KEY"}
+    out = _run([compose, "-f", str(DOCKER / "compose.yaml"), "config", "--quiet"], keyless)
+    assert out.returncode != 0 and "CAPSULE_RT_KEY" in out.stderr  # the key is required, never defaulted
+    env = {**keyless, "CAPSULE_RT_KEY": "a-key-of-the-test-0123456789"}
+    out = _run([compose, "-f", str(DOCKER / "compose.yaml"), "config", "--quiet"], env)
     assert out.returncode == 0, out.stdout + out.stderr
-    out = _run([compose, "-f", str(DOCKER / "compose.yaml"), "config", "--format", "json"])
+    out = _run([compose, "-f", str(DOCKER / "compose.yaml"), "config", "--format", "json"], env)
     assert out.returncode == 0, out.stderr
     config = json.loads(out.stdout)
     services = config["services"]
+    assert services["server"]["environment"]["CAPSULE_RT_API_KEYS"] == env["CAPSULE_RT_KEY"]
+    assert services["client"]["environment"]["CAPSULE_RT_KEY"] == env["CAPSULE_RT_KEY"]
     assert services["client"]["depends_on"]["server"]["condition"] == "service_healthy"
     assert services["client"]["environment"]["CAPSULE_RT_URL"] == "http://server:8000"
     assert services["server"]["healthcheck"]["test"][-1].count("/readyz") == 1
