@@ -37,6 +37,7 @@ test: $(TEST_STAMP)
 	@test -x $(CHROMIUM) || echo "make test: no Chromium at $(CHROMIUM), so the browser tests (viewer, /docs) \
 	are skipped; install Debian's package to run them: apt-get install chromium"
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 	CAPSULE_RT_CHROMIUM=$(CHROMIUM) $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 bench: $(TEST_STAMP)
