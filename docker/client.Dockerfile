@@ -38,7 +38,13 @@ RUN command -v curl >/dev/null || { apt-get update \
 
 WORKDIR /app
 COPY --from=scikit-fmm /wheels /wheels
+# Its dependencies first (a layer a rebuild reuses while pyproject.toml is unchanged), then the project.
 COPY pyproject.toml README.md ./
+# hadolint ignore=DL3013
+RUN python3 -m venv /opt/capsule-rt \
+    && python3 -c "import sys, tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; print(*p['dependencies'], *[d for e in sys.argv[1:] for d in p['optional-dependencies'][e]], sep='\\n')" test > /tmp/requirements.txt \
+    && pip install --no-cache-dir --find-links /wheels -r /tmp/requirements.txt \
+    && rm /tmp/requirements.txt
 COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
@@ -51,8 +57,7 @@ COPY tracking ./tracking
 # The local project with its test extra, in a virtual environment; versions are constrained in
 # pyproject.toml.
 # hadolint ignore=DL3013
-RUN python3 -m venv /opt/capsule-rt \
-    && pip install --no-cache-dir --find-links /wheels ".[test]" \
+RUN pip install --no-cache-dir --no-deps . \
     && groupadd --system --gid 10001 tester \
     && useradd --system --create-home --uid 10001 --gid 10001 tester
 # Only the end-to-end suite (it imports the installed packages, never bench/ or the unit

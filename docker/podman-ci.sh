@@ -2,7 +2,7 @@
 # The containers, built and run for real with Debian's podman and runc (what .ci/run does after the
 # test suite; docs/service.md, "Containers"):
 #   1. a base image made from Debian's packages (mmdebstrap --variant=minbase: python3, its venv
-#      module, CA certificates, curl), imported into podman;
+#      module, CA certificates, curl), imported into podman (once per machine);
 #   2. the server and the client images on it (docker/server.Dockerfile, docker/client.Dockerfile,
 #      BASE_IMAGE set to that base), pip inside the build using this machine's pip settings;
 #   3. the server container on 127.0.0.1:$PORT with an API key, until it is ready (/readyz);
@@ -43,12 +43,17 @@ EOF
 podman=(podman --runtime runc)
 secs() { echo $(( $(date +%s) - $1 )); }
 
-# 1. the base image (rebuilt every run: what Debian ships today, never a stale copy)
+# 1. the base image, made once per machine (CAPSULE_RT_CI_FRESH_BASE=1: again). Kept, it keeps the
+# images' dependency layers cached between runs while pyproject.toml does not change.
 t=$(date +%s)
-mmdebstrap --quiet --variant=minbase --include=python3,python3-venv,ca-certificates,curl bookworm "$work/base.tar"
-"${podman[@]}" import --quiet "$work/base.tar" "$BASE" >/dev/null
-rm -f "$work/base.tar"
-echo "podman-ci: base image $BASE from Debian's packages in $(secs "$t") s"
+if [ "${CAPSULE_RT_CI_FRESH_BASE:-0}" = 1 ] || ! "${podman[@]}" image exists "$BASE"; then
+  mmdebstrap --quiet --variant=minbase --include=python3,python3-venv,ca-certificates,curl bookworm "$work/base.tar"
+  "${podman[@]}" import --quiet "$work/base.tar" "$BASE" >/dev/null
+  rm -f "$work/base.tar"
+  echo "podman-ci: base image $BASE made from Debian's packages in $(secs "$t") s"
+else
+  echo "podman-ci: base image $BASE as made on $("${podman[@]}" image inspect --format '{{.Created}}' "$BASE")"
+fi
 
 # 2. the images; pip inside the build reads this machine's pip configuration and certificate
 mounts=()

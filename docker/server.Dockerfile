@@ -40,9 +40,16 @@ LABEL io.capsule-rt.fullwave="${FULLWAVE}"
 WORKDIR /app
 COPY --from=scikit-fmm /wheels /wheels
 
-# Install from pyproject.toml into a virtual environment (core dependencies, plus gprMax when
-# FULLWAVE=1; embreex ships manylinux wheels).
+# Install from pyproject.toml into a virtual environment: first its dependencies (plus gprMax when
+# FULLWAVE=1; embreex ships manylinux wheels), a layer that a rebuild reuses while pyproject.toml
+# is unchanged, then the project itself.
 COPY pyproject.toml README.md ./
+# hadolint ignore=DL3013,SC2046
+RUN python3 -m venv /opt/capsule-rt \
+    && python3 -c "import sys, tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; print(*p['dependencies'], *[d for e in sys.argv[1:] for d in p['optional-dependencies'][e]], sep='\\n')" \
+       $([ "$FULLWAVE" = 1 ] && echo fullwave) > /tmp/requirements.txt \
+    && pip install --no-cache-dir --find-links /wheels -r /tmp/requirements.txt \
+    && rm /tmp/requirements.txt
 COPY raytrace ./raytrace
 COPY estimators ./estimators
 COPY service ./service
@@ -57,9 +64,7 @@ COPY tracking ./tracking
 # one `capsule-rt serve` imports (numba's cache is keyed on the source file). numba only uses a
 # cache directory it can write to: the cache is handed to the service's user.
 # hadolint ignore=DL3013
-RUN python3 -m venv /opt/capsule-rt \
-    && if [ "$FULLWAVE" = 1 ]; then extra="[fullwave]"; else extra=""; fi \
-    && pip install --no-cache-dir --find-links /wheels ".$extra" \
+RUN pip install --no-cache-dir --no-deps . \
     && python -P -c "from raytrace.solver.tracer import warm_up; warm_up()" \
     && groupadd --system --gid 10001 capsule \
     && useradd --system --create-home --uid 10001 --gid 10001 capsule \

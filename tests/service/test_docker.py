@@ -105,7 +105,10 @@ def test_dockerfiles_have_the_required_structure():
         assert "ARG BASE_IMAGE=python:3.11-slim\n" in text and text.count("FROM ${BASE_IMAGE}") == 2
         assert "\nUSER 10001:10001" in text  # non-root, numeric
         assert "COPY pyproject.toml" in text
-        assert "pip install --no-cache-dir --find-links /wheels \"." in text  # from pyproject (scikit-fmm's wheel)
+        # from pyproject: its dependencies (scikit-fmm's wheel built in the first stage), then the project
+        assert "tomllib.load(open('pyproject.toml', 'rb'))" in text
+        assert "pip install --no-cache-dir --find-links /wheels -r /tmp/requirements.txt" in text
+        assert "pip install --no-cache-dir --no-deps ." in text
     assert "HEALTHCHECK" in server and "/readyz" in server
     assert 'CMD ["capsule-rt", "serve"]' in server
     assert "ARG FULLWAVE=0" in server and 'LABEL io.capsule-rt.fullwave="${FULLWAVE}"' in server
