@@ -101,6 +101,7 @@ def _run(words: list[str], cwd: Path, env: dict[str, str], timeout: float = 900)
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)  # nine commands, a 1e5-ray demo among them: past 600 s on a machine at load 17
 def test_command_line_block_runs_as_written(tmp_path):
     """Every line of "Command line", in order (the plot line draws the channel the channel line
     wrote). Two are run in the form that leaves the repository alone: `openapi` with --check (it
