@@ -547,6 +547,16 @@ def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tup
     return out
 
 
+def read_meshes(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, max_triangles: int = DEFAULT_MAX_TRIANGLES,
+                binary: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+    """Mesh nodes of a .glb (for the anatomy pipeline, ``raytrace.body.anatomy.readers``): node name ->
+    (vertices in file units with the node transforms applied, faces, node field). Same caps and checks
+    as an upload's .glb; JSON glTF (.gltf) is refused (its buffers live in other files)."""
+    if not binary:
+        raise _fail("JSON glTF (.gltf) keeps its geometry in separate files: export binary glTF (.glb)", "mesh")
+    return _decode(bytes(data), max_bytes=max_bytes, max_triangles=max_triangles)
+
+
 # ================================================================ load
 def load_phantom(
     glb_bytes: bytes,
