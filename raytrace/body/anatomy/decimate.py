@@ -1,5 +1,5 @@
 """Decimation to a triangle budget with a measured, bounded error (fast-simplification's quadric edge
-collapse; docs/phantoms.md, "Decimation").
+collapse, aggressiveness :data:`AGGRESSIVENESS`; docs/phantoms.md, "Decimation").
 
 :func:`decimate` asks fast-simplification for the budget; the result's distance from the input surface
 is then measured at every vertex and triangle centroid of the result (the exact distance to the input's
@@ -19,6 +19,10 @@ from raytrace.body.anatomy.grid import SurfaceDistance
 __all__ = ["decimate", "surface_error"]
 
 _RELAX = 1.5
+#: fast-simplification's aggressiveness (its default is 7): 3 keeps the largest error about 3x smaller at the
+#: same budget (measured on the CT abdomen's wall layers: 0.41 mm against 1.2 mm at 65k triangles), for ~20 %
+#: more time.
+AGGRESSIVENESS = 3
 _TRIES = 5
 
 
@@ -43,7 +47,7 @@ def decimate(mesh: trimesh.Trimesh, budget: int, max_error_m: float) -> tuple[tr
         if reduction <= 0:
             break
         points, faces = fast_simplification.simplify(np.asarray(mesh.vertices, np.float64),
-                                                     np.asarray(mesh.faces, np.int64), reduction)
+                                                     np.asarray(mesh.faces, np.int64), reduction, agg=AGGRESSIVENESS)
         out = trimesh.Trimesh(points, faces, process=True, validate=True)
         if out.is_watertight and out.is_winding_consistent:
             if out.volume < 0:

@@ -73,7 +73,7 @@ class Options:
     #: The thinnest a generated layer gets where an organ pushes it towards the skin.
     min_layer_m: float = 0.001
     #: Largest distance a decimated surface may move from the surface it simplifies (relaxed: see decimate).
-    decimation_error_m: float = 0.0004
+    decimation_error_m: float = 0.0005
     #: Triangle budget of one organ or layer made by marching cubes or remeshing.
     max_triangles_per_surface: int = 60_000
     #: Gaussian smoothing of a labelled volume's masks before marching cubes, in voxels.
