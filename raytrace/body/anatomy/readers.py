@@ -109,19 +109,25 @@ def _check(vertices: np.ndarray, faces: np.ndarray, label: str, where: Field, ma
 
 
 def _check_binary_stl(data: bytes, label: str, where: Field, max_triangles: int) -> None:
-    """A binary STL states its triangle count at byte 80: checked before meshio reads the file."""
-    if data[:5].lower() == b"solid" and b"facet" in data[:1024]:
-        return  # ASCII STL: bounded by the byte cap
-    if len(data) >= 84:
-        (count,) = struct.unpack_from("<I", data, 80)
-        if count > max_triangles:
-            raise _fail(f"{label} declares {count} triangles, over the cap of {max_triangles}", where)
+    """A binary STL states its triangle count at byte 80 and is 84 + 50 bytes per triangle: both checked
+    before meshio reads the file (an ASCII STL starts with ``solid`` and holds ``facet``: bounded by its size)."""
+    if data[:5].lower() == b"solid" and b"facet" in data[:4096]:
+        return
+    count = struct.unpack_from("<I", data, 80)[0] if len(data) >= 84 else -1
+    if count < 0 or len(data) != 84 + 50 * count:
+        raise _fail(f"{label} is not a readable .stl surface mesh: neither ASCII ('solid ... facet') nor binary "
+                    "(84 bytes + 50 per triangle)", where)
+    if count > max_triangles:
+        raise _fail(f"{label} declares {count} triangles, over the cap of {max_triangles}", where)
 
 
 def _meshio_read(data: bytes, fmt: str, suffix: str, label: str, where: Field):
-    import meshio
+    import importlib
 
-    # meshio's readers need a real file (numpy.fromfile): a private temporary copy
+    # meshio's format module's own reader: meshio.read() prints and calls sys.exit(1) on a file it
+    # cannot read (meshio 5.3), which must never end a server. Its readers need a real file
+    # (numpy.fromfile): a private temporary copy.
+    reader = importlib.import_module(f"meshio.{fmt}").read
     with tempfile.TemporaryDirectory(prefix="capsule-rt-read-") as tmp:
         path = os.path.join(tmp, "surface" + suffix)
         with open(path, "wb") as fh:
@@ -129,8 +135,8 @@ def _meshio_read(data: bytes, fmt: str, suffix: str, label: str, where: Field):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                return meshio.read(path, file_format=fmt)
-        except Exception as exc:  # meshio raises ReadError, ValueError, IndexError... on a broken file
+                return reader(path)
+        except (Exception, SystemExit) as exc:  # meshio raises ReadError, ValueError, IndexError... on a broken file
             reason = str(exc).strip() or type(exc).__name__
             raise _fail(f"{label} is not a readable {suffix} surface mesh: {reason[:200]}", where) from None
 

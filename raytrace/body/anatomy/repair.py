@@ -171,16 +171,19 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
     mesh.remove_unreferenced_vertices()
     needs_union = _non_manifold(mesh.faces) or len(self_intersections(mesh.vertices, mesh.faces, limit=1)) > 0
     if not needs_union:
+        consistent = mesh.is_winding_consistent
+        inward = consistent and mesh.volume < 0
         trimesh.repair.fix_normals(mesh, multibody=True)
         if not (mesh.is_watertight and mesh.is_winding_consistent):
             needs_union = True
+        elif inward:
+            repairs.append("turned the surface outward (it was wound inward)")
+        elif not consistent:
+            repairs.append("made the triangles' winding consistent and outward")
     if needs_union:
         shells = _closed_shells(mesh)
         mesh, note = voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells)
         repairs.append(note)
-    elif mesh.volume < 0:
-        mesh.invert()
-        repairs.append("turned the surface outward (it was wound inward)")
     return Repaired(mesh, repairs)
 
 
