@@ -431,9 +431,10 @@ def markdown_report(report: dict) -> str:
         for row in report["layers"]:
             def f(key, fmt="{:.2f}"):
                 return "-" if row.get(key) is None else fmt.format(row[key])
-            lines.append(f"| {row['name']} | {row['medium']} | {f('depth_mm', '{:.1f}')} | {f('thickness_mm', '{:.1f}')}"
-                         f" | {row['triangles']} | {f('decimation_error_mm', '{:.3f}')} | {f('thinnest_depth_mm')} | "
-                         f"{f('gives_way_percent', '{:.1f}')} |")
+            cells = [row["name"], row["medium"], f("depth_mm", "{:.1f}"), f("thickness_mm", "{:.1f}"),
+                     str(row["triangles"]), f("decimation_error_mm", "{:.3f}"), f("thinnest_depth_mm"),
+                     f("gives_way_percent", "{:.1f}")]
+            lines.append("| " + " | ".join(cells) + " |")
     if report["tracts"]:
         lines += ["", "Tracts:", ""]
         for t in report["tracts"]:

@@ -95,8 +95,9 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
             where = np.round(shared.centroid * 1e3, 1).tolist()
             if depth > tolerance_m:
                 raise PhantomValidationError(
-                    f"organs {first!r} and {second!r} overlap by {_mm(depth)} ({volume * 1e6:.3g} mL shared, around "
-                    f"{where} mm in the project frame), more than overlap_tolerance_m = {_mm(tolerance_m)}: they cross; "
+                    f"organs {first!r} and {second!r} overlap by {_mm(depth)} ({volume * 1e6:.3g} mL shared, "
+                    f"around {where} mm in the project frame), more than overlap_tolerance_m = {_mm(tolerance_m)}: "
+                    "they cross; "
                     "fix the surfaces (or raise options.overlap_tolerance_m to clip the later one)",
                     field=fields[second])
             a_in_b = float(np.mean(b.contains(a.vertices)))

@@ -95,7 +95,8 @@ def open_volume(path: Path, where: Field, *, scale_m_per_unit: float, max_bytes:
     return LabelVolume(path.name, shape, affine, image)  # type: ignore[arg-type]
 
 
-def label_surface(volume: LabelVolume, label: int, where: Field, organ: str, options: Options) -> tuple[trimesh.Trimesh, list[str]]:
+def label_surface(volume: LabelVolume, label: int, where: Field, organ: str,
+                  options: Options) -> tuple[trimesh.Trimesh, list[str]]:
     """The closed surface of one label, in file units (module docstring)."""
     from scipy.ndimage import binary_fill_holes, gaussian_filter
     from skimage.measure import marching_cubes

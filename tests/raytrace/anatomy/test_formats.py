@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from raytrace.body.anatomy import build_phantom
-from tests.raytrace.anatomy.files import polyhedron_volume, sphere, write_manifest, write_surface
+from tests.raytrace.anatomy.files import polyhedron_volume, sphere, write_surface
 
 FORMATS = ["organ.vtk", "organ_ug.vtk", "organ.vtu", "organ.stl", "organ.ply", "organ.obj", "organ.off", "organ.glb"]
 
