@@ -40,6 +40,19 @@ MAX_TRACTS = 16
 MAX_LANDMARKS = 64
 MAX_MANIFEST_BYTES = 256 * 1024
 
+#: The keys allowed at each place (manifest.schema.json lists the same; a test keeps them equal).
+KEYS = {
+    "manifest": {"name", "description", "units", "scale", "transform", "body", "volume", "labels", "organs",
+                 "tracts", "sensors", "options"},
+    "transform": {"axes", "origin"},
+    "body": {"surface", "label", "layers", "fill", "name", "fill_name"},
+    "layer": {"tissue", "relative_permittivity", "conductivity_s_per_m", "thickness_m", "name"},
+    "organ": {"file", "files", "label", "tissue", "relative_permittivity", "conductivity_s_per_m", "max_triangles"},
+    "tract": {"file", "organ", "reverse", "landmarks"},
+    "sensors": {"belts", "points"},
+    "belt": {"height_m", "count", "name", "start_deg"},
+}
+
 
 def _fail(reason: str, where: Field) -> PhantomValidationError:
     return PhantomValidationError(reason, field=where)
@@ -179,8 +192,7 @@ def load_manifest(data: Any) -> BuildManifest:
     """Check a manifest (already read into Python values) and normalise it (module docstring)."""
     if not isinstance(data, Mapping):
         raise _fail("the manifest must be a mapping (YAML or a JSON object)", "manifest")
-    _keys(data, {"name", "description", "units", "scale", "transform", "body", "volume", "labels", "organs",
-                 "tracts", "sensors", "options"}, ("manifest",))
+    _keys(data, KEYS["manifest"], ("manifest",))
     name = data.get("name")
     if not isinstance(name, str) or not 1 <= len(name) <= 128 or not name.isprintable():
         raise _fail("required: a name of 1-128 printable characters", "manifest.name")
@@ -202,7 +214,7 @@ def load_manifest(data: Any) -> BuildManifest:
     volume = data.get("volume")
     if volume is not None:
         volume = _path(volume, "manifest.volume")
-    label_names = _label_names(data.get("labels", {}))
+    label_names = _label_names(data.get("labels"))
     body = _body(data.get("body"), volume)
     organs_in = data.get("organs", {})
     if not isinstance(organs_in, Mapping):
@@ -344,7 +356,7 @@ def _transform(spec: Any) -> tuple[tuple[tuple[int, float], ...], tuple[float, f
     where = ("manifest", "transform")
     if not isinstance(spec, Mapping):
         raise _fail("must be {axes: [..3..], origin: [x, y, z]}", where)
-    _keys(spec, {"axes", "origin"}, where)
+    _keys(spec, KEYS["transform"], where)
     axes_in = spec.get("axes", ["x", "y", "z"])
     if not isinstance(axes_in, list) or len(axes_in) != 3:
         raise _fail("must be three axis words, e.g. [-x, -y, z]: the file axis that becomes the project's x "
@@ -385,6 +397,11 @@ def _options(spec: Any) -> Options:
 
 
 def _label_names(spec: Any) -> dict[int, str]:
+    """Label number -> class name: ``labels`` when given, else TotalSegmentator's ``total`` task (v2)."""
+    from raytrace.body.anatomy.tissuemap import TOTAL_V2_CLASSES
+
+    if spec is None:
+        return dict(TOTAL_V2_CLASSES)
     where = ("manifest", "labels")
     if not isinstance(spec, Mapping):
         raise _fail("must map label numbers to class names (e.g. TotalSegmentator's)", where)
@@ -409,11 +426,11 @@ def _body(spec: Any, volume: str | None) -> BodySpec | None:
     where = ("manifest", "body")
     if not isinstance(spec, Mapping):
         raise _fail("must be {surface: file | label: N, layers: [...], fill: tissue}", where)
-    _keys(spec, {"surface", "files", "label", "layers", "fill", "name", "fill_name"}, where)
+    _keys(spec, KEYS["body"], where)
     files: tuple[str, ...] = ()
     label = None
-    if "surface" in spec or "files" in spec:
-        raw = spec.get("surface", spec.get("files"))
+    if "surface" in spec:
+        raw = spec["surface"]
         raw = [raw] if isinstance(raw, str) else raw
         if not isinstance(raw, list) or not raw or len(raw) > MAX_FILES_PER_ORGAN:
             raise _fail("must name the body surface's file(s)", (*where, "surface"))
@@ -433,7 +450,7 @@ def _body(spec: Any, volume: str | None) -> BodySpec | None:
         lw = (*where, "layers", i)
         if not isinstance(layer, Mapping):
             raise _fail("must be {tissue, thickness_m}", lw)
-        _keys(layer, {"tissue", "relative_permittivity", "conductivity_s_per_m", "thickness_m", "name"}, lw)
+        _keys(layer, KEYS["layer"], lw)
         material = _material(layer, lw, required=True)
         if "thickness_m" not in layer:
             raise _fail("required: the layer's thickness in metres", (*lw, "thickness_m"))
@@ -469,8 +486,7 @@ def _organ(name: Any, spec: Any, volume: str | None, label_names: dict[int, str]
     _name(name, where)
     if not isinstance(spec, Mapping):
         raise _fail("must be {files: [...] | label: N, tissue: name}", where)
-    _keys(spec, {"file", "files", "label", "tissue", "relative_permittivity", "conductivity_s_per_m",
-                 "max_triangles"}, where)
+    _keys(spec, KEYS["organ"], where)
     files = _files(spec, where)
     label = None
     if "label" in spec:
@@ -496,7 +512,7 @@ def _tracts(spec: Any, organs: dict[str, OrganSpec]) -> dict[str, TractSpec]:
         _name(name, tw)
         if not isinstance(tract, Mapping):
             raise _fail("must be {file, organ, reverse, landmarks}", tw)
-        _keys(tract, {"file", "organ", "reverse", "landmarks"}, tw)
+        _keys(tract, KEYS["tract"], tw)
         if "file" not in tract:
             raise _fail("required: the centreline file (JSON {points: [...]} or CSV x,y,z)", (*tw, "file"))
         organ = tract.get("organ")
@@ -521,7 +537,7 @@ def _sensors(spec: Any, body: BodySpec | None) -> tuple[tuple[SensorBelt, ...], 
     where = ("manifest", "sensors")
     if not isinstance(spec, Mapping):
         raise _fail("must be {belts: [...], points: {name: [x, y, z]}}", where)
-    _keys(spec, {"belts", "points"}, where)
+    _keys(spec, KEYS["sensors"], where)
     belts_in = spec.get("belts", [])
     if not isinstance(belts_in, list) or len(belts_in) > MAX_BELTS:
         raise _fail(f"must be a list of at most {MAX_BELTS} belts", (*where, "belts"))
@@ -532,7 +548,7 @@ def _sensors(spec: Any, body: BodySpec | None) -> tuple[tuple[SensorBelt, ...], 
         bw = (*where, "belts", i)
         if not isinstance(belt, Mapping):
             raise _fail("must be {height_m, count}", bw)
-        _keys(belt, {"height_m", "count", "name", "start_deg"}, bw)
+        _keys(belt, KEYS["belt"], bw)
         if "height_m" not in belt:
             raise _fail("required: height above the body's lowest point, in metres", (*bw, "height_m"))
         height = _number(belt["height_m"], (*bw, "height_m"))
