@@ -60,7 +60,8 @@ def _cmd_build(args: argparse.Namespace) -> int:
         except OSError as exc:
             print(f"capsule-rt phantom build: {path}: {exc.strerror or exc}", file=sys.stderr)
             return 2
-        result = build_phantom(parse_manifest_text(text, filename=path.name), path.parent, progress=progress)
+        root = Path(args.data) if args.data else path.parent
+        result = build_phantom(parse_manifest_text(text, filename=path.name), root, progress=progress)
     except CapsuleRTError as exc:
         where = field_text(exc.field)
         print(f"capsule-rt phantom build: {where + ': ' if where else ''}{exc.reason}", file=sys.stderr)
@@ -79,5 +80,7 @@ def add_parsers(sub) -> None:
                         "(what POST /v1/phantoms accepts) + report.{json,md}")
     b.add_argument("manifest", help="the build manifest; its file names are relative to its directory")
     b.add_argument("--out", required=True, help="output directory")
+    b.add_argument("--data", default=None, help="directory the manifest's file names are relative to (default: the "
+                   "manifest's own directory)")
     b.add_argument("--quiet", "-q", action="store_true", help="no progress lines on stderr")
     b.set_defaults(func=_cmd_build)
