@@ -33,37 +33,37 @@ PhantomIdPath = Path(
     examples=["torso"],
 )
 
+_ARCHIVE_PART = {
+    "type": "string",
+    "format": "binary",
+    "description": "A zip of anatomy files (surfaces: VTK, STL, PLY, OBJ, OFF, glTF; a labelled NIfTI volume; "
+    "centreline JSON/CSV) and a build manifest (`manifest.yaml` or `manifest.json`, docs/phantoms.md) at its top.",
+}
+_MESH_PART = {
+    "type": "string",
+    "format": "binary",
+    "description": "Binary glTF (.glb) whose mesh nodes are named after the organs.",
+}
+_MANIFEST_PART = {
+    "type": "string",
+    "contentMediaType": "application/json",
+    "description": "JSON text of a manifest (schema `#/components/schemas/Manifest`): name, units, organs (mesh "
+    "node name -> tissue or explicit medium), sites.",
+}
 _UPLOAD_BODY = {
     "requestBody": {
         "required": True,
         "content": {
             "multipart/form-data": {
                 "schema": {
-                    "type": "object",
                     "description": "Either `mesh` and `manifest` (a ready phantom, stored at once: 201), or "
                     "`archive` alone (anatomy files and a build manifest, built as a job: 202).",
-                    "oneOf": [{"required": ["mesh", "manifest"]}, {"required": ["archive"]}],
-                    "additionalProperties": False,
-                    "properties": {
-                        "archive": {
-                            "type": "string",
-                            "format": "binary",
-                            "description": "A zip of anatomy files (surfaces: VTK, STL, PLY, OBJ, OFF, glTF; a "
-                            "labelled NIfTI volume; centreline JSON/CSV) and a build manifest (`manifest.yaml` or "
-                            "`manifest.json`, docs/phantoms.md) at its top.",
-                        },
-                        "mesh": {
-                            "type": "string",
-                            "format": "binary",
-                            "description": "Binary glTF (.glb) whose mesh nodes are named after the organs.",
-                        },
-                        "manifest": {
-                            "type": "string",
-                            "contentMediaType": "application/json",
-                            "description": "JSON text of a manifest (schema `#/components/schemas/Manifest`): "
-                            "name, units, organs (mesh node name -> tissue or explicit medium), sites.",
-                        },
-                    },
+                    "oneOf": [
+                        {"type": "object", "required": ["mesh", "manifest"], "additionalProperties": False,
+                         "properties": {"mesh": _MESH_PART, "manifest": _MANIFEST_PART}},
+                        {"type": "object", "required": ["archive"], "additionalProperties": False,
+                         "properties": {"archive": _ARCHIVE_PART}},
+                    ],
                 },
                 "encoding": {"mesh": {"contentType": "model/gltf-binary"},
                              "manifest": {"contentType": "application/json"},
