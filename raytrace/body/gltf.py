@@ -56,10 +56,9 @@ and node transforms (matrix or TRS, composed down the hierarchy, winding
 flipped under a mirroring transform as the glTF spec requires) are applied
 exactly once. Identical vertex positions are then merged so that meshes
 exported with split vertices (per-face normals/UVs) can still be watertight.
-Besides :meth:`Phantom.build` validation (watertight, oriented, nested,
-no vertex of one organ on both sides of another), uploads get an
-edge-crossing test that catches two surfaces crossing with every vertex
-outside the other.
+Validation is :meth:`Phantom.build`'s (watertight, oriented, no surface
+crossing itself or another: every edge cast through one Embree scene of
+all triangles; nested or disjoint).
 
 Export (:func:`export_glb`) writes one node and one mesh per organ named
 after it, float32 positions and uint32 indices, in metres, with the
@@ -590,9 +589,7 @@ def load_phantom(
         organs.append(Organ(name, material, mesh))
     try:
         phantom = Phantom.build(spec["name"], organs, sites={}, description=spec["description"],
-                                max_triangles=max_triangles)
-        if check_crossings:
-            _check_no_crossings(phantom)
+                                max_triangles=max_triangles, check_crossings=check_crossings)
     except PhantomValidationError as exc:  # Phantom.build names "organs.<name>": the manifest's organs
         field = exc.field
         if isinstance(field, str) and (field == "organs" or field.startswith("organs.")):
@@ -638,41 +635,6 @@ def _add_sites(phantom: Phantom, sites: dict, scale: float) -> None:
                             "taken as a sensor without one", where)
             kind = "sensor"
         phantom.sites[name] = Site(name, kind, np.array(point, dtype=float), phantom.medium_name(medium))
-
-
-def _check_no_crossings(phantom: Phantom) -> None:
-    """Reject two organ surfaces that cross. Two closed triangle surfaces
-    intersect iff an edge of one crosses a triangle of the other: cast every
-    edge of every organ (inside the target's bounding box) as a ray against
-    each other organ (Embree) and look for a hit within the edge's length."""
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
-
-    boxes = [o.mesh.bounds for o in phantom.organs]
-    edges = []
-    for organ in phantom.organs:
-        v = np.asarray(organ.mesh.vertices)
-        e = np.asarray(organ.mesh.edges_unique)
-        edges.append((v[e[:, 0]], v[e[:, 1]]))
-    for j, target in enumerate(phantom.organs):
-        lo, hi = boxes[j]
-        intersector = None
-        for i, other in enumerate(phantom.organs):
-            if i == j:
-                continue
-            a, b = edges[i]
-            keep = np.all((np.maximum(a, b) >= lo) & (np.minimum(a, b) <= hi), axis=1)
-            if not keep.any():
-                continue
-            a, b = a[keep], b[keep]
-            length = np.linalg.norm(b - a, axis=1)
-            intersector = intersector or RayMeshIntersector(target.mesh)
-            _, ray, loc = intersector.intersects_id(a, (b - a) / length[:, None],
-                                                    multiple_hits=False, return_locations=True)
-            crossing = np.linalg.norm(loc - a[ray], axis=1) <= length[ray]
-            if crossing.any():
-                raise _fail(f"surface of organ {other.name!r} intersects organ {target.name!r} "
-                            f"({int(crossing.sum())} of its edges cross it); organs must nest "
-                            "or be disjoint, never touch", ("manifest", "organs", other.name))
 
 
 # ================================================================ export

@@ -401,7 +401,7 @@ def _report(m, phantom, organ_notes, organ_source, body_notes, layers, tracts, s
         })
     return {
         "name": m.name, "triangles": phantom.triangle_count, "units": m.units, "scale_m_per_unit": m.scale,
-        "frame": "x = subject's left, y = posterior (-y anterior), z = up; metres",
+        "frame": "x = subject's left, y = posterior (-y anterior), z = up",
         "transform": {"axes": [("-" if s < 0 else "") + "xyz"[a] for a, s in m.axes], "origin": list(m.origin)},
         "bounds_mm": (phantom.bounds_m * 1e3).round(1).tolist(),
         "organs": organs, "layers": layers, "tracts": tracts, "sensors": sensors,

@@ -1,8 +1,9 @@
 """Overlaps between organs, and organs against the body: resolved by clipping below a tolerance,
 refused above it (docs/phantoms.md, "Overlaps").
 
-Two organs whose bounding boxes meet are intersected exactly (manifold3d's boolean intersection). When
-the intersection holds volume, or their surfaces come closer than ``clearance_m``:
+Two organs whose surfaces cross (an edge of one through a triangle of the other, found by one Embree ray per
+edge, :func:`crossing_pairs`) are intersected exactly (manifold3d's boolean intersection). When the
+intersection holds volume but is not the whole of either (one nested in the other is no overlap):
 
 * the *depth* of the overlap is the largest distance from a vertex of one that lies inside the other
   to the other's surface (both ways; exact distances to the triangles);
@@ -80,15 +81,17 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
     names = list(organs)
     meshes = dict(organs)
     notes: dict[str, list[str]] = {n: [] for n in names}
+    crossing = crossing_pairs([meshes[n] for n in names])
     for i, first in enumerate(names):
-        for second in names[i + 1:]:
+        for j in range(i + 1, len(names)):
+            second = names[j]
             a, b = meshes[first], meshes[second]
-            if np.any(a.bounds[1] < b.bounds[0]) or np.any(b.bounds[1] < a.bounds[0]):
+            if (i, j) not in crossing:
                 continue
             shared = intersect(a, b)
             volume = float(shared.volume) if len(shared.faces) else 0.0
-            if volume <= 0.0:
-                continue
+            if volume <= 0.0 or volume >= (1.0 - 1e-6) * min(a.volume, b.volume):
+                continue  # disjoint, or one nested in the other: no surface crosses (the phantom checks touching)
             da, db = SurfaceDistance(a.vertices, a.faces, clearance_m * 4 + 1e-4), \
                 SurfaceDistance(b.vertices, b.faces, clearance_m * 4 + 1e-4)
             depth = max(_depth(a, b, db), _depth(b, a, da))
@@ -119,6 +122,29 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
             notes[inner].append(f"overlapped {outer!r} by {_mm(depth)} around {where} mm: {how}, "
                                 f"{removed * 1e6:.3g} mL removed, {_mm(clearance_m)} clearance")
     return meshes, notes
+
+
+def crossing_pairs(meshes: list[trimesh.Trimesh]) -> set[tuple[int, int]]:
+    """Pairs ``(i, j)``, ``i < j``, of surfaces that cross: every edge cast once through one Embree scene of
+    all of them (:func:`raytrace.body.selfintersect.edge_crossings`), so that only crossing pairs pay for a
+    boolean."""
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    from raytrace.body.selfintersect import edge_crossings
+
+    if len(meshes) < 2:
+        return set()
+    union = trimesh.util.concatenate(meshes)
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
+    edges = np.concatenate([np.asarray(m.edges_unique, np.int64) + offsets[k] for k, m in enumerate(meshes)])
+    owner = np.concatenate([np.full(len(m.edges_unique), k) for k, m in enumerate(meshes)])
+    face_owner = np.concatenate([np.full(len(m.faces), k) for k, m in enumerate(meshes)])
+    edge, tri, _ = edge_crossings(np.asarray(union.vertices, float), edges, RayMeshIntersector(union))
+    out = set()
+    for e, t in zip(owner[edge].tolist(), face_owner[tri].tolist()):
+        if e != t:
+            out.add((min(e, t), max(e, t)))
+    return out
 
 
 def clip_inside(organ: trimesh.Trimesh, container: trimesh.Trimesh, what: str) -> tuple[trimesh.Trimesh, str | None]:

@@ -32,7 +32,7 @@ import trimesh
 
 from raytrace.body.anatomy.grid import Grid, inside_mask, surface_from_field
 from raytrace.body.anatomy.manifest import Options
-from raytrace.body.selfintersect import self_intersections
+from raytrace.body.selfintersect import edge_crossings
 from raytrace.errors import Field, PhantomValidationError
 
 __all__ = ["Repaired", "boundary_loops", "repair_surface", "voxel_union"]
@@ -169,7 +169,7 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
         repairs.append(f"capped {capped} planar cut(s)")
     mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
     mesh.remove_unreferenced_vertices()
-    needs_union = _non_manifold(mesh.faces) or len(self_intersections(mesh.vertices, mesh.faces, limit=1)) > 0
+    needs_union = _non_manifold(mesh.faces) or crosses_itself(mesh)
     if not needs_union:
         consistent = mesh.is_winding_consistent
         inward = consistent and mesh.volume < 0
@@ -185,6 +185,16 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
         mesh, note = voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells)
         repairs.append(note)
     return Repaired(mesh, repairs)
+
+
+def crosses_itself(mesh: trimesh.Trimesh) -> bool:
+    """Whether an edge of the surface crosses one of its triangles (one Embree ray per edge,
+    :func:`raytrace.body.selfintersect.edge_crossings`)."""
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    edge, _, _ = edge_crossings(np.asarray(mesh.vertices, float), np.asarray(mesh.edges_unique, np.int64),
+                                RayMeshIntersector(mesh))
+    return len(edge) > 0
 
 
 def _non_manifold(faces: np.ndarray) -> bool:

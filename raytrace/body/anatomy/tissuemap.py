@@ -44,9 +44,10 @@ TOTAL_V2_CLASSES: dict[int, str] = _total_v2()
 
 _BONES = ("vertebrae_", "rib_", "sacrum", "hip_", "femur_", "humerus_", "scapula_", "clavicula_", "sternum",
           "skull")
-_VESSELS = ("heart_atrium_", "heart_ventricle_", "aorta", "inferior_vena_cava", "superior_vena_cava", "portal_vein_and_splenic_vein", "iliac_artery_",
-            "iliac_vena_", "pulmonary_vein", "brachiocephalic_trunk", "brachiocephalic_vein_", "common_carotid_artery_",
-            "subclavian_artery_", "atrial_appendage_left", "pulmonary_artery")
+_VESSELS = ("heart_atrium_", "heart_ventricle_", "aorta", "inferior_vena_cava", "superior_vena_cava",
+            "portal_vein_and_splenic_vein", "iliac_artery_", "iliac_vena_", "pulmonary_vein", "brachiocephalic_trunk",
+            "brachiocephalic_vein_", "common_carotid_artery_", "subclavian_artery_", "atrial_appendage_left",
+            "pulmonary_artery")
 _MUSCLES = ("gluteus_", "iliopsoas_", "autochthon_", "skeletal_muscle")
 
 #: Exact class names and the tissue they map to.
