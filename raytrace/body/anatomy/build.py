@@ -34,9 +34,9 @@ import trimesh
 from raytrace.body.anatomy import tissuemap
 from raytrace.body.anatomy.decimate import decimate
 from raytrace.body.anatomy.manifest import BuildManifest, Options, load_manifest
-from raytrace.body.anatomy.overlap import clip_inside, resolve_overlaps
+from raytrace.body.anatomy.overlap import clip_inside, crossing_pairs, resolve_overlaps
 from raytrace.body.anatomy.readers import read_surface
-from raytrace.body.anatomy.repair import repair_surface
+from raytrace.body.anatomy.repair import repair_surface, union_of
 from raytrace.body.anatomy.sensors import belt_positions
 from raytrace.body.anatomy.tracts import build_tract, read_points
 from raytrace.body.anatomy.volume import LabelVolume, label_surface, open_volume
@@ -171,7 +171,7 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
     if mirrors:
         faces = faces[:, ::-1]
     repaired = repair_surface(vertices, faces, where, f"{name} ({source})", options, budget=budget,
-                              max_cells=ctx.limits.max_grid_cells)
+                              max_cells=ctx.limits.max_grid_cells, check_crossings=False)
     mesh = repaired.mesh
     notes += repaired.repairs
     if len(mesh.faces) > budget:
@@ -233,8 +233,28 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
         step += 1
     ctx.timings["surfaces_s"] = time.perf_counter() - clock
     ctx.progress(step / n_steps, "resolving overlaps between organs")
+    names = list(organ_meshes)
+    everything = [organ_meshes[n] for n in names] + ([body_mesh] if body_mesh is not None else [])
+    crossing = crossing_pairs(everything)
+    for i, j in sorted(crossing):  # surfaces crossing themselves after their repairs: voxel union (step 5)
+        if i != j:
+            continue
+        label = names[i] if i < len(names) else m.body.name  # type: ignore[union-attr]
+        where = fields.get(label, ("manifest", "body", "surface"))
+        mesh, note = union_of(everything[i], where, label, options, budget=options.max_triangles_per_surface,
+                              max_cells=limits.max_grid_cells)
+        if i < len(names):
+            organ_meshes[label] = mesh
+            organ_notes[label].append(note)
+        else:
+            body_mesh = mesh
+            body_notes.append(note)  # type: ignore[union-attr]
+    if any(i == j for i, j in crossing):
+        crossing = None  # the remeshed surfaces are new: let the overlap step test again
+    else:
+        crossing = {(i, j) for i, j in crossing if j < len(names)}
     organ_meshes, overlap_notes = resolve_overlaps(organ_meshes, fields, options.overlap_tolerance_m,
-                                                   options.clearance_m)
+                                                   options.clearance_m, crossing)
     for name, notes in overlap_notes.items():
         organ_notes[name] += notes
     step += 1

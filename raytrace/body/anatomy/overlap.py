@@ -76,12 +76,15 @@ def _mm(x: float) -> str:
 
 
 def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field], tolerance_m: float,
-                     clearance_m: float) -> tuple[dict[str, trimesh.Trimesh], dict[str, list[str]]]:
-    """Organs (in manifest order) with their pairwise overlaps resolved, and the notes per organ (module doc)."""
+                     clearance_m: float, crossing: set[tuple[int, int]] | None = None,
+                     ) -> tuple[dict[str, trimesh.Trimesh], dict[str, list[str]]]:
+    """Organs (in manifest order) with their pairwise overlaps resolved, and the notes per organ (module doc);
+    ``crossing``: the pairs :func:`crossing_pairs` found, when the caller has them."""
     names = list(organs)
     meshes = dict(organs)
     notes: dict[str, list[str]] = {n: [] for n in names}
-    crossing = crossing_pairs([meshes[n] for n in names])
+    if crossing is None:
+        crossing = crossing_pairs([meshes[n] for n in names])
     for i, first in enumerate(names):
         for j in range(i + 1, len(names)):
             second = names[j]
@@ -125,14 +128,14 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
 
 
 def crossing_pairs(meshes: list[trimesh.Trimesh]) -> set[tuple[int, int]]:
-    """Pairs ``(i, j)``, ``i < j``, of surfaces that cross: every edge cast once through one Embree scene of
-    all of them (:func:`raytrace.body.selfintersect.edge_crossings`), so that only crossing pairs pay for a
-    boolean."""
+    """Pairs ``(i, j)``, ``i <= j``, of surfaces that cross (``(i, i)``: surface i crosses itself): every edge
+    cast once through one Embree scene of all of them (:func:`raytrace.body.selfintersect.edge_crossings`), so
+    that only crossing pairs pay for a boolean."""
     from trimesh.ray.ray_pyembree import RayMeshIntersector
 
     from raytrace.body.selfintersect import edge_crossings
 
-    if len(meshes) < 2:
+    if not meshes:
         return set()
     union = trimesh.util.concatenate(meshes)
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
@@ -142,8 +145,7 @@ def crossing_pairs(meshes: list[trimesh.Trimesh]) -> set[tuple[int, int]]:
     edge, tri, _ = edge_crossings(np.asarray(union.vertices, float), edges, RayMeshIntersector(union))
     out = set()
     for e, t in zip(owner[edge].tolist(), face_owner[tri].tolist()):
-        if e != t:
-            out.add((min(e, t), max(e, t)))
+        out.add((min(e, t), max(e, t)))
     return out
 
 

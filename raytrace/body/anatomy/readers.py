@@ -1,5 +1,6 @@
-"""Surface files -> triangles: legacy and XML VTK, STL, PLY, OBJ, OFF through meshio; glTF/GLB through
-:mod:`raytrace.body.gltf` (trimesh, with its byte and triangle caps checked before decoding).
+"""Surface files -> triangles: legacy and XML VTK, STL, OBJ, OFF through meshio; PLY through trimesh (its
+reader is vectorised, meshio's reads binary face lists one by one); glTF/GLB through :mod:`raytrace.body.gltf`
+(with its byte and triangle caps checked before decoding).
 
 :func:`read_surface` answers ``(vertices (V, 3) float64, faces (F, 3) int64)`` in the file's own
 units and frame; polygons are split into triangles (a fan from their first vertex), every other
@@ -73,6 +74,8 @@ def read_surface(path: Path, where: Field, *, max_bytes: int, max_triangles: int
     data = path.read_bytes()
     if suffix == ".stl":
         _check_binary_stl(data, label, where, max_triangles)
+    if suffix == ".ply":
+        return _read_ply(data, label, where, max_triangles)
     if suffix == ".vtk" and re.search(rb"^DATASET\s+POLYDATA", data[:4096], re.M | re.I):
         data = _polydata_as_grid(data, label, where)
     mesh = _meshio_read(data, _MESHIO_FORMATS[suffix], suffix, label, where)
@@ -106,6 +109,31 @@ def _check(vertices: np.ndarray, faces: np.ndarray, label: str, where: Field, ma
         raise _fail(f"{label} has non-finite vertex coordinates", where)
     if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
         raise _fail(f"{label} has a triangle index outside its {len(vertices)} vertices", where)
+
+
+def _read_ply(data: bytes, label: str, where: Field, max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """PLY through trimesh's reader (vectorised; meshio's reads binary face lists one face at a time), after
+    the face count its header declares is checked against the cap."""
+    import io
+
+    import trimesh
+
+    header = data[:data.find(b"end_header")] if b"end_header" in data[:65536] else b""
+    if not data.startswith(b"ply") or not header:
+        raise _fail(f"{label} is not a readable .ply surface mesh: no 'ply' ... 'end_header' header", where)
+    match = re.search(rb"^element\s+face\s+(\d+)", header, re.M)
+    if match and int(match.group(1)) > max_triangles:
+        raise _fail(f"{label} declares {int(match.group(1))} faces, over the cap of {max_triangles}", where)
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type="ply", process=False, force="mesh")
+        vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    except Exception as exc:  # trimesh raises ValueError, KeyError, IndexError... on a broken file
+        raise _fail(f"{label} is not a readable .ply surface mesh: {str(exc)[:200] or type(exc).__name__}",
+                    where) from None
+    if faces.ndim != 2 or faces.shape[1:] != (3,) or not len(faces):
+        raise _fail(f"{label} holds no surface triangles: not a surface mesh", where)
+    _check(vertices, faces, label, where, max_triangles)
+    return vertices, faces
 
 
 def _check_binary_stl(data: bytes, label: str, where: Field, max_triangles: int) -> None:

@@ -76,17 +76,27 @@ def clean_faces(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     degenerate = repeated | (area <= weld_m**2)
     faces = faces[~degenerate]
-    _, keep = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    _, keep = np.unique(_keys(np.sort(faces, axis=1)), return_index=True)
     keep = np.sort(keep)
     return faces[keep], int(degenerate.sum()), len(faces) - len(keep)
+
+
+def _keys(rows: np.ndarray) -> np.ndarray:
+    """One int64 per row of 2 or 3 vertex indices (below 2**21 for three, 2**31 for two), so that
+    ``np.unique`` sorts numbers instead of rows."""
+    rows = np.asarray(rows, np.int64)
+    if rows.shape[1] == 2:
+        return (rows[:, 0] << 31) | rows[:, 1]
+    if rows.max(initial=0) < (1 << 21):
+        return (rows[:, 0] << 42) | (rows[:, 1] << 21) | rows[:, 2]
+    return np.unique(rows, axis=0, return_inverse=True)[1].ravel()
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     """Closed loops of boundary edges (edges of one triangle only), each as vertex indices in the
     order of the triangles' winding; edges of a vertex where several holes meet are followed in turn."""
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(edges, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inverse, counts = np.unique(_keys(np.sort(edges, axis=1)), return_inverse=True, return_counts=True)
     boundary = edges[counts[inverse.ravel()] == 1]
     nxt: dict[int, list[int]] = {}
     for a, b in boundary.tolist():
@@ -134,8 +144,10 @@ def _planarity(points: np.ndarray) -> tuple[float, float]:
 
 
 def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label: str, options: Options,
-                   *, budget: int, max_cells: int) -> Repaired:
-    """One closed outward surface from the triangles of an organ's files (module docstring)."""
+                   *, budget: int, max_cells: int, check_crossings: bool = True) -> Repaired:
+    """One closed outward surface from the triangles of an organ's files (module docstring).
+    ``check_crossings=False`` leaves the self-crossing test of step 5 to the caller (the build tests every
+    organ at once, :func:`raytrace.body.anatomy.overlap.crossing_pairs`, and calls :func:`union_of` then)."""
     repairs: list[str] = []
     vertices, faces, merged = weld(np.asarray(vertices, float), np.asarray(faces, np.int64), options.weld_m)
     if merged:
@@ -169,7 +181,7 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
         repairs.append(f"capped {capped} planar cut(s)")
     mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
     mesh.remove_unreferenced_vertices()
-    needs_union = _non_manifold(mesh.faces) or crosses_itself(mesh)
+    needs_union = _non_manifold(mesh.faces) or (check_crossings and crosses_itself(mesh))
     if not needs_union:
         consistent = mesh.is_winding_consistent
         inward = consistent and mesh.volume < 0
@@ -197,9 +209,15 @@ def crosses_itself(mesh: trimesh.Trimesh) -> bool:
     return len(edge) > 0
 
 
+def union_of(mesh: trimesh.Trimesh, where: Field, label: str, options: Options, *, budget: int,
+             max_cells: int) -> tuple[trimesh.Trimesh, str]:
+    """Step 5 for a surface found crossing itself after the repairs."""
+    return voxel_union(_closed_shells(mesh), where, label, options, budget=budget, max_cells=max_cells)
+
+
 def _non_manifold(faces: np.ndarray) -> bool:
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    _, counts = np.unique(_keys(edges), return_counts=True)
     return bool(np.any(counts > 2))
 
 
