@@ -6,7 +6,8 @@ is then measured at every vertex and triangle centroid of the result (the exact 
 triangles, :class:`raytrace.body.anatomy.grid.SurfaceDistance`). If it exceeds ``max_error_m``, or the
 result is no longer closed and consistently wound, the reduction is relaxed (budget x 1.5, up to four
 times); the least-reduced closed result is kept otherwise, and the error it reaches is what the report
-states.
+states. When every attempt pinches the surface (an edge shared by more than two triangles: thin tubes
+pressed together), the surface is halved step by step while each step stays closed.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def decimate(mesh: trimesh.Trimesh, budget: int, max_error_m: float) -> tuple[tr
             break
         points, faces = fast_simplification.simplify(np.asarray(mesh.vertices, np.float64),
                                                      np.asarray(mesh.faces, np.int64), reduction, agg=AGGRESSIVENESS)
-        out = trimesh.Trimesh(points, faces, process=True, validate=True)
+        out = trimesh.Trimesh(points, faces, process=True, validate=False)
         if out.is_watertight and out.is_winding_consistent:
             if out.volume < 0:
                 out.invert()
@@ -58,6 +59,20 @@ def decimate(mesh: trimesh.Trimesh, budget: int, max_error_m: float) -> tuple[tr
             if best is None or error < best[1]:
                 best = (out, error)
         target = int(target * _RELAX)
-    if best is None:
-        return mesh, 0.0
+    if best is None:  # every attempt pinched the surface somewhere: halve it step by step while it stays closed
+        current = mesh
+        while len(current.faces) > budget:
+            points, faces = fast_simplification.simplify(np.asarray(current.vertices, np.float64),
+                                                         np.asarray(current.faces, np.int64),
+                                                         min(0.5, 1.0 - budget / len(current.faces)),
+                                                         agg=AGGRESSIVENESS)
+            step = trimesh.Trimesh(points, faces, process=True, validate=False)
+            if not (step.is_watertight and step.is_winding_consistent):
+                break
+            current = step
+        if current is mesh:
+            return mesh, 0.0
+        if current.volume < 0:
+            current.invert()
+        return current, surface_error(original, current)
     return best
