@@ -47,14 +47,15 @@ names, e.g. ``("manifest", "organs", "liver")``) or ``mesh`` (the .glb
 container, e.g. ``mesh.nodes[3].name``) and whose message says what is
 wrong; no partially built phantom escapes.
 
-The .glb is decoded here, not by ``trimesh.load``: the container and every
-accessor are bounds-checked against the byte and triangle caps *before*
-any array is allocated, only POSITION and indices of triangle primitives
-are read (textures are never decoded, so no image decompression bombs),
-multi-primitive meshes keep their node name (trimesh renames such nodes),
-and node transforms (matrix or TRS, composed down the hierarchy, winding
-flipped under a mirroring transform as the glTF spec requires) are applied
-exactly once. Identical vertex positions are then merged so that meshes
+The .glb is decoded by trimesh, after the container and its JSON chunk have
+been checked: the byte cap, every accessor inside its bufferView and the
+binary chunk (trimesh reads every accessor), the triangle cap from the
+declared counts, the node tree (names, cycles, transforms) — all before any
+array is allocated. Materials and images are skipped (no image decompression
+bombs), each glTF mesh is one geometry (its primitives merged) under the name
+of its node, and node transforms (matrix or TRS, composed down the hierarchy,
+winding flipped under a mirroring transform as the glTF spec requires) are
+taken from the world matrices the checks computed. Identical vertex positions are then merged so that meshes
 exported with split vertices (per-face normals/UVs) can still be watertight.
 Validation is :meth:`Phantom.build`'s (watertight, oriented, no surface
 crossing itself or another: every edge cast through one Embree scene of
@@ -354,19 +355,27 @@ class _Reader:
             raise _fail(f"accessor count {count!r} is invalid", where)
         return count
 
-    def read(self, index: int, where: str, *, type_: str, component_types: tuple[int, ...]) -> np.ndarray:
+    def check(self, index: int, where: str, *, type_: str | None = None,
+              component_types: tuple[int, ...] | None = None) -> None:
+        """Bounds-check one accessor against its bufferView and the binary chunk (no data is decoded): what
+        trimesh's decoder will read must lie inside the file."""
         accessor = self.accessors[_index(index, len(self.accessors), where)]
         if "sparse" in accessor:
             raise _fail("sparse accessors are not supported", where)
-        if accessor.get("type") != type_ or accessor.get("componentType") not in component_types:
+        kind, component = accessor.get("type"), accessor.get("componentType")
+        if not isinstance(kind, str) or kind not in _COMPONENTS or isinstance(component, bool) or \
+                not isinstance(component, int) or component not in _DTYPES:
+            raise _fail(f"accessor type {accessor.get('type')!r}/{accessor.get('componentType')!r} is not supported",
+                        where)
+        if (type_ is not None and accessor.get("type") != type_) or \
+                (component_types is not None and accessor.get("componentType") not in component_types):
             raise _fail(f"accessor must be {type_} of componentType {component_types}, got "
                         f"{accessor.get('type')!r}/{accessor.get('componentType')!r}", where)
         if accessor.get("normalized", False):
             raise _fail("normalized accessors are not supported", where)
         count = self.count(index, where)
         dtype = _DTYPES[accessor["componentType"]]
-        n_comp = _COMPONENTS[type_]
-        element = dtype.itemsize * n_comp
+        element = dtype.itemsize * _COMPONENTS[accessor["type"]]
         if "bufferView" not in accessor:
             raise _fail("accessor without a bufferView", where)
         view = self.views[_index(accessor["bufferView"], len(self.views), f"{where}.bufferView")]
@@ -384,16 +393,9 @@ class _Reader:
             raise _fail(f"byteStride {stride} is smaller than the element size {element}", where)
         if view_offset + view_length > len(self.binary):
             raise _fail("bufferView runs past the end of the binary chunk", where)
-        if count == 0:
-            return np.zeros((0, n_comp), dtype.newbyteorder("="))
-        needed = acc_offset + stride * (count - 1) + element
-        if needed > view_length:
-            raise _fail(f"accessor needs {needed} bytes, its bufferView has {view_length}", where)
-        raw = np.frombuffer(self.binary, np.uint8, count=needed - acc_offset,
-                            offset=view_offset + acc_offset)
-        rows = np.lib.stride_tricks.as_strided(raw, shape=(count, element), strides=(stride, 1))
-        return np.ascontiguousarray(rows).view(dtype).reshape(count, n_comp).astype(
-            dtype.newbyteorder("="))
+        if count and acc_offset + stride * (count - 1) + element > view_length:
+            raise _fail(f"accessor needs {acc_offset + stride * (count - 1) + element} bytes, its bufferView has "
+                        f"{view_length}", where)
 
 
 def _node_matrix(node: dict, where: str) -> np.ndarray:
@@ -494,7 +496,15 @@ def _primitives(mesh: dict, where: str) -> list[dict]:
 
 
 def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
-    """node name -> (vertices (V, 3) float64 in file units, faces (F, 3), node field)."""
+    """node name -> (vertices (V, 3) float64 in file units, faces (F, 3), node field).
+
+    Everything the decoder will touch is checked first, from the container and its JSON chunk alone: the
+    byte cap, every accessor inside its bufferView and the binary chunk, the triangle cap from the declared
+    counts, the node tree, names and transforms. trimesh then decodes the file (materials and images
+    skipped, no processing), one mesh per glTF mesh; each mesh node's vertices are taken through its world
+    transform from trimesh's scene graph (winding reversed under a mirroring transform, as glTF requires)."""
+    import io
+
     if len(data) > max_bytes:
         raise _fail(f"the .glb is {len(data)} bytes, over the cap of {max_bytes}", "mesh")
     document, binary = _split_glb(data)
@@ -505,7 +515,6 @@ def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tup
     reader = _Reader(document, binary)
     meshes = _list(document, "meshes")
     nodes = _mesh_nodes(document)
-    # Triangle cap from the declared accessor counts, before decoding anything.
     total = 0
     for name, mesh_index, _, where in nodes:
         for k, p in enumerate(_primitives(meshes[mesh_index], f"mesh.meshes[{mesh_index}]")):
@@ -517,28 +526,38 @@ def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tup
             total += n // 3
     if total > max_triangles:
         raise _fail(f"{total} triangles exceed the cap of {max_triangles}", "mesh")
-    out: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
-    for name, mesh_index, world, where in nodes:
-        all_v, all_f, base = [], [], 0
+    for name, mesh_index, _, where in nodes:
         for k, p in enumerate(meshes[mesh_index]["primitives"]):
             pw = f"mesh.meshes[{mesh_index}].primitives[{k}]"
-            vertices = reader.read(p["attributes"]["POSITION"], f"{pw}.attributes.POSITION",
-                                   type_="VEC3", component_types=(5126,)).astype(float)
-            if not np.isfinite(vertices).all():
-                raise _fail("non-finite vertex coordinates", f"{pw}.attributes.POSITION")
+            reader.check(p["attributes"]["POSITION"], f"{pw}.attributes.POSITION", type_="VEC3",
+                         component_types=(5126,))
             if "indices" in p:
-                idx = reader.read(p["indices"], f"{pw}.indices", type_="SCALAR",
-                                  component_types=(5121, 5123, 5125)).ravel().astype(np.int64)
-            else:
-                idx = np.arange(len(vertices), dtype=np.int64)
-            if len(idx) and idx.max() >= len(vertices):
-                raise _fail(f"index {int(idx.max())} out of range of {len(vertices)} vertices",
-                            f"{pw}.indices")
-            all_v.append(vertices)
-            all_f.append(idx.reshape(-1, 3) + base)
-            base += len(vertices)
-        vertices = np.concatenate(all_v)
-        faces = np.concatenate(all_f)
+                reader.check(p["indices"], f"{pw}.indices", type_="SCALAR", component_types=(5121, 5123, 5125))
+    for k in range(len(reader.accessors)):  # trimesh decodes every accessor: all must lie inside the file
+        reader.check(k, f"mesh.accessors[{k}]")
+    for i, image in enumerate(_list(document, "images")):
+        if "uri" in image:
+            raise _fail("external or data-URI images are not accepted", f"mesh.images[{i}]")
+    try:
+        scene = trimesh.load(io.BytesIO(data), file_type="glb", force="scene", process=False,
+                             merge_primitives=True, skip_materials=True)
+    except Exception as exc:  # trimesh raises ValueError, KeyError, IndexError... on what passed the checks
+        raise _fail(f"the .glb cannot be decoded: {_brief(str(exc) or type(exc).__name__)}", "mesh") from None
+    out: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+    for name, mesh_index, world, where in nodes:
+        mw = f"mesh.meshes[{mesh_index}]"
+        try:
+            _, geometry_name = scene.graph[name]
+            geometry = scene.geometry[geometry_name]
+        except (KeyError, ValueError, TypeError):
+            raise _fail(f"mesh node {name!r} was not decoded (no triangles?)", where) from None
+        vertices = np.asarray(geometry.vertices, float)
+        faces = np.asarray(geometry.faces, np.int64)
+        if not np.isfinite(vertices).all():
+            raise _fail("non-finite vertex coordinates", f"{mw}.primitives[0].attributes.POSITION")
+        if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+            raise _fail(f"index {int(faces.max())} out of range of {len(vertices)} vertices",
+                        f"{mw}.primitives[0].indices")
         vertices = vertices @ world[:3, :3].T + world[:3, 3]
         if np.linalg.det(world[:3, :3]) < 0:  # mirroring transform: glTF flips the winding
             faces = faces[:, ::-1]
