@@ -177,7 +177,11 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
     if len(mesh.faces) > budget:
         before = len(mesh.faces)
         mesh, error = decimate(mesh, budget, options.decimation_error_m)
-        notes.append(f"decimated {before} -> {len(mesh.faces)} triangles (within {error * 1e3:.3g} mm)")
+        if len(mesh.faces) < before:
+            notes.append(f"decimated {before} -> {len(mesh.faces)} triangles (within {error * 1e3:.3g} mm)")
+        else:
+            notes.append(f"kept {before} triangles, over the budget of {budget}: every decimation tried pinched "
+                         "the surface (edges shared by more than two triangles)")
     return mesh, notes, source
 
 

@@ -8,7 +8,9 @@ only when it changed something:
 1. **join and weld**: the files' triangles are concatenated and vertices closer than
    ``weld_m`` merged (so pieces that share their cut edges become one surface);
 2. **degenerate and duplicate faces**: triangles with a repeated vertex or an area below
-   ``weld_m**2``, and second copies of a triangle, are removed;
+   ``weld_m**2``, and second copies of a triangle, are removed; a triangle given twice with opposite
+   windings is the wall between two pieces that share it (the caps of an organ cut into segments), and
+   both copies are removed, so the pieces join into one surface;
 3. **holes**: boundary loops are found; a loop whose span is at most ``max_hole_m`` is filled,
    and so is a loop of any size that is planar within ``planar_fraction`` of its span (a planar
    cut: an organ cut into segments, an open tube end where it leaves the scan). A fill is a fan
@@ -69,16 +71,37 @@ def weld(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple[np.nda
     return vertices[first], group[faces], n - count
 
 
-def clean_faces(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple[np.ndarray, int, int]:
-    """Faces without degenerate triangles and duplicates; answers (faces, degenerate, duplicates)."""
+def clean_faces(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple[np.ndarray, int, int, int]:
+    """Faces without degenerate triangles, duplicates and inner walls; answers (faces, degenerate, duplicates,
+    inner walls). A triangle given twice with the same winding is a duplicate (one copy kept); twice with
+    opposite windings it is the wall between two pieces that share it (the caps of an organ cut into
+    segments), and both copies go, so the pieces become one surface."""
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     tri = vertices[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     degenerate = repeated | (area <= weld_m**2)
     faces = faces[~degenerate]
-    _, keep = np.unique(_keys(np.sort(faces, axis=1)), return_index=True)
-    keep = np.sort(keep)
-    return faces[keep], int(degenerate.sum()), len(faces) - len(keep)
+    key = _keys(np.sort(faces, axis=1))
+    _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    # the winding of a face: its rotation that starts at its smallest vertex, as a key
+    start = np.argmin(faces, axis=1)
+    rotated = np.stack([faces[np.arange(len(faces)), (start + k) % 3] for k in range(3)], axis=1)
+    winding = _keys(rotated)
+    opposite = np.zeros(len(counts), dtype=bool)
+    pairs = np.flatnonzero(counts == 2)
+    if len(pairs):
+        members = np.argsort(inverse, kind="stable")
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        a = members[offsets[pairs]]
+        b = members[offsets[pairs] + 1]
+        opposite[pairs] = winding[a] != winding[b]
+    keep = np.zeros(len(faces), dtype=bool)
+    keep[first] = True
+    keep &= ~opposite[inverse]
+    walls = int(opposite.sum())
+    duplicates = len(faces) - int(keep.sum()) - 2 * walls
+    return faces[keep], int(degenerate.sum()), duplicates, walls
 
 
 def _keys(rows: np.ndarray) -> np.ndarray:
@@ -152,11 +175,19 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
     vertices, faces, merged = weld(np.asarray(vertices, float), np.asarray(faces, np.int64), options.weld_m)
     if merged:
         repairs.append(f"welded {merged} vertices closer than {_mm(options.weld_m)}")
-    faces, degenerate, duplicate = clean_faces(vertices, faces, options.weld_m)
+    faces, degenerate, duplicate, walls = clean_faces(vertices, faces, options.weld_m)
     if degenerate:
         repairs.append(f"removed {degenerate} degenerate triangles")
     if duplicate:
         repairs.append(f"removed {duplicate} duplicate triangles")
+    if walls:
+        repairs.append(f"removed {walls} triangles given twice with opposite windings (the walls between pieces "
+                       "that share a cap: the pieces joined into one surface)")
+    vertices_used = np.unique(faces)
+    if len(vertices_used) < len(vertices):
+        remap = np.full(len(vertices), -1, np.int64)
+        remap[vertices_used] = np.arange(len(vertices_used))
+        vertices, faces = vertices[vertices_used], remap[faces]
     if len(faces) < 4:
         raise _fail(f"{label}: fewer than 4 triangles are left after removing degenerate ones", where)
     filled, capped = 0, 0
@@ -267,9 +298,10 @@ def voxel_union(shells: list[trimesh.Trimesh], where: Field, label: str, options
         keep = [p for p in parts if abs(p.volume) >= 8 * h**3]
         mesh = trimesh.util.concatenate(keep) if keep else mesh
     mesh, error = decimate(mesh, budget, options.decimation_error_m)
+    decimated = (f"decimated to {len(mesh.faces)} triangles, within {_mm(error)}" if error > 0 or
+                 len(mesh.faces) <= budget else f"{len(mesh.faces)} triangles: no decimation kept it closed")
     note = (f"remeshed the union of {len(shells)} closed piece(s) on a {_mm(h)} voxel grid (smoothing "
-            f"{options.smoothing_voxels:g} voxel, decimated to {len(mesh.faces)} triangles, within {_mm(error)}); "
-            f"voxel volume {raw_volume * 1e6:.4g} mL")
+            f"{options.smoothing_voxels:g} voxel, {decimated}); voxel volume {raw_volume * 1e6:.4g} mL")
     if bad:
         note += f"; {bad} grid column(s) of ambiguous parity left out"
     return mesh, note
