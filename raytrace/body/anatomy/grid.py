@@ -8,8 +8,8 @@ These are the pipeline's two robust tools for surfaces that are not fit to use a
   centre decides (odd: inside). A column with an odd number of hits (a ray through an edge
   counted once or thrice) is cast again a fraction of a cell aside; if that one is odd too the
   column is left out and counted (``InsideMask.bad_columns``).
-* :func:`signed_distance`: the exact distance to a mesh's triangles for the cells of a band,
-  signed by the inside mask. Candidate triangles are those of the 8 nearest of a k-d tree's
+* :class:`SurfaceDistance`: the exact distance from points to a mesh's triangles. Candidate
+  triangles are those of the 8 nearest of a k-d tree's
   points (every triangle's centroid, and a lattice on triangles longer than ``3 sample_m``); the
   distance to each candidate is computed exactly (closest point on a triangle, Ericson,
   *Real-Time Collision Detection* 5.1.5), so the answer is exact wherever the nearest triangle
@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from raytrace.errors import Field, PhantomValidationError
 
-__all__ = ["Grid", "inside_mask", "signed_distance", "surface_from_field", "surface_samples", "triangle_distance"]
+__all__ = ["Grid", "SurfaceDistance", "inside_mask", "surface_from_field", "surface_samples", "triangle_distance"]
 
 #: Added to every marching-cubes level (metres or, for masks, a fraction): off every value a field takes
 #: exactly (e.g. depths that are whole multiples of half a cell), far below every tolerance.
@@ -181,7 +181,7 @@ def triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
 
 
 class SurfaceDistance:
-    """Unsigned distance to a triangle mesh (module docstring, :func:`signed_distance`)."""
+    """Unsigned distance to a triangle mesh (module docstring, :class:`SurfaceDistance`)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, sample_m: float, candidates: int = 8) -> None:
         self.vertices = np.asarray(vertices, float)
@@ -206,20 +206,6 @@ class SurfaceDistance:
                 best[ok] = np.minimum(best[ok], exact)
             out[s:s + chunk] = best
         return out
-
-
-def signed_distance(distance: SurfaceDistance, inside: np.ndarray, grid: Grid, band: np.ndarray,
-                    far_m: float) -> np.ndarray:
-    """float32 field on ``grid``: exact signed distance (negative inside) on the cells of ``band``
-    (a boolean grid), ``-far_m`` / ``+far_m`` elsewhere inside / outside."""
-    field = np.where(inside, -far_m, far_m).astype(np.float32)
-    index = np.flatnonzero(band.ravel())
-    if len(index):
-        d = distance(grid.points(index), upper_m=far_m)
-        d = np.minimum(d, far_m)
-        flat = field.ravel()
-        flat[index] = np.where(inside.ravel()[index], -d, d)
-    return field
 
 
 def surface_from_field(field: np.ndarray, grid: Grid, level: float = 0.0) -> trimesh.Trimesh:
