@@ -33,7 +33,7 @@ def write_outputs(result, out: Path) -> None:
     try:
         (tmp / "phantom.glb").write_bytes(export_glb(result.phantom))
         manifest = export_manifest(result.phantom)
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+        (tmp / "manifest.json").write_text(json.dumps(manifest, separators=(",", ":")) + "\n")  # compact: an upload
         (tmp / "report.json").write_text(json.dumps(result.report, indent=1, default=float) + "\n")
         (tmp / "report.md").write_text(markdown_report(result.report))
         for name in OUTPUT_FILES:

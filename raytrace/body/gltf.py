@@ -679,7 +679,8 @@ def export_manifest(phantom: Phantom) -> dict:
     }
     if phantom.centrelines:
         manifest["centrelines"] = {
-            name: {"pieces": [{"organ": p.organ, "points": p.points_m.tolist()} for p in line.pieces]}
+            # 0.1 um: far below any geometry, and a real tract's manifest stays under the upload's manifest cap
+            name: {"pieces": [{"organ": p.organ, "points": np.round(p.points_m, 7).tolist()} for p in line.pieces]}
             for name, line in phantom.centrelines.items()}
     if phantom.description:
         manifest["description"] = phantom.description[:2000]
