@@ -61,15 +61,17 @@ def subtract(a: trimesh.Trimesh, b: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 def _touching(a: trimesh.Trimesh, b: trimesh.Trimesh, clearance_m: float) -> bool:
-    """Whether the surfaces of two disjoint (or nested) organs come closer than ``clearance_m``."""
-    if np.any(a.bounds[1] + clearance_m < b.bounds[0]) or np.any(b.bounds[1] + clearance_m < a.bounds[0]):
+    """Whether the surfaces of two neighbouring organs come closer than ``clearance_m`` (manifold3d's
+    ``min_gap``). A pair whose bounding boxes nest is left to the phantom's own checks: one organ is then
+    most likely inside the other, and giving way would hollow the outer one."""
+    lo_a, hi_a = a.bounds
+    lo_b, hi_b = b.bounds
+    if np.any(hi_a + clearance_m < lo_b) or np.any(hi_b + clearance_m < lo_a):
+        return False
+    if (np.all(lo_a <= lo_b) and np.all(hi_b <= hi_a)) or (np.all(lo_b <= lo_a) and np.all(hi_a <= hi_b)):
         return False
     origin = a.bounds.mean(axis=0)
-    ma, mb = _manifold(a, origin), _manifold(b, origin)
-    inter = (ma ^ mb).volume()
-    if inter >= (1.0 - 1e-6) * min(ma.volume(), mb.volume()):
-        return False  # nested: the phantom's own checks judge the gap
-    return float(ma.min_gap(mb, clearance_m)) < clearance_m
+    return float(_manifold(a, origin).min_gap(_manifold(b, origin), clearance_m)) < clearance_m
 
 
 def _drop_specks(mesh: trimesh.Trimesh, min_volume: float) -> trimesh.Trimesh:
