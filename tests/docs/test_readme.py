@@ -52,6 +52,13 @@ NOT_RUN = {
 }
 
 
+#: Commands of the blocks that are run, not run here, with the reason.
+NOT_RUN_COMMANDS = {
+    ".venv/bin/capsule-rt phantom build my.yaml": "my.yaml stands for the user's anatomy manifest; the repository's "
+    "one (docs/anatomy/gca-00090.yaml) needs the shared CT data, and tests/raytrace/anatomy run builds",
+}
+
+
 def _sh_blocks() -> list[str]:
     return re.findall(r"```sh\n(.*?)```", README, flags=re.S)
 
@@ -112,8 +119,11 @@ def test_command_line_block_runs_as_written(tmp_path):
     block = next(b for b in _sh_blocks() if "capsule-rt demo" in b)
     env = _sandbox(tmp_path)
     commands = _commands(block)
-    assert len(commands) == 9
+    assert len(commands) == 10
+    assert [c for c in commands if c.startswith(tuple(NOT_RUN_COMMANDS))] == list(NOT_RUN_COMMANDS)
     for command in commands:
+        if command.startswith(tuple(NOT_RUN_COMMANDS)):
+            continue
         words = _as_written(command)
         if words[1] == "openapi":
             _run([*words, "--check"], tmp_path, env)
