@@ -21,6 +21,7 @@ from service.schemas import (
     ScenarioId,
     Strict,
     Vec3,
+    alternatives,
     int_range,
 )
 from service.settings import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS
@@ -39,9 +40,9 @@ class AntennaIn(Strict):
     :class:`raytrace.spec.Antenna`, enforces it and the schema states it)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False,
-                              json_schema_extra={"oneOf": [
+                              json_schema_extra=alternatives([
                                   {"required": ["position_m"], "properties": {"position_m": {"type": "array"}}},
-                                  {"required": ["site"], "properties": {"site": {"type": "string"}}}]})
+                                  {"required": ["site"], "properties": {"site": {"type": "string"}}}]))
 
     position_m: Vec3 | None = Field(None, description="Position [m] (phantom coordinates).")
     site: Name | None = Field(None, description="Name of one of the phantom's sites (GET /v1/phantoms/{id}).")
@@ -95,9 +96,10 @@ class ChannelRequest(Strict):
     model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={
             # what ChannelSpec requires: a scenario, or a transmitter and receivers of one's own
-            "anyOf": [{"required": ["scenario"], "properties": {"scenario": {"type": "string"}}},
-                      {"required": ["transmitter", "receivers"],
-                       "properties": {"transmitter": {"type": "object"}, "receivers": {"type": "array"}}}],
+            **alternatives([{"required": ["scenario"], "properties": {"scenario": {"type": "string"}}},
+                            {"required": ["transmitter", "receivers"],
+                             "properties": {"transmitter": {"type": "object"}, "receivers": {"type": "array"}}}],
+                           keyword="anyOf"),
             "examples": [
                 {
                     "phantom": "torso",
