@@ -8,8 +8,9 @@ candidates are either its mesh vertices or an even grid of points on it:
 * ``spacing_m`` null: every vertex of the outer surface, moved ``depth_m`` inwards along its smooth
   vertex normal;
 * ``spacing_m`` given: points on the outer surface no closer than ``spacing_m`` to each other
-  (trimesh's seeded Poisson-disc rejection over a dense area-weighted sample, seed 0: the same
-  phantom and spacing always give the same grid), each moved ``depth_m`` inwards along the normal
+  (a dense area-weighted sample of the surface, trimesh's with seed 0, thinned in order: a point is
+  kept unless a kept one lies within the spacing; the same phantom and spacing always give the
+  same grid), each moved ``depth_m`` inwards along the normal
   interpolated at it from the vertex normals.
 
 Candidates are kept only where the moved point lies in the outer organ itself (a thin layer would
@@ -112,12 +113,42 @@ def _surface_points(mesh: trimesh.Trimesh, spacing_m: float | None) -> tuple[np.
         raise DesignInputError(f"a spacing of {spacing_m:g} m on {mesh.area:.3g} m^2 of surface makes about "
                                f"{mesh.area / spacing_m**2:.0f} candidates, over {MAX_CANDIDATES}: a larger spacing",
                                "candidates.spacing_m")
-    points, faces = trimesh.sample.sample_surface_even(mesh, count, radius=spacing_m, seed=0)
+    points, faces = trimesh.sample.sample_surface(mesh, count, seed=0)
+    keep = _thin(np.asarray(points, float), spacing_m)
+    points, faces = points[keep], faces[keep]
     tri = np.asarray(mesh.triangles, float)[faces]
     bary = trimesh.triangles.points_to_barycentric(tri, points)
     normals = np.einsum("ij,ijk->ik", bary, vnormals[np.asarray(mesh.faces)[faces]])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     return np.asarray(points, float), normals
+
+
+def _thin(points: np.ndarray, spacing_m: float) -> np.ndarray:
+    """Indices of a subset of ``points`` no two closer than ``spacing_m``: each point in order is kept
+    unless a kept one lies within the spacing (a spatial hash of cubes of the spacing's size)."""
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    keep: list[int] = []
+    key = np.floor(points / spacing_m).astype(np.int64)
+    s2 = spacing_m * spacing_m
+    for i, (p, k) in enumerate(zip(points, key)):
+        kx, ky, kz = (int(v) for v in k)
+        near = False
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    for j in cells.get((kx + dx, ky + dy, kz + dz), ()):
+                        d = points[j] - p
+                        if d @ d < s2:
+                            near = True
+                            break
+                    if near:
+                        break
+                if near:
+                    break
+        if not near:
+            cells.setdefault((kx, ky, kz), []).append(i)
+            keep.append(i)
+    return np.asarray(keep, np.int64)
 
 
 def _keep_valid(phantom: Phantom, points: np.ndarray, organ: int) -> np.ndarray:
