@@ -26,7 +26,7 @@ def unroll(points_m: np.ndarray, axis=(0.0, 0.0, 1.0), reference=(0.0, -1.0, 0.0
     r /= np.linalg.norm(r)
     q = np.cross(a, r)  # 90 degrees from the reference, right-handed about the axis
     d = p - centre
-    angle = np.degrees(np.arctan2(-(d @ q), d @ r)) % 360.0
+    angle = np.degrees(np.arctan2(d @ q, d @ r)) % 360.0
     return angle, p @ a
 
 
