@@ -99,7 +99,8 @@ def _plot(args: argparse.Namespace) -> int:
     if args.layout:
         chosen = np.array([s["position_m"] for s in json.loads(Path(args.layout).read_text())["sensors"]])
     scale = 1e9 if args.metric.endswith("delay_s") else 1.0
-    which = f"position {args.position}" if args.position is not None else args.reduce
+    which = (f"position {args.position}" if args.position is not None
+             else "fraction of positions" if args.metric in ("direct_path", "paths") else args.reduce)
     fig = skin_coverage(plan.candidates.positions_m[~site], values[~site] * scale, label=UNITS[args.metric],
                         sites_m=plan.candidates.positions_m[site], chosen_m=chosen, title=f"{args.metric} ({which})")
     Path(args.output).write_bytes(figure_bytes(fig, Path(args.output).suffix.lstrip(".") or "png"))
