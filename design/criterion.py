@@ -19,6 +19,11 @@ b_p = infinity at an uncovered position: ``mean``, or ``p90`` (the nearest-rank 
 the ceil(0.9 P)-th smallest). The search minimises the pair (uncovered positions, statistic of
 the prior-regularised b_p) lexicographically: first cover the whole tract, then lower the bound.
 
+With ``mismatch`` (the layout's ``model_error: bias``) the criterion also carries the delay model's
+own error: each link's mismatch m_pc (its traced first arrival minus its eikonal delay, over sigma_pc)
+biases the weighted fix by dx_p = F_p^-1 sum_c u_pc m_pc to first order, and b_p becomes
+sqrt(trace(F_p^-1) + |dx_p|^2), a mean-square error rather than a bound.
+
 A link is usable when the coverage found a path (with ``require_direct_path``, a refraction-only
 one: the first arrival the model predicts) and its SNR is at least ``min_snr_db`` (when given).
 The delay bound is the TOA bound of the coverage's waveform (docs/science.md (S15); a tone burst:
@@ -66,6 +71,8 @@ class Problem:
     kind: str = "p90"
     min_sensors: int = 4
     prior_m: float = 1.0
+    #: (P, C) each link's model mismatch over its sigma (zero where unusable), or None: the bound alone
+    mismatch: np.ndarray | None = None
 
     @property
     def positions(self) -> int:
@@ -84,9 +91,15 @@ class Problem:
         return self.usable[:, np.asarray(subset, np.int64)].sum(axis=1)
 
     def bounds_m(self, subset) -> np.ndarray:
-        """(P,) the regularised bounds b_p (module docstring)."""
+        """(P,) the regularised bounds b_p (module docstring), with the linearised bias when the
+        problem has link mismatches: sqrt(b_p^2 + |F^-1 sum u_pc m_pc|^2)."""
         inv = np.linalg.inv(self.information(subset))
-        return np.sqrt(np.clip(np.trace(inv, axis1=1, axis2=2), 0.0, None))
+        var = np.clip(np.trace(inv, axis1=1, axis2=2), 0.0, None)
+        if self.mismatch is not None:
+            idx = np.asarray(subset, np.int64)
+            dx = np.einsum("pij,pj->pi", inv, np.einsum("pki,pk->pi", self.info[:, idx, :], self.mismatch[:, idx]))
+            var = var + np.einsum("pi,pi->p", dx, dx)
+        return np.sqrt(var)
 
     def key(self, subset) -> tuple[int, float]:
         """(uncovered positions, statistic of the regularised bounds): what the search minimises."""
@@ -110,6 +123,10 @@ class Problem:
         inv = np.linalg.inv(self.information(base))
         tr = np.trace(inv, axis1=1, axis2=2)
         cnt = self.counts(base)
+        base_idx = np.asarray(base, np.int64)
+        if self.mismatch is not None:
+            rhs = np.einsum("pki,pk->pi", self.info[:, base_idx, :], self.mismatch[:, base_idx])
+            dx = np.einsum("pij,pj->pi", inv, rhs)
         out_u = np.empty(len(cands), np.int64)
         out_v = np.empty(len(cands))
         block = max(1, _BLOCK_ELEMENTS // max(self.positions, 1))
@@ -119,7 +136,15 @@ class Problem:
             v = np.einsum("pij,pkj->pki", inv, u)
             num = np.einsum("pki,pki->pk", v, v)
             den = 1.0 + np.einsum("pki,pki->pk", u, v)
-            b = np.sqrt(np.clip(tr[:, None] - num / den, 0.0, None))
+            var = np.clip(tr[:, None] - num / den, 0.0, None)
+            if self.mismatch is not None:  # Sherman-Morrison on F^-1 (b + u m): dx + v m - v (v.b + (v.u) m) / den
+                m = self.mismatch[:, idx]
+                vb = np.einsum("pki,pi->pk", v, rhs)
+                uv = den - 1.0
+                coef = m - (vb + uv * m) / den
+                new = dx[:, None, :] + v * coef[:, :, None]
+                var = var + np.einsum("pki,pki->pk", new, new)
+            b = np.sqrt(var)
             covered = (cnt[:, None] + self.usable[:, idx]) >= self.min_sensors
             out_u[lo:lo + block] = self.positions - covered.sum(axis=0)
             out_v[lo:lo + block] = statistic(b, self.kind, axis=0)

@@ -4,6 +4,7 @@ The spec (JSON; only ``sensors`` is required)::
 
     {"sensors": 8,
      "criterion": "p90",                  # or "mean" (design.criterion)
+     "model_error": "none",               # or "bias": the delay model's own error too (design.criterion)
      "snr_db": null,                      # null: each link's SNR from the coverage's link budget; a number: every link
      "min_snr_db": null,                  # links below are not detected
      "require_direct_path": true,
@@ -47,6 +48,7 @@ def normalise_layout(data: Any) -> dict:
     """The layout spec (module docstring) with defaults; :class:`DesignInputError` naming the field."""
     data = mapping(data if data is not None else {}, "", {"sensors", "criterion", "snr_db", "min_snr_db",
                                                          "require_direct_path", "min_sensors", "constraints",
+                                                         "model_error",
                                                          "search", "evaluate", "coverage"})
     if "sensors" not in data:
         raise DesignInputError("is required: how many sensors to place", "sensors")
@@ -107,8 +109,11 @@ def normalise_layout(data: Any) -> dict:
                     "rays": integer(ev.get("rays", 100_000), "evaluate.rays", lo=1, hi=1_000_000),
                     "max_interactions": integer(ev.get("max_interactions", 6), "evaluate.max_interactions", lo=1,
                                                 hi=10)}
+    model_error = data.get("model_error", "none")
+    if model_error not in ("none", "bias"):
+        raise DesignInputError("must be none or bias", "model_error")
     return {
-        "sensors": n, "criterion": kind, "snr_db": snr, "min_snr_db": min_snr,
+        "sensors": n, "criterion": kind, "snr_db": snr, "min_snr_db": min_snr, "model_error": model_error,
         "require_direct_path": boolean(data.get("require_direct_path", True), "require_direct_path"),
         "min_sensors": integer(data.get("min_sensors", 4), "min_sensors", lo=1, hi=MAX_SENSORS),
         "constraints": {"axis": axis.tolist(), "belts": belts, "keep_out": keep_out,
@@ -121,8 +126,12 @@ def normalise_layout(data: Any) -> dict:
     }
 
 
-def problem_of(layout: dict, coverage: dict, plan: Plan, arrays: dict[str, np.ndarray], prior_m: float) -> Problem:
-    """The criterion's :class:`Problem` from a coverage's link arrays (design.criterion docstring)."""
+def problem_of(layout: dict, coverage: dict, plan: Plan, arrays: dict[str, np.ndarray], prior_m: float,
+               grid_error_s: float = 0.0) -> Problem:
+    """The criterion's :class:`Problem` from a coverage's link arrays (design.criterion docstring). With
+    ``model_error: bias`` each link's sigma also holds the travel-time grid's error as a uniform error
+    (``grid_error_s`` / sqrt 3, the model-based fix's own weighting) and its mismatch
+    (traced first arrival - eikonal delay) enters as a linearised bias."""
     usable = arrays["paths"] > 0
     if layout["require_direct_path"]:
         usable &= arrays["direct_path"]
@@ -131,8 +140,13 @@ def problem_of(layout: dict, coverage: dict, plan: Plan, arrays: dict[str, np.nd
     if layout["min_snr_db"] is not None:
         usable &= snr >= layout["min_snr_db"]
     sigma = toa_sigma_s(np.where(usable, snr, 0.0), waveform_of(coverage))
+    mismatch = None
+    if layout.get("model_error", "none") == "bias":
+        sigma = np.sqrt(sigma**2 + grid_error_s**2 / 3.0)
+        e = np.nan_to_num(arrays["first_delay_s"] - arrays["eikonal_delay_s"])
+        mismatch = np.where(usable, e / sigma, 0.0)
     info = np.where(usable[:, :, None], arrays["gradient_s_per_m"] / sigma[:, :, None], 0.0)
-    return Problem(info, usable, layout["criterion"], layout["min_sensors"], prior_m)
+    return Problem(info, usable, layout["criterion"], layout["min_sensors"], prior_m, mismatch)
 
 
 def constraints_of(layout: dict, candidates_m: np.ndarray, is_site: np.ndarray) -> tuple[Constraints, np.ndarray]:
@@ -210,7 +224,11 @@ def run_layout(layout: dict, record: dict, plan: Plan, table, phantom, *,
     arrays = link_arrays(table, P, C)
     lo, hi = (np.asarray(b, float) for b in phantom.bounds_m)
     prior = float(np.linalg.norm(hi - lo))
-    problem = problem_of(layout, coverage, plan, arrays, prior)
+    from evaluation.fields import organ_indices
+
+    n_max = float(np.max(organ_indices(phantom, coverage["frequency_hz"])))
+    grid_error = n_max * coverage["cell_size_m"] / 299_792_458.0  # the fields' stated error (docs/localization.md)
+    problem = problem_of(layout, coverage, plan, arrays, prior, grid_error)
     cands = plan.candidates.positions_m
     is_site = np.array([bool(s) for s in plan.candidates.site])
     cons, belt_of = constraints_of(layout, cands, is_site)

@@ -169,6 +169,9 @@ class LayoutRequest(Strict):
     coverage: str = Field(pattern=r"^cv-[0-9a-f]{16}$", description="A done coverage job's id.")
     sensors: Int = Field(ge=1, le=64, description="How many sensors to place.")
     criterion: Literal["p90", "mean"] = Field("p90", description="Statistic of the position bound along the tract.")
+    model_error: Literal["none", "bias"] = Field("none", description="`none`: the position CRLB; `bias`: plus the "
+                                                 "delay model's own error (grid, linearised bias of each link's "
+                                                 "traced-first-arrival minus eikonal mismatch).")
     snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="Every link's SNR [dB]; null: the coverage's "
                                  "link budget per link.")
     min_snr_db: float | None = Field(None, ge=-300.0, le=200.0, description="Links below are not detected [dB].")

@@ -107,3 +107,32 @@ def test_belt_quotas_are_obeyed():
     (u, v), _ = _oracle(grad, sigma, usable, 4, "mean", 0.5, 4,
                         lambda s: sorted(belt_of[list(s)].tolist()) == [0, 1, 1, 1])
     assert got.key[0] == u and got.key[1] == pytest.approx(v, rel=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_criterion_with_model_bias_against_the_exhaustive_optimum(seed):
+    """``model_error: bias``: b_p = sqrt(trace(F^-1) + |F^-1 sum_c u_c m_c|^2), the linearised bias of the
+    weighted fix from each link's mismatch m (in sigmas). The oracle computes it with its own loops."""
+    info, usable, cands, grad, sigma = _case(20 + seed)
+    rng = np.random.default_rng(seed)
+    mismatch = np.where(usable, rng.normal(0.0, 3.0, usable.shape), 0.0)
+    n, P, prior = 5, grad.shape[0], 0.5
+    best = None
+    for s in combinations(range(len(cands)), n):
+        values, uncovered = [], 0
+        for p in range(P):
+            F, rhs, count = np.eye(3) / prior**2, np.zeros(3), 0
+            for c in s:
+                if usable[p, c]:
+                    u = grad[p, c] / sigma[p, c]
+                    F, rhs, count = F + np.outer(u, u), rhs + u * mismatch[p, c], count + 1
+            inv = np.linalg.inv(F)
+            dx = inv @ rhs
+            values.append(math.sqrt(np.trace(inv) + dx @ dx))
+            uncovered += count < 4
+        key = (uncovered, float(np.sort(values)[math.ceil(0.9 * P) - 1]))
+        if best is None or key < best:
+            best = key
+    problem = Problem(info, usable, kind="p90", min_sensors=4, prior_m=prior, mismatch=mismatch)
+    got = search(problem, Constraints(np.ones(len(cands), bool), cands), n, restarts=6, seed=seed, exact_limit=0)
+    assert got.key[0] == best[0] and got.key[1] == pytest.approx(best[1], rel=1e-9)
