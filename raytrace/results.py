@@ -49,7 +49,8 @@ class Path:
 
     ``delay_s`` is its phase delay at the carrier, ``sum L_i Re n_i / c``: what the carrier's
     phase (and so PDOA on a narrow band, or a gain's argument) sees. ``group_delay_s`` is its
-    group delay, ``sum L_i n_g,i / c`` with the tissues' group index (docs/science.md (S22)):
+    group delay, the phase slope ``-d arg(gain) / d w`` at the carrier with everything that varies
+    with frequency (the tissues' group index, lossy Fresnel phases, the near field; docs/science.md (S22)):
     when a pulse's envelope arrives, what a TOA estimator on a band-limited waveform measures.
     In dispersive tissue the two differ by ~10 % (docs/science.md, "Phase and group delay").
     """

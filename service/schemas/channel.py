@@ -180,8 +180,9 @@ class BandGain(Out):
 class PathOut(Out):
     delay_s: float = Field(description="Absolute phase delay at the carrier, sum L Re n / c [s].")
     group_delay_s: float = Field(
-        description="Absolute group delay at the carrier, sum L n_g / c with the tissues' group index [s]: "
-        "when a pulse's envelope arrives (docs/science.md, 'Phase and group delay')."
+        description="Absolute group delay at the carrier, the phase slope -d arg(gain) / d omega of the path's "
+        "own gain (tissue dispersion, lossy Fresnel phases, the near-field term) [s]: when a pulse's envelope "
+        "arrives (docs/science.md, 'Phase and group delay', (S22)); negative in a dipole's reactive near field."
     )
     gain: Complex = Field(
         description="Complex gain a_k of h(t) = sum a_k delta(t - delay_k) at the carrier frequency_hz, "
