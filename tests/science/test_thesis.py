@@ -248,8 +248,9 @@ def test_later_echoes_can_put_the_2_45_ghz_pdoa_mean_below_the_true_distance():
     2.1 and 4.4 dB weaker, 0.37 and 0.87 ns later), with the two echoes' carrier phases swept over
     a 72 x 72 grid (the thesis gives its echo geometry, and so those phases, nowhere), noiseless
     21-tone regression over 2440-2460 MHz (the independent unwrap/polyfit oracle above, the
-    estimator itself on every ninth pair, modulo its 56.8 m ambiguity range) gives less than 76 mm for 19.6 % of the phase pairs and
-    at most the thesis' 64.6 mm for 10.2 % (asserted: 15-25 % and 5-15 %)."""
+    estimator itself on every ninth pair, modulo its 56.8 m ambiguity range) gives less than 76 mm
+    for 19.6 % of the phase pairs and at most the thesis' 64.6 mm for 10.2 % (asserted: 15-25 % and
+    5-15 %)."""
     sc, prof = _thesis_trace(2450e6)
     assert len(prof.paths) == 3 and prof.paths[0].delay_s < min(p.delay_s for p in prof.paths[1:])
     freqs = np.linspace(2440e6, 2460e6, 21)
