@@ -73,7 +73,7 @@ class Path:
 #: Regimes where full-wave (FDTD) comparisons showed geometric optics to be off (docs/validation.md,
 #: "Validity per receiver"); a profile lists those its receiver is in.
 VALIDITY_FLAGS: tuple[str, ...] = ("near_field", "in_air_near_body", "grazing_exit", "near_critical_angle",
-                                   "no_direct_path")
+                                   "curved_layers", "no_direct_path", "earlier_arrival")
 
 
 @dataclass(frozen=True)
@@ -88,6 +88,11 @@ class ReceiverProfile:
 
     ``validity`` names the regimes of :data:`VALIDITY_FLAGS` the receiver is in (empty: none of
     them; the FDTD error bands of each are in docs/validation.md).
+
+    ``first_arrival_s`` and ``earlier_arrival_s`` are filled by :func:`evaluation.arrivals.annotate`
+    (None otherwise): the eikonal (Fermat) first arrival at the receiver, and by how much it precedes
+    the first traced path where it does beyond the eikonal grid's error (a head wave along the fat
+    the tracer does not build; flag ``earlier_arrival``).
     """
 
     receiver: str
@@ -99,6 +104,8 @@ class ReceiverProfile:
     smallest_organ_size_wavelengths: float | None = None
     warnings: tuple[str, ...] = ()
     validity: tuple[str, ...] = ()
+    first_arrival_s: float | None = None
+    earlier_arrival_s: float | None = None
 
     @property
     def first_path_delay_s(self) -> float | None:

@@ -106,6 +106,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from raytrace.physics.em import C0, fresnel, interface_basis, refractive_index
+from raytrace.solver import stratified
 from raytrace.solver.media import MediaTable
 from raytrace.solver.refine import KIND_PASS, KIND_REFLECTION, Steps
 
@@ -146,6 +147,8 @@ class PathFields:
     reflect_tir: list[np.ndarray]  # per step: (P,) True where a reflection is total (Snell has no real solution)
     max_sin_t: np.ndarray | None = None  # (P,) largest sin(transmitted angle) of the path's refractions into tissue
     exit_sin_t: np.ndarray | None = None  # (P,) the same for its refractions into air (0 where none)
+    stratified: np.ndarray | None = None  # (P,) True where the gain is the generalized-ray integral on layers
+    stack_tilt_deg: np.ndarray | None = None  # (P,) there, the layers' largest tilt from parallel (NaN elsewhere)
 
 
 def path_gains(
@@ -264,10 +267,43 @@ def path_gains(
     slow = ((lam0 / (4.0 * np.pi))[None, :] * response * spreading * np.exp(k0[None, :] * optical.imag)
             / np.sqrt(tube)[:, None] / n_norm)
     gains = slow * np.exp(-1j * k0[None, :] * optical.real)
+    spectral = np.zeros(p, bool)
+    tilt = np.full(p, np.nan)
+    if near_field and tx_pattern == "dipole":
+        for j in np.flatnonzero(np.asarray(rx_pattern) == "dipole"):
+            found = _stratified_gain(steps, j, n, freqs, tx_m, tx_medium, rx_m[j], tx_polarization,
+                                     rx_polarization[j], rx_medium[j])
+            if found is not None:
+                gains[j], tilt[j] = found
+                spectral[j] = True
+                slow[j] = gains[j] * np.exp(1j * k0 * optical[j].real)
     with np.errstate(invalid="ignore", divide="ignore"):
         slope = np.angle(slow[:, n_band + 1] / slow[:, n_band]) / (2.0 * np.pi * (aux_hz[1] - aux_hz[0]))
     return PathFields(gains=gains[:, :n_band], delay_s=delay_len / C0, group_delay_s=group_len / C0 - slope,
-                      length_m=length, reflect_tir=tir_flags, max_sin_t=max_sin_t, exit_sin_t=exit_sin_t)
+                      length_m=length, reflect_tir=tir_flags, max_sin_t=max_sin_t, exit_sin_t=exit_sin_t,
+                      stratified=spectral, stack_tilt_deg=tilt)
+
+
+def _stratified_gain(steps: Steps, j: int, n: np.ndarray, freqs: np.ndarray, tx_m: np.ndarray, tx_medium: int,
+                     rx_m: np.ndarray, tx_pol: np.ndarray, rx_pol: np.ndarray,
+                     rx_medium: int) -> tuple[np.ndarray, float] | None:
+    """Path ``j``'s gain (F,) as the integral of its generalized ray through planar layers
+    (:mod:`raytrace.solver.stratified`) and the layers' tilt [deg], or None where its interfaces are
+    too far from parallel."""
+    rows = [s for s in range(len(steps.valid)) if steps.valid[s][j] and steps.kind[s][j] != KIND_PASS]
+    if not rows:
+        return None  # one medium: the near-field term is already the exact dipole field
+    points = np.concatenate([[tx_m], [steps.point[s][j] for s in rows], [rx_m]])
+    reflect = np.array([steps.kind[s][j] == KIND_REFLECTION for s in rows])
+    media = [tx_medium]
+    for s, r in zip(rows, reflect):
+        media.append(int(steps.med_from[s][j]) if r else int(steps.med_to[s][j]))
+    beyond = np.array([steps.med_to[s][j] for s in rows]) + 1
+    ray = stratified.stack_ray(points, np.array([steps.normal[s][j] for s in rows]), reflect,
+                               np.asarray(media) + 1, beyond, n, np.asarray(tx_pol, float), np.asarray(rx_pol, float))
+    if ray is None or stratified.node_count(ray, freqs) > stratified.MAX_NODES:
+        return None
+    return stratified.gain(ray, freqs, n[:, tx_medium + 1], n[:, rx_medium + 1]), ray.tilt_deg
 
 
 def _indices(media: MediaTable, frequencies_hz: np.ndarray) -> np.ndarray:

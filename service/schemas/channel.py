@@ -230,8 +230,8 @@ class ProfileOut(Out):
     rms_delay_spread_s: float = Field(description="Power-weighted RMS delay spread [s].")
     validity: list[str] = Field(
         default_factory=list,
-        description="Regimes where full-wave (FDTD) comparisons showed geometric optics to be off that this "
-        "receiver is in: near_field, in_air_near_body, grazing_exit, near_critical_angle, no_direct_path "
+        description="Regimes where full-wave (FDTD) comparisons showed the tracer to be off that this receiver "
+        "is in: near_field, in_air_near_body, grazing_exit, near_critical_angle, curved_layers, no_direct_path "
         "(docs/validation.md, 'Validity per receiver').")
     reference_frequency_hz: float = Field(
         description="Frequency at which `paths[].gain` is evaluated (the carrier) [Hz].")
