@@ -1,5 +1,6 @@
 """``python -m bench.fullwave CASE``: run one full-wave cross-check; ``python -m bench.fullwave table``: every
-case at its two cell sizes and the one table of docs/validation.md (bench/fullwave/__init__.py)."""
+case at its two cell sizes and the one table of docs/validation.md (bench/fullwave/__init__.py); ``python -m
+bench.fullwave exact``: the planar cases' reports against the exact layered field."""
 
 from __future__ import annotations
 
@@ -55,9 +56,26 @@ def table(reports: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def exact_table(out_dir: Path) -> str:
+    """The planar cases' finished reports against the exact layered field (bench/fullwave/layered_exact.py):
+    the ranges of tracer - exact (first cell size) and FDTD - exact (each cell size), docs/validation.md."""
+    import json
+
+    from bench.fullwave import PLANAR_LAYERS
+    from bench.fullwave.layered_exact import case_rows, summary
+
+    lines = ["| case | tracer - exact: dB / deg / group delay ps | FDTD - exact, 2 mm | FDTD - exact, 1.5 mm |",
+             "|---|---|---|---|"]
+    for name, layers in PLANAR_LAYERS.items():
+        path = out_dir / name / "report.json"
+        if path.exists():
+            lines.append(summary(name, case_rows(json.loads(path.read_text()), layers)))
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.fullwave", description=__doc__)
-    ap.add_argument("case", choices=sorted(CASES) + ["table"])
+    ap.add_argument("case", choices=sorted(CASES) + ["table", "exact"])
     ap.add_argument("--out", help="output directory of one case (default bench/results/fullwave/CASE)")
     ap.add_argument("--out-dir", default=str(RESULTS), help="the table's cases' parent directory")
     ap.add_argument("--cell-mm", type=float, default=2.0)
@@ -71,6 +89,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     knobs = dict(cell_mm=args.cell_mm, coarse_factor=args.coarse_factor, threads=args.threads,
                  export_only=args.export_only, reuse=args.reuse)
+    if args.case == "exact":
+        text = exact_table(Path(args.out_dir))
+        (Path(args.out_dir) / "exact.md").write_text(text)
+        sys.stdout.write(text)
+        return 0
     if args.case == "table":
         reports = {name: run_case(name, Path(args.out_dir) / name, **knobs) for name in CASES}
         text = table(reports)
