@@ -25,6 +25,7 @@ from service.jobs import JobRunner
 from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
+from service.phantom_builds import PhantomBuilds
 from service.registry import Registry
 from service.routes import (
     bounds,
@@ -87,6 +88,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     jobs = JobRunner(settings.data_dir)  # one queue and one runner for every kind of job
     sweep_jobs = SweepJobs(settings, registry, jobs)
     fullwave_jobs = FullwaveJobs(settings, registry, jobs)
+    phantom_builds = PhantomBuilds(settings, registry, jobs)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -123,6 +125,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     app.state.sweeps = sweep_jobs
     app.state.fullwave = fullwave_jobs
+    app.state.phantom_builds = phantom_builds
     install_error_handlers(app, settings.retry_after_s)
     for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, vision,
                    tracking, ops):

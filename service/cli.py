@@ -321,8 +321,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a cell size whose identical input already ran to the end in --out is not run again (its "
                         "output is compared anew): rebuild a report, or finish an interrupted comparison")
     f.set_defaults(func=_cmd_fullwave)
-    from service import localize_cli, track_cli, vision_cli
+    from service import localize_cli, phantom_cli, track_cli, vision_cli
 
+    phantom_cli.add_parsers(sub)
     vision_cli.add_parsers(sub)
     localize_cli.add_parsers(sub)
     track_cli.add_parser(sub)
