@@ -52,8 +52,9 @@ class PathIn(Strict):
 
     delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute (phase) delay [s].")
     gain: PathGainIn = Field(description="Complex gain [-], not zero.")
-    group_delay_s: float | None = Field(None, ge=0.0, le=1e-3, description="Absolute group delay [s] (as a channel "
-                                        "profile gives it).")
+    group_delay_s: float | None = Field(None, ge=-1e-3, le=1e-3, description="Absolute group delay [s] (as a channel "
+                                        "profile gives it: the phase slope of the path's gain, negative in a "
+                                        "dipole's reactive near field).")
     gain_db: float | None = None
     length_m: float | None = None
     interactions: list[Interaction] | None = Field(None, max_length=64)
