@@ -270,13 +270,13 @@ def path_gains(
     spectral = np.zeros(p, bool)
     tilt = np.full(p, np.nan)
     if near_field and tx_pattern == "dipole":
-        for j in np.flatnonzero(np.asarray(rx_pattern) == "dipole"):
-            found = _stratified_gain(steps, j, n, freqs, tx_m, tx_medium, rx_m[j], tx_polarization,
-                                     rx_polarization[j], rx_medium[j])
+        for q in np.flatnonzero(np.asarray(rx_pattern) == "dipole"):
+            found = _stratified_gain(steps, q, n, freqs, tx_m, tx_medium, rx_m[q], tx_polarization,
+                                     rx_polarization[q], rx_medium[q])
             if found is not None:
-                gains[j], tilt[j] = found
-                spectral[j] = True
-                slow[j] = gains[j] * np.exp(1j * k0 * optical[j].real)
+                gains[q], tilt[q] = found
+                spectral[q] = True
+                slow[q] = gains[q] * np.exp(1j * k0 * optical[q].real)
     with np.errstate(invalid="ignore", divide="ignore"):
         slope = np.angle(slow[:, n_band + 1] / slow[:, n_band]) / (2.0 * np.pi * (aux_hz[1] - aux_hz[0]))
     return PathFields(gains=gains[:, :n_band], delay_s=delay_len / C0, group_delay_s=group_len / C0 - slope,
