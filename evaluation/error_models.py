@@ -87,25 +87,28 @@ def _settings_key(settings: dict) -> str:
 
 
 def rf_links(phantom, s_grid_m: Sequence[float], *, rays: int, max_interactions: int, trials: int, seed: int,
-             cache_dir: str | Path | None = None, check: Callable[[], None] | None = None) -> list[dict]:
+             cache_dir: str | Path | None = None, check: Callable[[], None] | None = None,
+             committed: bool = True) -> list[dict]:
     """Per arc length: ``{"receivers": [...], "distance_m": [...], "std_m": [...]}`` (TOA GCC at
     eps_r 27.9; NaN where a receiver has no path), from the sweep engine, cached per position in
-    memory and with ``cache_dir`` on disk. ``check`` is called after every traced position."""
+    memory and with ``cache_dir`` on disk (keyed by the settings, not by the code: give a fresh
+    directory after a change of the tracer); the committed grid traces are read when ``committed``
+    and they match. ``check`` is called after every traced position."""
     from sweeps import load_spec, run_sweep
 
     settings = {"phantom": phantom.name, "rays": rays, "max_interactions": max_interactions, "trials": trials,
                 "seed": seed, "frequency_hz": FREQUENCY_HZ}
     key = _settings_key(settings)
     disk = None if cache_dir is None else Path(cache_dir) / "rf" / key
-    committed = _committed_links(phantom, settings)
+    table = _committed_links(phantom, settings) if committed else {}
     out: dict[float, dict] = {}
     missing = []
     for s in s_grid_m:
         name = f"{key}:{s:.6f}"
         if name in _MEMORY:
             out[s] = _MEMORY[name]
-        elif f"{s:.6f}" in committed:
-            out[s] = _MEMORY[name] = committed[f"{s:.6f}"]
+        elif f"{s:.6f}" in table:
+            out[s] = _MEMORY[name] = table[f"{s:.6f}"]
         elif disk is not None and (disk / f"s-{s:.6f}.json").exists():
             out[s] = _MEMORY[name] = json.loads((disk / f"s-{s:.6f}.json").read_text())
         else:
@@ -265,7 +268,7 @@ def measure_rf_errors(phantom, *, grid_m: float = 5e-3, offset_m: float = 2.5e-3
     settings = {**RF_SETTINGS, **rf_settings}
     line = phantom.centrelines["gi_tract"]
     grid = [round(float(s), 6) for s in np.arange(offset_m, line.length_m, grid_m)]
-    links = rf_links(phantom, grid, cache_dir=cache_dir, check=check, **settings)
+    links = rf_links(phantom, grid, cache_dir=cache_dir, check=check, committed=False, **settings)
     fixer = RfFixer(phantom, links[0]["receivers"], cell_size_m)
     out = []
     for s, rec in zip(grid, links):
@@ -441,7 +444,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     elif args.kind == "links":
         settings = {"phantom": phantom.name, **RF_SETTINGS, "frequency_hz": FREQUENCY_HZ}
         grid = evaluation_grid(phantom.centrelines["gi_tract"])
-        links = rf_links(phantom, grid, cache_dir=args.cache_dir, **RF_SETTINGS)
+        links = rf_links(phantom, grid, cache_dir=args.cache_dir, committed=False, **RF_SETTINGS)
         data = {"phantom": phantom.name, "phantom_digest": phantom_digest(phantom), "settings": settings,
                 "receivers": links[0]["receivers"], "s_m": grid,
                 "distance_m": [[None if not np.isfinite(d) else d for d in rec["distance_m"]] for rec in links],
