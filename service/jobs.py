@@ -18,7 +18,9 @@ loop. Cancellation is a ``cancel.requested`` file in the job's directory that th
 children.
 
 Admission is per kind (``sweep_max_queue``, ``fullwave_max_queue``: jobs queued or running;
-beyond, 503 + Retry-After); every job is validated before its 202.
+beyond, 503 + Retry-After); every job is validated before its 202, and its cost goes through the
+service's one rule (:mod:`service.admission`): a kind implements :meth:`JobKind.estimate` and queues
+with :meth:`JobKind.create`, which admits the cost (422 naming the field) before anything is written.
 """
 
 from __future__ import annotations
@@ -33,9 +35,11 @@ import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
+from service.admission import Cost, admit
 from service.errors import Conflict, NotFound, ServerSaturated
+from service.settings import Settings
 
 log = logging.getLogger("capsule_rt.jobs")
 
@@ -51,7 +55,7 @@ class JobKind:
 
     A subclass sets ``kind``, ``prefix``, ``noun``, ``list_path``, ``id_loc`` and implements
     :meth:`exists`, :meth:`read_state`, :meth:`write_state`, :meth:`created_at`,
-    :meth:`status` and :meth:`execute`."""
+    :meth:`status`, :meth:`execute` and :meth:`estimate`; it submits through :meth:`create`."""
 
     kind = ""
     prefix = ""
@@ -59,11 +63,12 @@ class JobKind:
     list_path = ""
     id_loc: list[str] = ["path", "job_id"]
 
-    def __init__(self, runner: "JobRunner", root: Path, max_queue: int, retry_after_s: int) -> None:
+    def __init__(self, runner: "JobRunner", settings: Settings, root: Path, max_queue: int) -> None:
         self.runner = runner
+        self.settings = settings
         self.root = Path(root)
         self.max_queue = max_queue
-        self.retry_after_s = retry_after_s
+        self.retry_after_s = settings.retry_after_s
         self._id_re = re.compile(rf"^{re.escape(self.prefix)}[0-9a-f]{{16}}$")
         runner.register(self)
 
@@ -85,6 +90,12 @@ class JobKind:
 
     def execute(self, job_id: str, cancel: threading.Event) -> str:
         """Run the job until it ends or ``cancel`` is set; its final state (recorded in its state)."""
+        raise NotImplementedError
+
+    def estimate(self, validated: Any) -> Cost:
+        """What one job costs, from its validated request, before it is queued: its work products
+        against their caps and the memory one of its computations holds (service.admission,
+        docs/service.md "Bounded before work"). Every kind implements it; :meth:`create` admits it."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -113,6 +124,23 @@ class JobKind:
 
     def active(self) -> int:
         return sum(1 for j in self.job_ids() if self.read_state(self.root / j).get("state") in ACTIVE)
+
+    def create(self, cost: Cost, build: Callable[[Path], None]) -> str:
+        """Queue a new job: ``cost`` through the one rule (422 naming its dominant field), then, under the
+        queue's admission (503 beyond ``max_queue``), ``build(tmp)`` writes the job's files into a
+        temporary directory that one rename makes the job (never half-written). Its id."""
+        admit(cost, self.settings)
+        with self.admission():
+            job_id = self.new_id()
+            tmp = self.root / f".tmp-{job_id}"
+            try:
+                tmp.mkdir(parents=True)
+                build(tmp)
+                os.replace(tmp, self.root / job_id)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        return job_id
 
     @contextmanager
     def admission(self) -> Iterator[None]:
@@ -162,6 +190,10 @@ class JobRunner:
         self._current: tuple[JobKind, str, threading.Event] | None = None
 
     def register(self, kind: JobKind) -> None:
+        """Add a kind to the queue; one that does not say what its jobs cost is refused (service.admission)."""
+        if type(kind).estimate is JobKind.estimate:
+            raise TypeError(f"job kind {type(kind).__name__} must implement estimate() (docs/service.md, "
+                            "'Bounded before work')")
         self.kinds.append(kind)
 
     # ------------------------------------------------------------ lifecycle

@@ -40,26 +40,30 @@ def owner_id(key: str) -> str:
     return hashlib.sha256(key.encode("utf-8")).hexdigest()[:16]
 
 
+def key_error(given: str | None, settings: Settings) -> Unauthorized | None:
+    """Why a write's ``X-API-Key`` header value is refused (None when keys are not in use or it is
+    valid). Every configured key is compared in constant time (no early exit that times the match)."""
+    if not settings.api_keys:
+        return None
+    challenge = {"WWW-Authenticate": f'ApiKey header="{API_KEY_HEADER}"'}
+    if given is None:
+        return Unauthorized(
+            f"this server requires an API key for uploads, jobs and deletes: send it in the {API_KEY_HEADER} header",
+            loc=["header", API_KEY_HEADER.lower()], headers=challenge)
+    valid = [hmac.compare_digest(given.encode("utf-8", "replace"), k.encode("utf-8")) for k in settings.api_keys]
+    if not any(valid):
+        return Unauthorized("the API key is not valid", loc=["header", API_KEY_HEADER.lower()], headers=challenge)
+    return None
+
+
 def writer(request: Request, settings: Settings) -> str | None:
     """The owner id of a write request's API key (None when keys are not in use);
     401 when keys are in use and the request has no valid one."""
-    if not settings.api_keys:
-        return None
     given = request.headers.get(API_KEY_HEADER)
-    if given is None:
-        raise Unauthorized(
-            f"this server requires an API key for uploads and deletes: send it in the {API_KEY_HEADER} header",
-            loc=["header", API_KEY_HEADER.lower()],
-            headers={"WWW-Authenticate": f'ApiKey header="{API_KEY_HEADER}"'},
-        )
-    # compare against every key in constant time (no early exit that times the match)
-    valid = [hmac.compare_digest(given.encode("utf-8", "replace"), k.encode("utf-8")) for k in settings.api_keys]
-    if not any(valid):
-        raise Unauthorized(
-            "the API key is not valid", loc=["header", API_KEY_HEADER.lower()],
-            headers={"WWW-Authenticate": f'ApiKey header="{API_KEY_HEADER}"'},
-        )
-    return owner_id(given)
+    error = key_error(given, settings)
+    if error is not None:
+        raise error
+    return None if not settings.api_keys else owner_id(given)
 
 
 def check_owner(stored_owner: str | None, requester: str | None, phantom_id: str) -> None:

@@ -66,10 +66,12 @@ class Settings(BaseSettings):
         "trial x trials, and samples per trial x paths (synthesis) [-].",
     )
     max_json_body_bytes: int = Field(
-        256 * 1024, ge=1024, description="Max JSON body of channel and bounds requests [bytes]; beyond it: 413."
+        256 * 1024, ge=1024, description="Max JSON body of the other operations (channel, bounds, localization, "
+        "jobs, renders...) and of any undeclared write [bytes]; beyond it: 413."
     )
     max_ranging_body_bytes: int = Field(
-        16 * 1024 * 1024, ge=1024, description="Max JSON body of ranging requests (a profile) [bytes]; beyond it: 413."
+        16 * 1024 * 1024, ge=1024, description="Max JSON body of the operations that carry data (ranging profiles, "
+        "plots, the track's observations) [bytes]; beyond it: 413."
     )
     max_ray_segments: int = Field(
         50_000_000,

@@ -9,7 +9,9 @@ import anyio.to_thread
 from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.responses import FileResponse, JSONResponse
 
+from service.admission import declare
 from service.errors import error_responses
+from service.fullwave_jobs import FullwaveJobs
 from service.schemas.fullwave import FullwaveList, FullwaveRequest, FullwaveStatus
 
 router = APIRouter(prefix="/v1/fullwave", tags=["fullwave"])
@@ -28,6 +30,7 @@ def _jobs(request: Request):
 
 @router.post("", status_code=202, response_model=FullwaveStatus, operation_id="submit_fullwave",
              summary="Submit a full-wave cross-check", responses=error_responses(400, 404, 413, 422, 501, 503))
+@declare(body="max_json_body_bytes", cost=FullwaveJobs.estimate)
 async def submit_fullwave(req: FullwaveRequest, request: Request) -> JSONResponse:  # type: ignore[valid-type]
     """Validate the channel request and the FDTD models (their size against the server's work bound,
     the antennas outside the absorbing layer), write the gprMax inputs and queue the job on the
@@ -87,6 +90,7 @@ async def get_fullwave_file(request: Request, job_id: str = JobIdPath, name: str
 
 @router.delete("/{job_id}", response_model=FullwaveStatus, operation_id="cancel_fullwave",
                summary="Cancel or delete a full-wave job", responses=error_responses(404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job")
 async def cancel_fullwave(request: Request, job_id: str = JobIdPath) -> FullwaveStatus:
     """A queued or running job is cancelled (its gprMax process is killed; the files written so far
     stay); a finished (`done`, `failed`, `cancelled`) one is deleted with its files (`deleted: true`)."""

@@ -43,6 +43,8 @@ from estimators.rss import CM2_MODELS
 from estimators.toa import METHODS as TOA_METHODS
 from raytrace import Budget, Phantom
 from raytrace.errors import InputError, InvalidGeometryError, field_text
+from service import costs
+from service.admission import admit, declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import Unprocessable, error_responses
@@ -373,6 +375,7 @@ def localize(req: LocalizeRequest, registry: Registry, settings: Settings, budge
 
             sensor_positions(sensors)  # duplicates / coplanar refused before any grid is built
             _check_grid(phantom)
+            admit(costs.travel_time_fields(_grid_cells(phantom), len(sensors)), settings)
             fields = sensor_fields(phantom, sensors, req.frequency_hz, CELL_SIZE_M, req.index,
                                    check=lambda: _stop(budget))
             _stop(budget)
@@ -473,6 +476,7 @@ _ERRORS = error_responses(400, 404, 413, 422, 503, 504)
 
 @router.post("", response_model=LocalizeResponse, operation_id="localize", summary="Position fix from sensors' "
              "ranges, delays or received powers", responses=_ERRORS)
+@declare(body="max_json_body_bytes", cost=costs.travel_time_fields)
 async def localize_route(req: LocalizeRequest, request: Request) -> LocalizeResponse:
     """The capsule's position from at least four sensors (five for joint_velocity), each with a
     range, a delay or a received power: closed-form or weighted nonlinear least squares at a constant
@@ -488,6 +492,7 @@ async def localize_route(req: LocalizeRequest, request: Request) -> LocalizeResp
 
 @router.post("/evaluate", response_model=LocalizeEvaluateResponse, operation_id="localize_evaluate",
              summary="Trace, range and locate: position error statistics beside the bound", responses=_ERRORS)
+@declare(body="max_json_body_bytes", cost="rays, max_interactions, sensors and trials against this server's limits")
 async def localize_evaluate_route(req: LocalizeEvaluateRequest, request: Request) -> LocalizeEvaluateResponse:
     """One trace from the capsule to the sensors, a seeded Monte Carlo ranging run per sensor
     (TOA, PDOA or RSS), a fix per trial and method; per method the mean error, RMSE, CEP50/CEP90 and

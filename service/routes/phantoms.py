@@ -8,6 +8,7 @@ from fastapi.responses import JSONResponse
 
 from raytrace.body.gltf import load_phantom, parse_manifest
 from raytrace.solver.budget import Budget
+from service.admission import declare
 from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, error_responses
 from service.registry import describe_phantom
@@ -15,7 +16,7 @@ from service.schemas import ID_PATTERN
 from service.schemas.phantoms import PhantomOut, PhantomsResponse, UploadResponse
 from service.security import check_owner, writer
 from service.storage import Full, Missing, is_upload_id, new_upload_id
-from service.uploads import read_upload
+from service.uploads import MULTIPART_OVERHEAD_BYTES, read_upload
 
 router = APIRouter(prefix="/v1/phantoms", tags=["phantoms"])
 
@@ -124,6 +125,7 @@ async def get_phantom_manifest(request: Request, phantom_id: str = PhantomIdPath
     response_class=Response,
     responses=error_responses(401, 403, 404, 409, 422),
 )
+@declare(body=None, cost="none: removes the phantom's directory", keyed=True)
 async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> Response:
     """Built-in phantoms cannot be deleted (409). When the server requires API keys, only
     the key that uploaded a phantom deletes it (docs/service.md, "Security")."""
@@ -156,6 +158,9 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
     openapi_extra=_UPLOAD_BODY,
     responses=error_responses(400, 401, 403, 413, 422, 503, 504, 507),
 )
+@declare(body=lambda s: s.max_upload_bytes + s.max_manifest_bytes + MULTIPART_OVERHEAD_BYTES,
+         cost="the .glb's triangles, read from its accessors and refused over max_triangles before any geometry "
+              "is built (raytrace.body.gltf.load_phantom); the validation is ~5 s of CPU per million", keyed=True)
 async def upload_phantom(request: Request) -> JSONResponse:
     """Validated like a built-in (closed, outward-oriented organs that neither cross each
     other nor themselves; every manifest organ present as a mesh node and vice versa; a

@@ -10,7 +10,9 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.admission import declare
 from service.errors import ServiceError, Unprocessable, UploadTooLarge, error_responses
+from service.sweep_jobs import SweepJobs
 from sweeps.spec import LIMITS, parse_text
 
 router = APIRouter(prefix="/v1/sweeps", tags=["sweeps"])
@@ -172,6 +174,7 @@ def decode_spec(body: bytes, kind: str) -> dict:
 
 @router.post("", status_code=202, response_model=SweepStatus, operation_id="submit_sweep", summary="Submit a sweep",
              responses=error_responses(400, 404, 413, 422, 503), openapi_extra=_SUBMIT)
+@declare(body="max_json_body_bytes", cost=SweepJobs.estimate)
 async def submit_sweep(request: Request) -> JSONResponse:
     """Validate the spec (and plan it against the phantom: sites, positions, centreline), store the job
     and queue it. Answers 202 with its status at once; the work runs in worker processes. At most
@@ -228,6 +231,7 @@ async def get_sweep_results(
 
 @router.delete("/{sweep_id}", response_model=SweepStatus, operation_id="cancel_sweep", summary="Cancel a sweep",
                responses=error_responses(404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job")
 async def cancel_sweep(request: Request, sweep_id: str = SweepIdPath) -> SweepStatus:
     """A queued or running sweep is cancelled (its finished tasks' rows stay available); a finished
     (`done`, `failed`, `cancelled`) one is deleted with its results (`deleted: true`)."""

@@ -28,10 +28,12 @@ from fastapi.responses import JSONResponse
 from pydantic import ConfigDict, Field, ValidationError, model_validator
 
 from raytrace import Budget
+from service import costs
+from service.admission import admit, declare
 from service.deps import state
 from service.errors import ServiceError, Unprocessable, error_responses, field_to_loc
 from service.schemas import ID_PATTERN, ErrorResponse, Int, Name, Out, Strict, Vec3
-from service.uploads import read_parts
+from service.uploads import MULTIPART_OVERHEAD_BYTES, read_parts
 from vision.advance import advance_for_scale
 from vision.camera import DEFAULT_FOV_DEG, DEFAULT_SIZE_PX, FisheyeCamera, Pose
 from vision.errors import VisionInputError
@@ -280,8 +282,14 @@ _RENDER_RESPONSES = {
 }
 
 
+def render_cost(req: RenderRequest) -> costs.Cost:
+    """A rendered frame: ``camera.size_px`` squared pixels (:func:`service.costs.pixels`)."""
+    return costs.pixels(req.camera.size_px, 1, ("camera", "size_px"), "the frame")
+
+
 @router.post("/render", operation_id="vision_render", summary="Render the capsule camera's frame at a pose",
              response_class=Response, responses=_RENDER_RESPONSES)
+@declare(body="max_json_body_bytes", cost=render_cost)
 async def vision_render(req: RenderRequest, request: Request) -> Response:
     """The capsule camera's view (equidistant fisheye, LEDs, procedural mucosa, sensor;
     docs/vision.md) at `pose` inside the phantom's GI lumen, with the exact pose echoed:
@@ -292,6 +300,7 @@ async def vision_render(req: RenderRequest, request: Request) -> Response:
     st = state(request)
 
     def work(budget: Budget) -> tuple[bytes, dict[str, Any]]:
+        admit(render_cost(req), st.settings)
         phantom = st.registry.get(req.phantom, ["body", "phantom"])
         frame, organ, s_m = _vision_errors(lambda: render_request(phantom, req))
         budget.charge(0)
@@ -411,9 +420,16 @@ def advance_of(frame: Frame, scale: float) -> tuple[float | None, str | None]:
         return None, exc.reason
 
 
+def motion_cost(side_px: int) -> costs.Cost:
+    """Two frames of ``side_px`` a side registered (:func:`service.costs.pixels`): what the body cap and
+    the PNG headers (read before anything is inflated) allow."""
+    return costs.pixels(side_px, 2, ("reference",), "the registration")
+
+
 @router.post("/motion", operation_id="vision_motion", summary="Rotation, scale and advance between two frames",
              response_model=MotionResponse, openapi_extra=_MOTION_BODY,
              responses=error_responses(400, 404, 413, 422, 503, 504))
+@declare(body=lambda s: sum(_MOTION_PARTS.values()) + MULTIPART_OVERHEAD_BYTES, cost=motion_cost)
 async def vision_motion(request: Request) -> MotionResponse:
     """Maximum mutual information registration of `moving` against `reference` (thesis Ch. 3;
     docs/vision.md, "The estimator"): Butterworth pre-filter, MI of the joint histogram,
@@ -435,6 +451,7 @@ async def vision_motion(request: Request) -> MotionResponse:
         geometry = _json_part(RenderRequest, raw.get("geometry"), "geometry")
         ref = _vision_errors(lambda: frame_from_png(raw["reference"], "reference"))
         mov = _vision_errors(lambda: frame_from_png(raw["moving"], "moving"))
+        admit(motion_cost(max(ref.shape[:2])), st.settings)
         if geometry is not None and ref.shape[:2] != (geometry.camera.size_px,) * 2:
             raise VisionUnprocessable(f"the frames are {ref.shape[1]} x {ref.shape[0]} px, the geometry's camera "
                                       f"{geometry.camera.size_px} px a side", loc=["body", "geometry", "camera",

@@ -102,7 +102,7 @@ def test_toa_work_is_bounded_before_it_starts(live_url):
     # the audit's 112-byte request (one path at 13 us, 190 trials, every method) ran 20 s
     r = httpx.post(f"{live_url}/v1/ranging/toa", json={"profile": {"paths": [late]}, "trials": 190, "method": "all"})
     assert r.status_code == 422 and locs(r) == [["body", "trials"]], r.text
-    assert "work limit" in r.json()["detail"][0]["msg"]
+    assert "work budget" in r.json()["detail"][0]["msg"]
     # 10 000 paths up to 13 us, one trial (the audit's 0.6 MB request held a slot for 151 s)
     paths = [{"delay_s": float(d), "gain": {"re": 1e-4, "im": 0.0}} for d in np.linspace(1e-9, 13e-6 - 40e-9, 10_000)]
     r = httpx.post(f"{live_url}/v1/ranging/toa", json={"profile": {"paths": paths}, "trials": 1}, timeout=60)
