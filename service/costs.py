@@ -115,6 +115,43 @@ def toa_samples_envelope(phantom, frequency_hz: float, max_interactions: int, wa
     return int(math.ceil(t_end * wf.sample_rate_hz)) + 1
 
 
+def localization_evaluation(phantom, capsule_m, sensors_m, *, ranging: str, model_based: bool, frequency_hz: float,
+                            trials: int, rays: int, max_interactions: int, near_field: bool, band: dict | None,
+                            grid_cells: int, settings: Settings) -> Cost:
+    """POST /v1/localize/evaluate (evaluation.localization.evaluate_localization): the one trace from the
+    capsule to every sensor (:func:`channel`, its ``receivers`` the request's ``sensors`` and a PDOA band
+    its ``ranging``), the Monte Carlo ranging of every sensor (TOA: trials x samples per trial x sensors,
+    the samples from :func:`toa_samples_envelope`; PDOA and RSS: trials x tones x sensors) and the
+    model-based travel-time fields. The synthesis of each sensor's waveform (paths x samples) depends on
+    the paths the trace finds: it is checked while it runs."""
+    from estimators.toa import METHODS as TOA_METHODS
+    from raytrace.spec import Antenna, Band
+
+    sensors = tuple(Antenna(position_m=list(map(float, p)), name=f"sensor_{i}") for i, p in enumerate(sensors_m))
+    spec = ChannelSpec(Antenna(position_m=list(map(float, capsule_m)), name="capsule"), sensors,
+                       frequency_hz=frequency_hz, band=None if band is None else Band(**band), rays=rays,
+                       max_interactions=max_interactions, near_field=near_field)
+    parts = [channel(spec, settings, {"receivers": ("sensors",), "band.points": ("ranging",)})]
+    if ranging in TOA_METHODS:
+        n = toa_samples_envelope(phantom, frequency_hz, max_interactions)
+        cap = settings.max_ranging_samples
+        runs = len(sensors)
+        parts.append(Cost(work=(Work(("trials",), float(trials) * n * runs, cap, "samples", "max_ranging_samples",
+                                     f"{trials} trials x {n} samples per trial (an envelope of the latest delay) x "
+                                     f"{runs} sensors", f"lower trials (at most {max(cap // (n * runs), 1)} here), "
+                                     "sensors or max_interactions"),),
+                          memory=((("trials",), float(RANGING_BYTES_PER_SAMPLE) * n),), what="the ranging"))
+    else:
+        tones_ = 1 if band is None else int(band["points"])
+        parts.append(Cost(work=(Work(("trials",), float(trials) * tones_ * len(sensors), settings.max_ranging_samples,
+                                     "samples", "max_ranging_samples", f"{trials} trials x {tones_} tones x "
+                                     f"{len(sensors)} sensors", "lower trials or sensors"),)))
+    if model_based:
+        parts.append(travel_time_fields(grid_cells, len(sensors)))
+    out = total(parts)
+    return Cost(out.work, out.memory, "the evaluation (trace, ranging, travel-time fields)", parts[0].knobs)
+
+
 def pixels(side_px: int, frames: int, loc: Loc, what: str) -> Cost:
     """A camera frame (or a pair registered) of ``side_px`` a side."""
     return Cost(memory=((loc, float(PIXEL_BYTES) * side_px * side_px * frames),), what=what)

@@ -430,11 +430,16 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
     capsule = _place(phantom, req.capsule, "capsule")
     sensors = np.array([_place(phantom, s, f"sensors[{i}]") for i, s in enumerate(req.sensors)])
     methods = req.methods
-    if methods is not None and "model_based" in methods or methods is None and req.ranging != "rss":
+    model_based = methods is not None and "model_based" in methods or methods is None and req.ranging != "rss"
+    if model_based:
         _check_grid(phantom)
     band = None
     if req.ranging == "pdoa":
         band = {"start_hz": 400e6, "stop_hz": 420e6, "points": min(21, settings.max_band_points)}
+    admit(costs.localization_evaluation(
+        phantom, capsule, sensors, ranging=req.ranging, model_based=model_based, frequency_hz=req.frequency_hz,
+        trials=req.trials, rays=rays, max_interactions=interactions, near_field=req.near_field, band=band,
+        grid_cells=_grid_cells(phantom) if model_based else 0, settings=settings), settings)
     try:
         result = evaluate_localization(
             phantom, capsule, list(sensors), ranging=req.ranging, methods=methods, frequency_hz=req.frequency_hz,
@@ -492,14 +497,15 @@ async def localize_route(req: LocalizeRequest, request: Request) -> LocalizeResp
 
 @router.post("/evaluate", response_model=LocalizeEvaluateResponse, operation_id="localize_evaluate",
              summary="Trace, range and locate: position error statistics beside the bound", responses=_ERRORS)
-@declare(body="max_json_body_bytes", cost="rays, max_interactions, sensors and trials against this server's limits")
+@declare(body="max_json_body_bytes", cost=costs.localization_evaluation)
 async def localize_evaluate_route(req: LocalizeEvaluateRequest, request: Request) -> LocalizeEvaluateResponse:
     """One trace from the capsule to the sensors, a seeded Monte Carlo ranging run per sensor
     (TOA, PDOA or RSS), a fix per trial and method; per method the mean error, RMSE, CEP50/CEP90 and
     every trial's error beside the position CRLB and GDOP/PDOP at the true position
     (docs/localization.md, "End-to-end evaluation")."""
     st = state(request)
-    budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments)
+    budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments,
+                    max_bytes=st.settings.compute_memory_share_bytes)
     out = await st.gate.run(lambda b: evaluate(req, st.registry, st.settings, b), budget,
                             disconnected=request.is_disconnected)
     return LocalizeEvaluateResponse.model_validate(out)

@@ -54,8 +54,9 @@ OVER_BOUND: dict[str, tuple[dict, object, list] | None] = {
     "ranging_rss": ({"max_ranging_samples": 10}, {"profile": PROFILE, "trials": 20}, ["body", "trials"]),
     "localize": (TINY_SHARE, {"method": "model_based", "sensors": [{"site": s, "delay_s": 2e-9} for s in SENSORS]},
                  ["body", "sensors"]),
-    "localize_evaluate": ({"max_rays": 1000}, {"capsule": {"site": "stomach"}, "rays": 2000, "methods": ["nonlinear"],
-                                               "sensors": [{"site": s} for s in SENSORS]}, ["body", "rays"]),
+    "localize_evaluate": ({"max_ranging_samples": 100_000},
+                          {"capsule": {"site": "stomach"}, "rays": 2000, "trials": 10,
+                           "sensors": [{"site": s} for s in SENSORS]}, ["body", "trials"]),
     "track": (TINY_SHARE, {"tracker": "particle", "config": {"particles": 10_000}, "observations": _observations(3)},
               ["body", "config", "particles"]),
     "track_evaluate": ({"max_ray_segments": 1000}, {"journey": {"steps": 10}, "trackers": ["rf"], "rays": 2000},
@@ -212,3 +213,30 @@ def test_a_job_kind_without_an_estimate_cannot_be_registered(make_settings, tmp_
 
     with pytest.raises(TypeError, match="estimate"):
         Unbounded(JobRunner(tmp_path), make_settings(), tmp_path / "ub", 1)
+
+
+def test_the_audits_localization_evaluation_is_refused_before_any_work(make_settings, monkeypatch):
+    """Issue 34, item 1: 5e5 rays x 10 interactions x 64 sensors x 200 trials passed every per-field limit and
+    ran past 10 GB and its deadline. Its estimate: 2.7e7 ray segments (within the budget), 64 sensors x 200
+    trials x 5503 samples (the latest delay's envelope at 10 interactions on the torso) = 7e7 TOA samples, over
+    the 2e7 budget: a 422 naming trials; at 20 trials, the trace's memory (rays x sensors candidates, about
+    9 GB) is over the 4 GiB share: a 422 naming rays. The evaluation never starts; the documented request
+    (6 sensors, 10 trials, 20 000 rays) still does."""
+    import evaluation.localization
+
+    started = []
+    monkeypatch.setattr(evaluation.localization, "evaluate_localization",
+                        lambda *a, **k: started.append(k) or (_ for _ in ()).throw(RuntimeError("work started")))
+    audit = {"capsule": {"site": "stomach"}, "sensors": [{"site": SENSORS[i % 6]} for i in range(64)],
+             "rays": 500_000, "max_interactions": 10, "trials": 200, "ranging": "gcc"}
+    with TestClient(create_app(make_settings(max_rays=1_000_000)), raise_server_exceptions=False) as client:
+        r = client.post("/v1/localize/evaluate", json=audit)
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "trials"], r.text
+        assert "work budget" in r.json()["detail"][0]["msg"]
+        r = client.post("/v1/localize/evaluate", json={**audit, "trials": 20})
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "rays"], r.text
+        assert "MiB" in r.json()["detail"][0]["msg"]
+        assert started == []
+        documented = _example(client.app, "localize_evaluate")
+        r = client.post("/v1/localize/evaluate", json=documented)
+        assert r.status_code == 500 and len(started) == 1  # admitted: the spy ran (and raised)
