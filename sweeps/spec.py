@@ -226,16 +226,25 @@ def _positions(value: Any, limits: Limits) -> tuple[dict, ...]:
 
 
 # ------------------------------------------------------------------ channel
-def _band(value: Any, field: str) -> dict | None:
+def _band(value: Any, field: str, limits: Limits) -> dict | None:
+    """A band (``{span_hz, points}`` around each carrier, or a :class:`~raytrace.spec.Band`'s fields), its
+    ``points`` checked against ``limits.max_band_points`` before any frequency is allocated."""
     if value is None:
         return None
     value = _mapping(value, field)
+    if "points" in value:  # bounded before Band's linspace allocates them (1e11 points: 745 GiB)
+        _int(value["points"], f"{field}.points", 2, limits.max_band_points)
     if "span_hz" in value:
         value = _mapping(value, field, {"span_hz", "points"})
         if "points" not in value:
             raise _fail("required with span_hz", f"{field}.points")
         return {"span_hz": _number(value["span_hz"], f"{field}.span_hz", positive=True),
                 "points": value["points"]}
+    frequencies = value.get("frequencies_hz")
+    if isinstance(frequencies, Sequence) and not isinstance(frequencies, (str, bytes)) \
+            and len(frequencies) > limits.max_band_points:
+        raise _fail(f"{len(frequencies)} band points exceed the limit of {limits.max_band_points}",
+                    f"{field}.frequencies_hz")
     try:
         return Band(**dict(value)).to_dict()
     except CapsuleRTError as exc:
@@ -406,7 +415,7 @@ class SweepSpec:
         out["frequencies_hz"] = freqs
 
         channel = dict(_mapping(data.get("channel", {}) or {}, "channel", _CHANNEL))
-        band = _band(channel.pop("band", None), "channel.band")
+        band = _band(channel.pop("band", None), "channel.band", limits)
         polarization = channel.pop("capsule_polarization", [0.0, 0.0, 1.0])
         pattern = channel.pop("capsule_pattern", "isotropic")
         if pattern not in PATTERNS:
