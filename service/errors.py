@@ -221,8 +221,9 @@ def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
 
     text = {
         400: "Malformed request.",
-        401: "API key missing or not valid (only when the server requires keys; header `X-API-Key`).",
-        403: "Refused: the key did not upload this phantom, or a cross-origin write.",
+        401: "API key missing or not valid (only when the server requires keys: uploads, jobs and deletes; header "
+             "`X-API-Key`).",
+        403: "Refused: another key submitted this phantom or job, or a write from a foreign origin.",
         404: "Unknown phantom, scenario, site or route.",
         409: "Conflict (e.g. deleting a built-in phantom).",
         413: "Request body over its size cap.",

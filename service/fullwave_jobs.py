@@ -179,9 +179,10 @@ class FullwaveJobs(JobKind):
             what=f"the FDTD grid at {runs[biggest]['cell_m'] * 1e3:g} mm ({'x'.join(map(str, runs[biggest]['cells']))} "
                  "cells; gprMax holds it whole)", knobs="larger cells or a smaller margin_m")
 
-    def submit(self, req: Any) -> dict[str, Any]:
+    def submit(self, req: Any, owner: str | None = None) -> dict[str, Any]:
         """Validate a :class:`~service.schemas.fullwave.FullwaveRequest`, store the job (``queued``, or
-        ``done`` for ``export_only``); its status. Runs in a worker thread."""
+        ``done`` for ``export_only``) owned by ``owner`` (the submitting key's id); its status. Runs in a
+        worker thread."""
         spec, phantom, options, sizes, runs = self._validate(req)
         if not req.export_only and not gprmax_available():
             raise NotInstalled("gprMax is not installed on this server (pip install 'capsule-rt[fullwave]'); "
@@ -206,7 +207,7 @@ class FullwaveJobs(JobKind):
             atomic_write(tmp / JOB_FILE, json.dumps(record, sort_keys=True, allow_nan=False).encode())
             self.write_state(tmp, state)
 
-        job_id = self.create(Cost(), build)  # its cost was admitted by _validate, before the models were built
+        job_id = self.create(Cost(), build, owner)  # its cost was admitted by _validate, before the models were built
         log.info("fullwave queued", extra={"fullwave": job_id, "phantom": spec.phantom,
                                            "cell_updates": sum(r["cell_updates"] for r in runs)})
         return self.status(job_id)

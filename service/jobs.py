@@ -26,6 +26,7 @@ with :meth:`JobKind.create`, which admits the cost (422 naming the field) before
 from __future__ import annotations
 
 import fcntl
+import json
 import logging
 import os
 import re
@@ -39,11 +40,14 @@ from typing import Any, Callable, Iterator
 
 from service.admission import Cost, admit
 from service.errors import Conflict, NotFound, ServerSaturated
+from service.security import check_owner
 from service.settings import Settings
 
 log = logging.getLogger("capsule_rt.jobs")
 
 CANCEL_FILE = "cancel.requested"
+#: The job's owner: the id of the API key that submitted it (service.security.owner_id), or null.
+OWNER_FILE = "owner.json"
 ACTIVE = ("queued", "running")
 #: How often the runner looks for new jobs and cancellation requests [s].
 POLL_S = 0.5
@@ -125,10 +129,11 @@ class JobKind:
     def active(self) -> int:
         return sum(1 for j in self.job_ids() if self.read_state(self.root / j).get("state") in ACTIVE)
 
-    def create(self, cost: Cost, build: Callable[[Path], None]) -> str:
+    def create(self, cost: Cost, build: Callable[[Path], None], owner: str | None) -> str:
         """Queue a new job: ``cost`` through the one rule (422 naming its dominant field), then, under the
         queue's admission (503 beyond ``max_queue``), ``build(tmp)`` writes the job's files into a
-        temporary directory that one rename makes the job (never half-written). Its id."""
+        temporary directory that one rename makes the job (never half-written), with ``owner`` (the
+        submitting key's id, :func:`service.security.owner_id`; None without keys). Its id."""
         admit(cost, self.settings)
         with self.admission():
             job_id = self.new_id()
@@ -136,6 +141,7 @@ class JobKind:
             try:
                 tmp.mkdir(parents=True)
                 build(tmp)
+                (tmp / OWNER_FILE).write_text(json.dumps({"owner": owner}))
                 os.replace(tmp, self.root / job_id)
             except BaseException:
                 shutil.rmtree(tmp, ignore_errors=True)
@@ -153,9 +159,18 @@ class JobKind:
                     headers={"Retry-After": str(self.retry_after_s)})
             yield
 
-    def cancel(self, job_id: str) -> dict[str, Any]:
-        """Cancel a queued or running job; delete a finished one (and all its files)."""
+    def owner(self, job_id: str) -> str | None:
+        """The id of the key that submitted the job (None: submitted without keys, or before owners were kept)."""
+        try:
+            return json.loads((self.job_dir(job_id) / OWNER_FILE).read_text()).get("owner")
+        except (FileNotFoundError, ValueError, AttributeError):
+            return None
+
+    def cancel(self, job_id: str, requester: str | None = None) -> dict[str, Any]:
+        """Cancel a queued or running job; delete a finished one (and all its files). With API keys in use
+        (``requester``: the request's key id), only the key that submitted the job may (403 otherwise)."""
         d = self.job_dir(job_id)
+        check_owner(self.owner(job_id), requester, f"{self.noun} {job_id}")
         state = self.read_state(d)
         if state.get("state") in ACTIVE:
             (d / CANCEL_FILE).touch()

@@ -2,14 +2,17 @@
 
 The model (docs/service.md, "Security"):
 
-* Reads (every GET, and the computations: channel, ranging, bounds) are open.
-* Uploads and deletes: with ``CAPSULE_RT_API_KEYS`` unset, open to anyone who
+* Reads (every GET) and the computations that keep no state (channel, ranging,
+  bounds, localization, tracking, plots, vision) are open.
+* Writes that keep or remove state (uploads, sweep and full-wave jobs, their
+  cancellations and deletes: the operations declared ``keyed``,
+  :mod:`service.admission`): with ``CAPSULE_RT_API_KEYS`` unset, open to anyone who
   reaches the port (a private bench or a container network). With keys set,
-  they need the header ``X-API-Key`` holding one of them (401 otherwise), a
-  stored phantom records which key uploaded it (as :func:`owner_id`, a hash:
-  the key itself is never written to disk), and only that key deletes it
-  (403 for any other). Phantoms stored while keys were unset have no owner:
-  any valid key deletes them.
+  they need the header ``X-API-Key`` holding one of them (401 otherwise, before
+  the body is read), a stored phantom or job records which key submitted it (as
+  :func:`owner_id`, a hash: the key itself is never written to disk), and only
+  that key deletes it (403 for any other). Phantoms and jobs stored while keys
+  were unset have no owner: any valid key deletes them.
 * Browsers: a web page of another origin can send a multipart form POST
   without any CORS preflight, and the browser only hides the answer. So a
   write (POST, PUT, PATCH, DELETE) whose ``Origin`` header is neither the
@@ -66,10 +69,11 @@ def writer(request: Request, settings: Settings) -> str | None:
     return None if not settings.api_keys else owner_id(given)
 
 
-def check_owner(stored_owner: str | None, requester: str | None, phantom_id: str) -> None:
-    """403 unless ``requester`` (an owner id, None without keys) may delete a phantom of ``stored_owner``."""
+def check_owner(stored_owner: str | None, requester: str | None, what: str) -> None:
+    """403 unless ``requester`` (an owner id, None without keys) may delete ``what`` (a phantom, a job),
+    stored with ``stored_owner`` (None: stored without keys, which any valid key may delete)."""
     if requester is not None and stored_owner is not None and not hmac.compare_digest(stored_owner, requester):
-        raise Forbidden(f"phantom {phantom_id!r} was uploaded with another API key; only that key deletes it",
+        raise Forbidden(f"{what} was submitted with another API key; only that key deletes it",
                         loc=["header", API_KEY_HEADER.lower()])
 
 

@@ -165,8 +165,9 @@ class Settings(BaseSettings):
     api_keys: CommaList = Field(
         default_factory=list,
         repr=False,
-        description=f"Comma-separated API keys (each >= {MIN_API_KEY_CHARS} characters). Empty: uploads and "
-        "deletes are open. Set: they need header `X-API-Key`, and only the key that uploaded a phantom deletes it.",
+        description=f"Comma-separated API keys (each >= {MIN_API_KEY_CHARS} characters). Empty: uploads, jobs "
+        "and deletes are open. Set: they need header `X-API-Key`, and only the key that submitted a phantom or a "
+        "job deletes it.",
     )
     cors_origins: CommaList = Field(
         default_factory=list,

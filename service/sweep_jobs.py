@@ -84,8 +84,9 @@ class SweepJobs(JobKind):
             self._engine = None
 
     # ------------------------------------------------------------ API
-    def submit(self, data: Any) -> dict[str, Any]:
-        """Validate and plan a spec, store the job ``queued``; its status. Runs in a worker thread."""
+    def submit(self, data: Any, owner: str | None = None) -> dict[str, Any]:
+        """Validate and plan a spec, store the job ``queued`` (owned by ``owner``, the submitting key's id);
+        its status. Runs in a worker thread."""
         spec = SweepSpec.from_dict(data, self.limits)
         phantom_id = spec["phantom"]
         phantom = self.registry.get(phantom_id, field_loc=["body", "phantom"])
@@ -97,7 +98,7 @@ class SweepJobs(JobKind):
         def build(tmp: Path) -> None:
             prepare(spec, tmp, phantom=phantom, source=source, limits=self.limits)
 
-        sweep_id = self.create(self.estimate((spec, phantom)), build)
+        sweep_id = self.create(self.estimate((spec, phantom)), build, owner)
         log.info("sweep queued", extra={"sweep": sweep_id, "phantom": phantom_id})
         return self.status(sweep_id)
 

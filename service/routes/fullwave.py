@@ -13,6 +13,7 @@ from service.admission import declare
 from service.errors import error_responses
 from service.fullwave_jobs import FullwaveJobs
 from service.schemas.fullwave import FullwaveList, FullwaveRequest, FullwaveStatus
+from service.security import writer
 
 router = APIRouter(prefix="/v1/fullwave", tags=["fullwave"])
 
@@ -29,8 +30,8 @@ def _jobs(request: Request):
 
 
 @router.post("", status_code=202, response_model=FullwaveStatus, operation_id="submit_fullwave",
-             summary="Submit a full-wave cross-check", responses=error_responses(400, 404, 413, 422, 501, 503))
-@declare(body="max_json_body_bytes", cost=FullwaveJobs.estimate)
+             summary="Submit a full-wave cross-check", responses=error_responses(400, 401, 404, 413, 422, 501, 503))
+@declare(body="max_json_body_bytes", cost=FullwaveJobs.estimate, keyed=True)
 async def submit_fullwave(req: FullwaveRequest, request: Request) -> JSONResponse:  # type: ignore[valid-type]
     """Validate the channel request and the FDTD models (their size against the server's work bound,
     the antennas outside the absorbing layer), write the gprMax inputs and queue the job on the
@@ -38,7 +39,8 @@ async def submit_fullwave(req: FullwaveRequest, request: Request) -> JSONRespons
     status at once; `export_only` jobs are already `done`. At most `fullwave_max_queue` jobs may be
     queued or running (503 + Retry-After beyond); 501 when gprMax is not installed and the job would
     need it."""
-    status = await anyio.to_thread.run_sync(_jobs(request).submit, req)
+    owner = writer(request, request.app.state.capsule.settings)
+    status = await anyio.to_thread.run_sync(_jobs(request).submit, req, owner)
     return JSONResponse(FullwaveStatus.model_validate(status).model_dump(), status_code=202,
                         headers={"Location": f"/v1/fullwave/{status['id']}"})
 
@@ -89,9 +91,10 @@ async def get_fullwave_file(request: Request, job_id: str = JobIdPath, name: str
 
 
 @router.delete("/{job_id}", response_model=FullwaveStatus, operation_id="cancel_fullwave",
-               summary="Cancel or delete a full-wave job", responses=error_responses(404, 409, 422))
-@declare(body=None, cost="none: writes a cancellation file, or removes a finished job")
+               summary="Cancel or delete a full-wave job", responses=error_responses(401, 403, 404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job", keyed=True)
 async def cancel_fullwave(request: Request, job_id: str = JobIdPath) -> FullwaveStatus:
     """A queued or running job is cancelled (its gprMax process is killed; the files written so far
     stay); a finished (`done`, `failed`, `cancelled`) one is deleted with its files (`deleted: true`)."""
-    return FullwaveStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, job_id))
+    requester = writer(request, request.app.state.capsule.settings)
+    return FullwaveStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, job_id, requester))

@@ -141,7 +141,7 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
             stored_owner = await anyio.to_thread.run_sync(reg.store.owner, phantom_id)
         except Missing:
             raise NotFound(reg.unknown_message(phantom_id), loc=["path", "phantom_id"]) from None
-        check_owner(stored_owner, requester, phantom_id)
+        check_owner(stored_owner, requester, f"phantom {phantom_id!r}")
     removed = await anyio.to_thread.run_sync(reg.store.delete, phantom_id)
     reg.forget(phantom_id)
     if not removed:

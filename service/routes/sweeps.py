@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from service.admission import declare
 from service.errors import ServiceError, Unprocessable, UploadTooLarge, error_responses
+from service.security import writer
 from service.sweep_jobs import SweepJobs
 from sweeps.spec import LIMITS, parse_text
 
@@ -173,13 +174,14 @@ def decode_spec(body: bytes, kind: str) -> dict:
 
 
 @router.post("", status_code=202, response_model=SweepStatus, operation_id="submit_sweep", summary="Submit a sweep",
-             responses=error_responses(400, 404, 413, 422, 503), openapi_extra=_SUBMIT)
-@declare(body="max_json_body_bytes", cost=SweepJobs.estimate)
+             responses=error_responses(400, 401, 404, 413, 422, 503), openapi_extra=_SUBMIT)
+@declare(body="max_json_body_bytes", cost=SweepJobs.estimate, keyed=True)
 async def submit_sweep(request: Request) -> JSONResponse:
     """Validate the spec (and plan it against the phantom: sites, positions, centreline), store the job
     and queue it. Answers 202 with its status at once; the work runs in worker processes. At most
     `sweep_max_queue` jobs may be queued or running (503 + Retry-After beyond)."""
     jobs = _jobs(request)
+    owner = writer(request, request.app.state.capsule.settings)
     cap = jobs.limits.max_spec_bytes
     body = bytearray()
     async for chunk in request.stream():
@@ -188,7 +190,7 @@ async def submit_sweep(request: Request) -> JSONResponse:
             raise UploadTooLarge(f"a sweep spec is at most {cap} bytes", loc=["body"])
     kind = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
     # parsing (up to max_spec_bytes of JSON or YAML), validation and planning all run in a worker thread
-    status = await anyio.to_thread.run_sync(lambda: jobs.submit(decode_spec(bytes(body), kind)))
+    status = await anyio.to_thread.run_sync(lambda: jobs.submit(decode_spec(bytes(body), kind), owner))
     return JSONResponse(SweepStatus.model_validate(status).model_dump(), status_code=202,
                         headers={"Location": f"/v1/sweeps/{status['id']}"})
 
@@ -230,9 +232,10 @@ async def get_sweep_results(
 
 
 @router.delete("/{sweep_id}", response_model=SweepStatus, operation_id="cancel_sweep", summary="Cancel a sweep",
-               responses=error_responses(404, 409, 422))
-@declare(body=None, cost="none: writes a cancellation file, or removes a finished job")
+               responses=error_responses(401, 403, 404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job", keyed=True)
 async def cancel_sweep(request: Request, sweep_id: str = SweepIdPath) -> SweepStatus:
     """A queued or running sweep is cancelled (its finished tasks' rows stay available); a finished
     (`done`, `failed`, `cancelled`) one is deleted with its results (`deleted: true`)."""
-    return SweepStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, sweep_id))
+    requester = writer(request, request.app.state.capsule.settings)
+    return SweepStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, sweep_id, requester))
