@@ -139,7 +139,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # the API key, then its body capped while it streams in), and OPTIONS / 405 get the contract's Allow
     app.add_middleware(AllowedMethods, openapi=lambda: app.openapi())  # the documented one, see _document
     app.add_middleware(Gate, table=lambda: table, settings=settings)
-    app.add_middleware(OriginGuard, allowed_origins=settings.cors_origins)
+    app.add_middleware(OriginGuard, settings=settings)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,

@@ -15,10 +15,12 @@ The model (docs/service.md, "Security"):
   were unset have no owner: any valid key deletes them.
 * Browsers: a web page of another origin can send a multipart form POST
   without any CORS preflight, and the browser only hides the answer. So a
-  write (POST, PUT, PATCH, DELETE) whose ``Origin`` header is neither the
-  server's own origin nor in ``CAPSULE_RT_CORS_ORIGINS`` is refused with 403
-  before it is read. Clients that are not browsers send no ``Origin`` and are
-  unaffected. ``CAPSULE_RT_CORS_ORIGINS`` (default empty) also lists the
+  write (POST, PUT, PATCH, DELETE) whose ``Origin`` header is not one of the
+  configured origins (:func:`configured_origins`: ``CAPSULE_RT_CORS_ORIGINS`` and
+  the server's own ``http://HOST:PORT``; scheme, host and port all count; never
+  the request's ``Host``, which a DNS-rebinding page controls) is refused with
+  403 before it is read. Clients that are not browsers send no ``Origin`` and
+  are unaffected. ``CAPSULE_RT_CORS_ORIGINS`` (default empty) also lists the
   origins whose pages may read the API's answers (CORS headers).
 """
 
@@ -77,39 +79,58 @@ def check_owner(stored_owner: str | None, requester: str | None, what: str) -> N
                         loc=["header", API_KEY_HEADER.lower()])
 
 
-def _own_origin(scope) -> str | None:
-    for name, value in scope.get("headers", []):
-        if name == b"host":
-            return value.decode("latin-1").lower()
-    return None
+Origin = tuple[str, str, int]
+
+_DEFAULT_PORTS = {"http": 80, "https": 443}
+_LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def parse_origin(text: str) -> Origin | None:
+    """``scheme://host[:port]`` as (scheme, host, port) with the scheme's default port made explicit
+    (browsers leave it out); None for anything else (``null``, a path, another scheme)."""
+    try:
+        parts = urlsplit(text.strip().lower())
+        port = parts.port
+    except ValueError:
+        return None
+    if parts.scheme not in _DEFAULT_PORTS or not parts.hostname or parts.path not in ("", "/") \
+            or parts.query or parts.fragment or parts.username is not None:
+        return None
+    return parts.scheme, parts.hostname, port if port is not None else _DEFAULT_PORTS[parts.scheme]
+
+
+def configured_origins(settings: Settings) -> frozenset[Origin]:
+    """The origins whose pages may write: ``CAPSULE_RT_CORS_ORIGINS``, and the server's own as configured
+    (``http://HOST:PORT`` of ``capsule-rt serve``; for a loopback or wildcard HOST, the loopback names of
+    PORT: what a browser on this machine uses). Never the request's ``Host`` header: a page served from
+    another name (DNS rebinding) would pass a Host check with its own Host."""
+    origins = {o for o in (parse_origin(text) for text in settings.cors_origins) if o is not None}
+    host = settings.host.strip("[]").lower()
+    if host in (*_LOOPBACK, "0.0.0.0", "::", ""):
+        origins |= {("http", name, settings.port) for name in _LOOPBACK}
+    else:
+        origins.add(("http", host, settings.port))
+    return frozenset(origins)
 
 
 class OriginGuard:
-    """Pure-ASGI middleware: refuse a write whose ``Origin`` is foreign (module docstring)."""
+    """Pure-ASGI middleware: refuse a write whose ``Origin`` is not one of :func:`configured_origins`
+    (scheme, host and port all count), before anything is read (module docstring)."""
 
-    def __init__(self, app, allowed_origins: list[str]) -> None:
+    def __init__(self, app, settings: Settings) -> None:
         self.app = app
-        self.allowed = frozenset(o.lower().rstrip("/") for o in allowed_origins)
+        self.allowed = configured_origins(settings)
 
     async def __call__(self, scope, receive, send):
         if scope["type"] == "http" and scope.get("method") in _WRITES:
             origin = next((v.decode("latin-1") for k, v in scope.get("headers", []) if k == b"origin"), None)
-            if origin is not None and not self._allowed(origin.strip().lower(), scope):
+            if origin is not None and parse_origin(origin) not in self.allowed:
                 body = error_body(
                     ["header", "origin"],
                     f"writes from a web page of origin {origin[:200]!r} are refused: it is neither this "
-                    "server's origin nor in CAPSULE_RT_CORS_ORIGINS",
+                    "server's configured origin (http://HOST:PORT) nor in CAPSULE_RT_CORS_ORIGINS",
                     Forbidden.type,
                 )
                 await JSONResponse(body, status_code=403)(scope, receive, send)
                 return
         await self.app(scope, receive, send)
-
-    def _allowed(self, origin: str, scope) -> bool:
-        if origin.rstrip("/") in self.allowed:
-            return True
-        try:
-            parts = urlsplit(origin)
-        except ValueError:
-            return False
-        return parts.scheme in ("http", "https") and parts.netloc != "" and parts.netloc == _own_origin(scope)

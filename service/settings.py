@@ -35,7 +35,9 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="CAPSULE_RT_", extra="ignore")
 
-    host: str = Field("127.0.0.1", description="Interface `capsule-rt serve` binds to.")
+    host: str = Field("127.0.0.1", description="Interface `capsule-rt serve` binds to; with the port, the server's "
+                      "own origin `http://HOST:PORT`, from whose pages writes are accepted (a loopback or wildcard "
+                      "HOST: `localhost`, `127.0.0.1`, `[::1]`; any other public name goes in CORS_ORIGINS).")
     port: int = Field(8000, ge=1, le=65535, description="TCP port of `capsule-rt serve`.")
     workers: int = Field(1, ge=1, le=64, description="Uvicorn worker processes.")
     data_dir: Path = Field(
@@ -172,7 +174,8 @@ class Settings(BaseSettings):
     cors_origins: CommaList = Field(
         default_factory=list,
         description="Comma-separated origins (`https://host:port`) whose web pages may call the API "
-        "(CORS). Empty: none; writes carrying any other `Origin` are refused (403).",
+        "(CORS). Empty: none; writes carrying an `Origin` that is neither one of these nor the server's own "
+        "(HOST, PORT) are refused (403): scheme, host and port all count, the request's Host header never does.",
     )
 
     def trace_knobs(self, rays: int | None, max_interactions: int | None, *, default_rays: int,

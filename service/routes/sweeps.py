@@ -11,7 +11,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.admission import declare
-from service.errors import ServiceError, Unprocessable, UploadTooLarge, error_responses
+from service.errors import ServiceError, Unprocessable, UnsupportedMediaType, UploadTooLarge, error_responses
 from service.security import writer
 from service.sweep_jobs import SweepJobs
 from sweeps.spec import LIMITS, parse_text
@@ -145,6 +145,19 @@ def _jobs(request: Request):
     return request.app.state.sweeps
 
 
+#: The media types a spec may come as: JSON, or YAML. Anything else (above all the types a web page's form
+#: or a no-preflight fetch sends: text/plain, application/x-www-form-urlencoded, multipart/form-data) is 415.
+YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml")
+
+
+def spec_media_type(header: str | None) -> str:
+    kind = (header or "").split(";")[0].strip().lower()
+    if kind == "application/json" or (kind.startswith("application/") and kind.endswith("+json")) or kind in YAML_TYPES:
+        return kind
+    raise UnsupportedMediaType(f"a sweep spec is sent as application/json or application/yaml, not "
+                               f"{kind[:100] or 'a body without Content-Type'}", loc=["header", "content-type"])
+
+
 def decode_spec(body: bytes, kind: str) -> dict:
     """A sweep spec's body (JSON, or YAML for ``application/yaml``) as an object: 400 naming the
     body when it is not UTF-8, not JSON/YAML, or nests too deeply to parse; 422 when it is not an
@@ -154,7 +167,7 @@ def decode_spec(body: bytes, kind: str) -> dict:
     except UnicodeDecodeError:
         raise ServiceError("the spec is not UTF-8 text", loc=["body"]) from None
     try:
-        if kind in ("application/yaml", "application/x-yaml", "text/yaml"):
+        if kind in YAML_TYPES:
             from raytrace.errors import InputError
 
             try:
@@ -174,21 +187,22 @@ def decode_spec(body: bytes, kind: str) -> dict:
 
 
 @router.post("", status_code=202, response_model=SweepStatus, operation_id="submit_sweep", summary="Submit a sweep",
-             responses=error_responses(400, 401, 404, 413, 422, 503), openapi_extra=_SUBMIT)
+             responses=error_responses(400, 401, 404, 413, 415, 422, 503), openapi_extra=_SUBMIT)
 @declare(body="max_json_body_bytes", cost=SweepJobs.estimate, keyed=True)
 async def submit_sweep(request: Request) -> JSONResponse:
     """Validate the spec (and plan it against the phantom: sites, positions, centreline), store the job
-    and queue it. Answers 202 with its status at once; the work runs in worker processes. At most
-    `sweep_max_queue` jobs may be queued or running (503 + Retry-After beyond)."""
+    and queue it. The body is JSON (`application/json`) or YAML (`application/yaml`); any other type is 415.
+    Answers 202 with its status at once; the work runs in worker processes. At most `sweep_max_queue` jobs
+    may be queued or running (503 + Retry-After beyond)."""
     jobs = _jobs(request)
     owner = writer(request, request.app.state.capsule.settings)
+    kind = spec_media_type(request.headers.get("content-type"))
     cap = jobs.limits.max_spec_bytes
     body = bytearray()
     async for chunk in request.stream():
         body += chunk
         if len(body) > cap:
             raise UploadTooLarge(f"a sweep spec is at most {cap} bytes", loc=["body"])
-    kind = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
     # parsing (up to max_spec_bytes of JSON or YAML), validation and planning all run in a worker thread
     status = await anyio.to_thread.run_sync(lambda: jobs.submit(decode_spec(bytes(body), kind), owner))
     return JSONResponse(SweepStatus.model_validate(status).model_dump(), status_code=202,
