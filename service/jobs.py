@@ -42,6 +42,7 @@ from service.admission import Cost, admit
 from service.errors import Conflict, NotFound, ServerSaturated
 from service.security import check_owner
 from service.settings import Settings
+from service.workers import WORKERS_DIR, reap
 
 log = logging.getLogger("capsule_rt.jobs")
 
@@ -197,6 +198,8 @@ class JobRunner:
 
     def __init__(self, data_dir: Path) -> None:
         self.data_dir = Path(data_dir)
+        #: Where the kinds' worker processes record themselves (service.workers).
+        self.workers_dir = self.data_dir / WORKERS_DIR
         self.kinds: list[JobKind] = []
         self.submit_lock = threading.Lock()
         self._stop = threading.Event()
@@ -213,8 +216,11 @@ class JobRunner:
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
+        """Start the runner thread; when this process gets the data directory's lock at once, it first reaps
+        what a killed runner left (its workers, its partial submissions), before the service says ready."""
         for kind in self.kinds:
             kind.root.mkdir(parents=True, exist_ok=True)
+        self._take_lock()
         self._thread = threading.Thread(target=self._run, name="job-runner", daemon=True)
         self._thread.start()
 
@@ -248,6 +254,7 @@ class JobRunner:
             os.close(fd)
             return False
         self._lock_fd = fd
+        reap(self.workers_dir)  # the worker processes of a runner that was killed (service.workers)
         for kind in self.kinds:  # leftovers of submissions and deletions a crash interrupted
             if kind.root.is_dir():
                 for entry in kind.root.iterdir():

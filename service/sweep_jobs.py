@@ -26,6 +26,7 @@ from service.jobs import CANCEL_FILE, JobKind, JobRunner
 from service.registry import Registry
 from service.settings import Settings
 from service.storage import is_upload_id
+from service.workers import clear, register
 from sweeps.engines import make_engine
 from sweeps.run import execute, open_sweep, prepare
 from sweeps.spec import LIMITS, Limits, SweepSpec
@@ -82,6 +83,7 @@ class SweepJobs(JobKind):
         if self._engine is not None:
             self._engine.close()
             self._engine = None
+            clear(self.runner.workers_dir)  # shut down cleanly: nothing for the next start to reap
 
     # ------------------------------------------------------------ API
     def submit(self, data: Any, owner: str | None = None) -> dict[str, Any]:
@@ -170,6 +172,9 @@ class SweepJobs(JobKind):
         budget = {"deadline_s": self.settings.request_deadline_s, "max_ray_segments": self.settings.max_ray_segments,
                   "max_bytes": self.settings.compute_memory_share_bytes}
         if self._engine is None:  # one pool (or Dask client) for the runner's life: workers stay warm
-            self._engine = make_engine(self.settings.sweep_workers, self.settings.sweep_cluster)
+            # each local worker leads a process group of its own and records itself, so that the next
+            # runner of this data directory reaps the pool of a server that was killed (service.workers)
+            self._engine = make_engine(self.settings.sweep_workers, self.settings.sweep_cluster,
+                                       initializer=register, initargs=(str(self.runner.workers_dir),))
         summary = execute(store, spec, plan, source, engine=self._engine, cancel=cancel, budget=budget)
         return summary.state["state"]
