@@ -167,7 +167,10 @@ def run_track(req: TrackRequest, registry, budget: Budget, settings=None) -> dic
            for o in req.observations]
     cfg = TrackerConfig(**req.config.model_dump())
     budget.charge()
-    out = (particle_track if req.tracker == "particle" else kalman_track)(line, obs, cfg, name=req.tracker)
+    if req.tracker == "particle":  # checked at every step: past the deadline, or once the client left, it stops
+        out = particle_track(line, obs, cfg, name=req.tracker, check=budget.charge)
+    else:
+        out = kalman_track(line, obs, cfg, name=req.tracker)
     budget.charge()
     return out.to_dict()
 
