@@ -65,6 +65,8 @@ __all__ = [
 ]
 
 PDOA_METHODS = ("two_tone", "regression")
+#: Largest seed: what a JSON number holds exactly (the HTTP schema's maximum too).
+MAX_SEED = 2**53 - 1
 
 
 class SweepSpecError(InputError):
@@ -466,8 +468,11 @@ class SweepSpec:
         out["localization"] = localization.validate(data.get("localization"), out["ranging"], "localization")
         out["trials"] = _int(data.get("trials", min(100, limits.max_trials)), "trials", 1, limits.max_trials)
         seed = _integral(data.get("seed", 0))
-        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
-            raise _fail(f"must be an integer in [0, 2^63), got {seed!r}", "seed")
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+            got = f"an integer of {len(str(abs(seed)))} digits" if isinstance(seed, int) and abs(seed) > 10**20 \
+                else repr(seed)[:100]
+            raise _fail(f"must be an integer in [0, 2^53 - 1] (a JSON number holds integers exactly up to 2^53), "
+                        f"got {got}", "seed")
         out["seed"] = int(seed)
         out["chunk_positions"] = _int(data.get("chunk_positions", 4), "chunk_positions", 1,
                                       limits.max_chunk_positions)
@@ -547,6 +552,8 @@ def parse_text(text: str, suffix: str = ".yaml") -> Any:
         data = yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
         raise _fail(f"not valid YAML: {exc}", "spec") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (sys.get_int_max_str_digits)
+        raise _fail(f"not valid YAML for a spec: {str(exc)[:200]}", "spec") from None
     _check_expanded_size(data)
     return data
 

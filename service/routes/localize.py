@@ -105,9 +105,10 @@ class LocalizeSensor(PositionOrSite):
     delay_s: float | None = Field(None, gt=0.0, le=1e-6, description="Measured delay [s] (every delay method; "
                                   "linear / nonlinear turn it into a range with relative_permittivity).")
     rss_dbm: float | None = Field(None, ge=-300.0, le=100.0, description="Received power [dBm] (method rss).")
-    sigma_m: float | None = Field(None, gt=0.0, le=100.0, description="Standard deviation of the measurement as a "
-                                  "range [m] (a delay's is sigma_m / v at relative_permittivity). Give it for every "
-                                  "sensor or none; without it the fit weighs sensors equally and crlb_m is null.")
+    sigma_m: float | None = Field(None, ge=1e-12, le=100.0, description="Standard deviation of the measurement as "
+                                  "a range [m] (a delay's is sigma_m / v at relative_permittivity), at least 1 pm (no "
+                                  "ranging resolves less; below ~1e-150 the 1 / sigma^2 weights overflow). Give it for "
+                                  "every sensor or none; without it the fit weighs sensors equally and crlb_m is null.")
 
     @model_validator(mode="after")
     def _measured(self) -> "LocalizeSensor":
