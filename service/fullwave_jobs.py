@@ -226,7 +226,8 @@ class FullwaveJobs(JobKind):
             "iteration": state.get("iteration", 0), "iterations": state.get("iterations", 0),
             "progress": min(1.0, done_work / sum(work)) if sum(work) else 0.0,
             "elapsed_s": float(state.get("elapsed_s") or 0.0), "eta_s": state.get("eta_s"),
-            "error": state.get("error"), "files": self._files(d), "created_at": job.get("created_at"),
+            "error": self.redact(state.get("error"), d / RUN_DIR), "files": self._files(d),
+            "created_at": job.get("created_at"),
             "started_at": state.get("started_at"), "finished_at": state.get("finished_at"),
             "cancel_requested": (d / CANCEL_FILE).exists(),
         }
@@ -266,15 +267,20 @@ class FullwaveJobs(JobKind):
             raise Conflict(f"the report is written when the job is done; it is {state}", loc=self.id_loc)
         return path.read_bytes()
 
-    def file(self, job_id: str, name: str) -> tuple[Path, str]:
+    def file(self, job_id: str, name: str) -> tuple[Path | bytes, str]:
         """A file of the job's own run directory that :meth:`_files` lists (the route's pattern has
-        already refused any other name), and its media type."""
+        already refused any other name), and its media type. Text files (gprMax's log and input, the
+        report) come as bytes with the server's paths redacted (:meth:`redact`: gprMax writes the
+        absolute paths of its input and output); the HDF5 output as its path."""
         d = self.job_dir(job_id)
         if name not in self._files(d):
             raise NotFound(f"{name!r} is not (yet) a file of {job_id}; its status lists them",
                            loc=["path", "name"])
         path = d / RUN_DIR / name
-        return path, MEDIA.get(path.suffix, "application/octet-stream")
+        media = MEDIA.get(path.suffix, "application/octet-stream")
+        if path.suffix == ".h5":
+            return path, media
+        return self.redact(path.read_text(errors="replace"), d / RUN_DIR).encode(), media
 
     # ------------------------------------------------------------ runner
     def execute(self, job_id: str, cancel: threading.Event) -> str:

@@ -160,6 +160,21 @@ class JobKind:
                     headers={"Retry-After": str(self.retry_after_s)})
             yield
 
+    def redact(self, text: str | None, job_dir: Path | None = None) -> str | None:
+        """``text`` (a log, a message) without the server's file system: the job's own directory becomes
+        ``.`` relative to the file asked for (``job_dir``: its run directory), the data directory
+        ``<data_dir>``. Absolute paths tell a client where and as whom the server runs."""
+        if not text:
+            return text
+        pairs = []
+        if job_dir is not None:
+            pairs += [(str(job_dir.resolve()), "."), (str(job_dir.absolute()), ".")]
+        data = Path(self.settings.data_dir)
+        pairs += [(str(data.resolve()), "<data_dir>"), (str(data.absolute()), "<data_dir>")]
+        for path, replacement in sorted(set(pairs), key=lambda p: -len(p[0])):  # the longest first
+            text = text.replace(path, replacement)
+        return text
+
     def owner(self, job_id: str) -> str | None:
         """The id of the key that submitted the job (None: submitted without keys, or before owners were kept)."""
         try:

@@ -129,8 +129,9 @@ class SweepJobs(JobKind):
             "tasks_total": state.get("tasks_total") or -(-len(record["plan"]["labels"])
                                                          // record["plan"]["chunk_positions"]),
             "elapsed_s": float(state.get("elapsed_s") or 0.0), "eta_s": state.get("eta_s"),
-            "failures": state.get("failures", []), "failure_count": state.get("failure_count", 0),
-            "engine": state.get("engine"), "error": state.get("error"), "created_at": record.get("created_at"),
+            "failures": [{**f, "reason": self.redact(f.get("reason"), store.root)} for f in state.get("failures", [])],
+            "failure_count": state.get("failure_count", 0), "engine": state.get("engine"),
+            "error": self.redact(state.get("error"), store.root), "created_at": record.get("created_at"),
             "started_at": state.get("started_at"), "finished_at": state.get("finished_at"),
             "cancel_requested": (store.root / CANCEL_FILE).exists(),
         }

@@ -83,11 +83,14 @@ async def get_fullwave_report(
                              "content": {"text/plain": {}, "application/x-hdf5": {}, "application/json": {},
                                          "text/markdown": {}}},
                        **error_responses(404, 422)})
-async def get_fullwave_file(request: Request, job_id: str = JobIdPath, name: str = FileNamePath) -> FileResponse:
+async def get_fullwave_file(request: Request, job_id: str = JobIdPath, name: str = FileNamePath) -> Response:
     """One of the files the job's status lists: e.g. `model_20.in` to run the same model with gprMax
     on one's own cluster. Only the job's own files, by name (the pattern admits no path)."""
-    path, media = await anyio.to_thread.run_sync(_jobs(request).file, job_id, name)
-    return FileResponse(path, media_type=media, filename=f"{job_id}-{name}")
+    content, media = await anyio.to_thread.run_sync(_jobs(request).file, job_id, name)
+    if isinstance(content, bytes):  # a text file, the server's paths redacted
+        return Response(content, media_type=media,
+                        headers={"Content-Disposition": f'attachment; filename="{job_id}-{name}"'})
+    return FileResponse(content, media_type=media, filename=f"{job_id}-{name}")
 
 
 @router.delete("/{job_id}", response_model=FullwaveStatus, operation_id="cancel_fullwave",

@@ -125,6 +125,8 @@ def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
         assert [r["reused"] for r in report["runs"]] == [True, False]
         md = server.api.fullwave_report(job.id, "md")
         assert "### 4 mm cells" in md and "### 6 mm cells" in md and "FDTD discretisation" in md
+        log_text = http.get(f"/v1/fullwave/{job.id}/files/model_60.log").text  # gprMax's own log
+        assert "Output directory" in log_text and str(data.resolve()) not in log_text  # no server path (item 9)
 
         # the library on the same inputs and the same gprMax outputs (downloaded) writes the same numbers
         mine = tmp_path / "library"
