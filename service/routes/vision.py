@@ -48,7 +48,8 @@ router = APIRouter(prefix="/v1/vision", tags=["vision"])
 
 #: Largest rendered frame [px a side] (the camera's own ceiling; ~1 s of CPU).
 MAX_RENDER_SIZE_PX = 1024
-#: Largest frame accepted by the motion estimator here [px a side], and its PNG's size [bytes].
+#: Smallest and largest frame accepted by the motion estimator here [px a side], and its PNG's size [bytes].
+MIN_FRAME_SIDE_PX = 16
 MAX_FRAME_SIDE_PX = 1024
 MAX_FRAME_BYTES = 4 * 1024 * 1024
 #: Largest JSON part (options, geometry) [bytes].
@@ -121,7 +122,8 @@ class SensorIn(Strict):
 
 class RenderRequest(Strict):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [
-        {"phantom": "torso", "pose": {"s_m": 1.2}, "roll_deg": 0.0, "camera": {"fov_deg": 150.0, "size_px": 256}},
+        # 0.3 m along the default torso's 0.69 m GI-tract centreline (GET /v1/phantoms/torso: centrelines)
+        {"phantom": "torso", "pose": {"s_m": 0.3}, "roll_deg": 0.0, "camera": {"fov_deg": 150.0, "size_px": 256}},
         {"phantom": "torso", "pose": {"position_m": [0.0, 0.0, 0.0], "direction": [0.0, 0.0, 1.0]}},
     ]})
 
@@ -391,9 +393,14 @@ def _json_part(model, data: bytes | None, name: str):
 
 
 def frame_from_png(data: bytes, field: str) -> np.ndarray:
-    """The grey levels of a PNG part: colour by BT.601 luma, grey + alpha by its grey channel."""
+    """The grey levels of a PNG part: colour by BT.601 luma, grey + alpha by its grey channel; its size
+    within this server's frames (:data:`MIN_FRAME_SIDE_PX` to :data:`MAX_FRAME_SIDE_PX` a side, said so:
+    the estimator's own range is wider)."""
     pixels = decode_png(data, field=field, max_side_px=MAX_FRAME_SIDE_PX,
                         max_pixels=MAX_FRAME_SIDE_PX * MAX_FRAME_SIDE_PX)
+    if min(pixels.shape[:2]) < MIN_FRAME_SIDE_PX:
+        raise VisionInputError(f"is {pixels.shape[1]} x {pixels.shape[0]} pixels: frames are {MIN_FRAME_SIDE_PX} to "
+                               f"{MAX_FRAME_SIDE_PX} pixels a side", field)
     return pixels[..., 0] if pixels.ndim == 3 and pixels.shape[2] == 2 else pixels
 
 
