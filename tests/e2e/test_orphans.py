@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import HANG_GUARD_S
 from tests.e2e.jobs import JobServer, wait_for_job
 
 pytestmark = [pytest.mark.e2e, pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="Linux /proc")]
@@ -24,8 +25,6 @@ pytestmark = [pytest.mark.e2e, pytest.mark.skipif(not Path("/proc/self/stat").ex
 SPEC = {"name": "orphans", "capsule_positions": [{"site": "small_intestine_1"}, {"s_m": 0.3}],
         "receivers": [{"site": "belt_anterior"}], "channel": {"rays": 1000, "max_interactions": 2},
         "ranging": {"toa": {"methods": ["gcc"]}}, "trials": 2, "chunk_positions": 1}
-#: How long to wait for a process state before the test is declared hung [s] (never a verdict on speed).
-HANG_GUARD_S = 600.0
 
 
 def _stat(pid: int) -> tuple[int, str, int] | None:

@@ -11,6 +11,7 @@ import sys
 import pytest
 
 from service.workers import reap, start_time
+from tests.conftest import HANG_GUARD_S
 
 pytestmark = pytest.mark.skipif(start_time(1) is None, reason="Linux /proc")
 
@@ -31,7 +32,7 @@ def test_reap_kills_a_recorded_worker_and_its_group_but_never_a_recycled_pid(tmp
         (records / str(stranger.pid)).write_text(str(start_time(stranger.pid) - 1))  # the pid, recycled
         (records / ".123.tmp").write_text("half")
         assert reap(records) == [worker.pid]
-        assert worker.wait(timeout=600) == -9  # a hang guard only: SIGKILL is immediate
+        assert worker.wait(timeout=HANG_GUARD_S) == -9  # a hang guard only: SIGKILL is immediate
         assert stranger.poll() is None
         assert list(records.iterdir()) == []
         assert reap(records) == []
