@@ -124,6 +124,7 @@ def localization_evaluation(phantom, capsule_m, sensors_m, *, ranging: str, mode
     the samples from :func:`toa_samples_envelope`; PDOA and RSS: trials x tones x sensors) and the
     model-based travel-time fields. The synthesis of each sensor's waveform (paths x samples) depends on
     the paths the trace finds: it is checked while it runs."""
+    from estimators.errors import EstimatorInputError
     from estimators.toa import METHODS as TOA_METHODS
     from raytrace.spec import Antenna, Band
 
@@ -133,7 +134,11 @@ def localization_evaluation(phantom, capsule_m, sensors_m, *, ranging: str, mode
                        max_interactions=max_interactions, near_field=near_field)
     parts = [channel(spec, settings, {"receivers": ("sensors",), "band.points": ("ranging",)})]
     if ranging in TOA_METHODS:
-        n = toa_samples_envelope(phantom, frequency_hz, max_interactions)
+        try:
+            n = toa_samples_envelope(phantom, frequency_hz, max_interactions)
+        except EstimatorInputError as exc:  # the default waveform cannot carry this frequency: the request's field
+            raise EstimatorInputError(f"TOA ranging's default waveform at this carrier: {exc.reason}; use a lower "
+                                      "frequency_hz, or pdoa / rss ranging", "frequency_hz") from None
         cap = settings.max_ranging_samples
         runs = len(sensors)
         parts.append(Cost(work=(Work(("trials",), float(trials) * n * runs, cap, "samples", "max_ranging_samples",

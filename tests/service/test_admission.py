@@ -126,7 +126,9 @@ def test_every_write_operation_declares_its_bound(app):
     table = app.state.declarations
     assert table.undeclared() == [], "write routes without service.admission.declare"
     for method, path, op in _write_operations(app):
-        assert table.find(method, _concrete(path)) is not STRICTEST, f"{method} {path} ({op}) is undeclared"
+        declared = table.find(method, _concrete(path))
+        assert declared is not None, f"{method} {path} ({op}) is not in the gate's table of the app's routes"
+        assert declared is not STRICTEST, f"{method} {path} ({op}) is undeclared"
     operations = {op for _, _, op in _write_operations(app)} | {row[2] for row in table.rows}
     missing = sorted(operations - set(OVER_BOUND))
     assert missing == [], f"operations without a request their bound refuses in OVER_BOUND: {missing}"
@@ -139,7 +141,7 @@ def test_every_write_body_is_capped(make_settings, method, path, op):
     settings = make_settings(load_builtins=False, max_json_body_bytes=1024, max_ranging_body_bytes=4096,
                              max_upload_bytes=2048, max_manifest_bytes=1024)
     app = create_app(settings)
-    cap = app.state.declarations.find(method, _concrete(path)).body(settings)
+    cap = app.state.declarations.find(method, _concrete(path)).body(settings)  # every route has one (above)
     headers = {"content-type": _media_type(app, op)}
     with TestClient(app, raise_server_exceptions=False) as client:
         r = client.request(method, _concrete(path), content=b" " * (cap + 1), headers=headers)
@@ -240,3 +242,12 @@ def test_the_audits_localization_evaluation_is_refused_before_any_work(make_sett
         documented = _example(client.app, "localize_evaluate")
         r = client.post("/v1/localize/evaluate", json=documented)
         assert r.status_code == 500 and len(started) == 1  # admitted: the spy ran (and raised)
+
+
+def test_an_evaluations_carrier_its_ranging_cannot_sample_is_refused_naming_the_frequency(make_settings):
+    """Found by the fuzzing of this rule's first version: at 20 GHz the TOA ranging's default waveform (20 GS/s)
+    is below Nyquist, and its estimate named a field the request does not have (waveform.sample_rate_hz)."""
+    with TestClient(create_app(make_settings()), raise_server_exceptions=False) as client:
+        r = client.post("/v1/localize/evaluate", json={"capsule": {"site": "stomach"}, "frequency_hz": 19.99e9,
+                                                       "sensors": [{"site": s} for s in SENSORS], "rays": 2000})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "frequency_hz"], r.text
