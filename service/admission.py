@@ -129,8 +129,8 @@ STRICTEST = Declaration(body=lambda s: s.max_json_body_bytes, cost="undeclared",
 def declare(*, body: str | BodyCap | None, cost: Callable | str, keyed: bool = False) -> Callable:
     """Mark a route function with its :class:`Declaration` (apply it under the router's decorator).
 
-    ``body``: the Settings field capping the body [bytes] (``max_json_body_bytes`` for small JSON
-    bodies, ``max_data_body_bytes`` for data: profiles, plots, observations), a function of the
+    ``body``: the Settings field capping the body [bytes] (``max_json_body_bytes`` for request-shaped
+    JSON bodies, ``max_ranging_body_bytes`` for data: profiles, plots, observations), a function of the
     settings, or None for an operation that takes no body (a DELETE: the small JSON cap applies).
     ``cost``: the function that turns the request into a :class:`Cost` (or a sentence saying why
     the schema alone bounds it, e.g. a closed form). ``keyed``: the operation writes state (an
@@ -165,19 +165,22 @@ class Table:
 
     @classmethod
     def of(cls, routes: Iterable[Any]) -> "Table":
+        """The table of ``routes`` (an app's ``router.routes``; included routers are walked into)."""
         table = cls()
-        for route in routes:
+        for route in _flatten(routes):
             methods = frozenset(getattr(route, "methods", None) or ()) & WRITES
             if methods:
                 table.rows.append((route.path_regex, methods, getattr(route, "operation_id", None) or route.name,
                                    declaration_of(getattr(route, "endpoint", None)), route.path))
         return table
 
-    def find(self, method: str, path: str) -> Declaration:
+    def find(self, method: str, path: str) -> Declaration | None:
+        """The declaration of the write route serving (method, path): its own, or :data:`STRICTEST` for a route
+        without one; None when no route serves it (the router answers 404 or 405 and reads no body)."""
         for pattern, methods, _, declared, _ in self.rows:
             if method in methods and pattern.match(path):
                 return declared or STRICTEST
-        return STRICTEST
+        return None
 
     def undeclared(self) -> list[str]:
         return [name for _, _, name, declared, _ in self.rows if declared is None]
@@ -185,6 +188,17 @@ class Table:
     def keyed(self) -> list[tuple[str, str]]:
         """(path template, method) of every operation the API keys guard."""
         return [(path, m) for _, methods, _, d, path in self.rows if (d or STRICTEST).keyed for m in sorted(methods)]
+
+
+def _flatten(routes: Iterable[Any]) -> Iterable[Any]:
+    """Every route, included routers' too (FastAPI keeps an included router as one entry whose
+    ``original_router`` holds its routes, paths prefixed already by their own router's prefix)."""
+    for route in routes:
+        inner = getattr(route, "original_router", None)
+        if inner is not None:
+            yield from _flatten(inner.routes)
+        else:
+            yield route
 
 
 # ------------------------------------------------------------------------------------- middleware
@@ -204,6 +218,9 @@ class Gate:
             await self.app(scope, receive, send)
             return
         declared = self._table().find(scope["method"], scope.get("path", ""))
+        if declared is None:  # no route: the router's 404 / 405, nothing read
+            await self.app(scope, receive, send)
+            return
         if declared.keyed and self.settings.api_keys:
             from service.security import key_error
 

@@ -63,8 +63,7 @@ names the offending field. Heavy requests (channel, ranging, uploads) run in
 worker threads; a saturated server answers 503 with `Retry-After` at once.
 """
 
-#: Every router of the API, in the order the app includes them (service.admission reads their routes'
-#: declarations from here).
+#: Every router of the API, in the order the app includes them.
 ROUTERS = (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, vision, tracking, ops)
 
 TAGS = [
@@ -131,9 +130,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_error_handlers(app, settings.retry_after_s)
     for module in ROUTERS:
         app.include_router(module.router)
-    table = Table.of(route for module in ROUTERS for route in module.router.routes)
-    app.state.declarations = table
     pages.install(app)
+    table = Table.of(app.router.routes)  # every route the app serves, whatever included it
+    app.state.declarations = table
     # outermost last: request id and metrics see every answer, CORS answers its preflights,
     # then foreign-origin writes are refused, every write gets its declaration (service.admission:
     # the API key, then its body capped while it streams in), and OPTIONS / 405 get the contract's Allow

@@ -70,3 +70,10 @@ def test_the_served_contract_declares_the_key_on_every_keyed_write(keyed):
         assert paths[path][method]["security"] == [{"ApiKey": []}], (path, method)
         assert "401" in paths[path][method]["responses"], (path, method)
     assert "security" not in paths["/v1/sweeps"]["get"] and "security" not in paths["/v1/channel"]["post"]
+
+
+def test_a_method_no_route_serves_is_405_with_or_without_a_key(keyed):
+    """The key guards the declared writes only: a write no route serves is the router's 405 (or 404)."""
+    r = keyed.put("/v1/sweeps", json={})
+    assert r.status_code == 405 and "POST" in r.headers["allow"], r.text
+    assert keyed.post("/v1/nowhere", json={}).status_code == 404
