@@ -20,17 +20,20 @@ from service import __version__
 from service.admission import Gate, Table
 from service.compute import ComputeGate
 from service.deps import AppState
+from service.design_jobs import CoverageJobs, DesignEngine, LayoutJobs
 from service.errors import install_error_handlers
 from service.fullwave_jobs import FullwaveJobs
 from service.jobs import JobRunner
 from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, RequestContextMiddleware
+from service.phantom_builds import PhantomBuilds
 from service.registry import Registry
 from service.routes import (
     bounds,
     catalogue,
     channel,
+    design,
     fullwave,
     localize,
     ops,
@@ -64,7 +67,8 @@ worker threads; a saturated server answers 503 with `Retry-After` at once.
 """
 
 #: Every router of the API, in the order the app includes them.
-ROUTERS = (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, vision, tracking, ops)
+ROUTERS = (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, design, vision, tracking,
+           ops)
 
 TAGS = [
     {"name": "channel", "description": "Ray-traced channel impulse responses."},
@@ -78,6 +82,8 @@ TAGS = [
     {"name": "sweeps", "description": "Sweep jobs: positions x receivers x frequencies, run in worker processes."},
     {"name": "fullwave", "description": "Full-wave (gprMax FDTD) cross-checks of the tracer, as jobs on the sweeps' "
                                         "queue."},
+    {"name": "design", "description": "Sensor-layout design: coverage over the skin and optimised sensor positions "
+                                      "along the GI tract, as jobs on the one queue."},
     {"name": "operations", "description": "Health, readiness, metrics."},
 ]
 
@@ -91,6 +97,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     jobs = JobRunner(settings.data_dir)  # one queue and one runner for every kind of job
     sweep_jobs = SweepJobs(settings, registry, jobs)
     fullwave_jobs = FullwaveJobs(settings, registry, jobs)
+    phantom_builds = PhantomBuilds(settings, registry, jobs)
+    design_engine = DesignEngine(settings)  # one warm pool for both design kinds (docs/design.md)
+    coverage_jobs = CoverageJobs(settings, registry, jobs, design_engine)
+    layout_jobs = LayoutJobs(settings, registry, jobs, design_engine, coverage_jobs)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -127,6 +137,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.capsule = AppState(settings=settings, registry=registry, gate=gate, metrics=metrics)
     app.state.sweeps = sweep_jobs
     app.state.fullwave = fullwave_jobs
+    app.state.phantom_builds = phantom_builds
+    app.state.coverage = coverage_jobs
+    app.state.layout = layout_jobs
     install_error_handlers(app, settings.retry_after_s)
     for module in ROUTERS:
         app.include_router(module.router)

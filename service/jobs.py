@@ -42,7 +42,7 @@ from service.admission import Cost, admit
 from service.errors import Conflict, NotFound, ServerSaturated
 from service.security import check_owner
 from service.settings import Settings
-from service.workers import WORKERS_DIR, reap
+from service.workers import WORKERS_DIR, clear, reap
 
 log = logging.getLogger("capsule_rt.jobs")
 
@@ -249,6 +249,7 @@ class JobRunner:
             self._thread.join(timeout_s)
         for kind in self.kinds:
             kind.close()
+        clear(self.workers_dir)  # every pool shut down cleanly: nothing for the next start to reap
         if self._lock_fd is not None:
             os.close(self._lock_fd)
             self._lock_fd = None

@@ -26,7 +26,7 @@ from service.jobs import CANCEL_FILE, JobKind, JobRunner
 from service.registry import Registry
 from service.settings import Settings
 from service.storage import is_upload_id
-from service.workers import clear, register
+from service.workers import register
 from sweeps.engines import make_engine
 from sweeps.run import execute, open_sweep, prepare
 from sweeps.spec import LIMITS, Limits, SweepSpec
@@ -83,7 +83,6 @@ class SweepJobs(JobKind):
         if self._engine is not None:
             self._engine.close()
             self._engine = None
-            clear(self.runner.workers_dir)  # shut down cleanly: nothing for the next start to reap
 
     # ------------------------------------------------------------ API
     def submit(self, data: Any, owner: str | None = None) -> dict[str, Any]:

@@ -45,7 +45,8 @@ def _observations(n: int) -> list[dict]:
 
 #: operation id -> (settings, request, the loc its refusal names) for every operation that does work;
 #: None for an operation that does none (a delete, a closed form, the 404 of an unknown plot kind).
-#: A request is a JSON body, or ("files", parts) for a multipart one.
+#: A request is a JSON body, ("files", parts) for a multipart one, or "example" for the served example; "unit"
+#: marks an operation probed by a test of its own (test_a_layouts_search_goes_through_the_rule).
 OVER_BOUND: dict[str, tuple[dict, object, list] | None] = {
     "compute_channel": ({"max_ray_segments": 100}, SMALL_CHANNEL, ["body", "rays"]),
     "ranging_toa": ({"max_ranging_samples": 1000}, {"profile": PROFILE, "trials": 100}, ["body", "trials"]),
@@ -72,8 +73,12 @@ OVER_BOUND: dict[str, tuple[dict, object, list] | None] = {
     "upload_phantom": ({"max_triangles": 4}, ("files", {
         "mesh": ("p.glb", glb_bytes(nested_phantom_meshes()), "model/gltf-binary"),
         "manifest": ("m.json", json.dumps(phantom_manifest()), "application/json")}), ["body", "mesh"]),
-    "bound_toa": None, "bound_pdoa": None, "bound_rss": None,
-    "delete_phantom": None, "cancel_sweep": None, "cancel_fullwave": None, "unknown_kind": None,
+    "submit_coverage": ({"design_max_links": 10, "max_rays": 20_000}, "example", ["body", "candidates", "spacing_m"]),
+    # a layout needs a done coverage (409 before): its bound is probed on the kind itself, below
+    "submit_layout": "unit",
+    "bound_toa": None, "bound_pdoa": None, "bound_rss": None, "delete_phantom": None, "cancel_sweep": None,
+    "cancel_fullwave": None, "cancel_coverage": None, "cancel_layout": None, "cancel_phantom_build": None,
+    "unknown_kind": None,
 }
 
 
@@ -179,7 +184,7 @@ def _example(app, op_id: str) -> dict:
     raise KeyError(op_id)
 
 
-PROBED = sorted(op for op, probe in OVER_BOUND.items() if probe is not None)
+PROBED = sorted(op for op, probe in OVER_BOUND.items() if isinstance(probe, tuple))
 
 
 @pytest.mark.parametrize("op", PROBED)
@@ -251,3 +256,15 @@ def test_an_evaluations_carrier_its_ranging_cannot_sample_is_refused_naming_the_
         r = client.post("/v1/localize/evaluate", json={"capsule": {"site": "stomach"}, "frequency_hz": 19.99e9,
                                                        "sensors": [{"site": s} for s in SENSORS], "rays": 2000})
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "frequency_hz"], r.text
+
+
+def test_a_layouts_search_goes_through_the_rule(make_settings):
+    """A layout's search work (design.layout.search_work) over MAX_SEARCH_WORK is refused by the one rule,
+    naming search.restarts (over HTTP a layout first needs a done coverage)."""
+    from design.layout import MAX_SEARCH_WORK
+
+    app = create_app(make_settings(load_builtins=False))
+    with pytest.raises(Unprocessable) as info:
+        admit(app.state.layout.estimate(2 * MAX_SEARCH_WORK), app.state.capsule.settings)
+    assert info.value.loc == ["body", "search", "restarts"] and "work budget" in info.value.reason
+    admit(app.state.layout.estimate(MAX_SEARCH_WORK), app.state.capsule.settings)

@@ -13,9 +13,9 @@ from fastapi.testclient import TestClient
 
 from service.app import create_app
 
-#: Operations whose examples start jobs: validated in place, not queued (a sweep would run on a worker pool,
-#: a full-wave job gprMax).
-JOBS = {"submit_sweep", "submit_fullwave"}
+#: Operations whose examples start jobs: validated in place, not queued (a sweep or a coverage would run on a
+#: worker pool, a full-wave job gprMax).
+JOBS = {"submit_sweep", "submit_fullwave", "submit_coverage", "submit_layout"}
 
 
 def _examples(schema: dict) -> list[tuple[str, int, str, dict]]:
@@ -76,5 +76,19 @@ def test_every_served_example_is_accepted(client, op, path, example):
 
         client.app.state.fullwave._validate(FullwaveRequest.model_validate(example))
         return
+    if op == "submit_coverage":
+        from design import coverage as cov
+
+        jobs = client.app.state.coverage
+        spec = cov.normalise_spec(example, jobs.limits)
+        phantom = client.app.state.capsule.registry.get(spec["phantom"])
+        assert cov.make_plan(spec, phantom, jobs.limits, client.app.state.capsule.settings.tracer_config()).links > 0
+        return
+    if op == "submit_layout":  # its coverage is an id to a done job: the layout itself is checked
+        from design.layout import normalise_layout
+
+        normalise_layout({k: v for k, v in example.items() if k != "coverage"})
+        return
+    assert op not in JOBS
     r = client.post(path, json=example, headers={"Accept": "application/json"} if op == "vision_render" else {})
     assert r.status_code == 200, (op, r.text[:500])
