@@ -147,7 +147,7 @@ def declare(*, body: str | BodyCap | None, cost: Callable | str, keyed: bool = F
     text = cost if isinstance(cost, str) else f"{cost.__module__}.{cost.__qualname__}"
 
     def mark(fn: Callable) -> Callable:
-        fn.__capsule_declaration__ = Declaration(cap, text, keyed)
+        setattr(fn, "__capsule_declaration__", Declaration(cap, text, keyed))
         return fn
 
     return mark

@@ -10,7 +10,9 @@ checked while it runs (its Budget), so an estimate that is low is caught there.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Mapping, Sequence
+
+import numpy as np
 
 from raytrace.solver.footprint import estimate as trace_footprint
 from raytrace.spec import ChannelSpec
@@ -34,7 +36,7 @@ PLOT_POINT_BYTES = 2048
 PARTICLE_BYTES = 64
 
 
-def channel(spec: ChannelSpec, settings: Settings, rename: dict[str, Loc] | None = None) -> Cost:
+def channel(spec: ChannelSpec, settings: Settings, rename: Mapping[str, Loc] | None = None) -> Cost:
     """A trace's cost (:func:`raytrace.solver.footprint.estimate`, docs/service.md "Memory and work model of a
     channel request"): its shooting's ray segments against ``max_ray_segments`` (field ``rays``) and its peak
     bytes by term (``band.points``, ``max_interactions``, ``rays``, ``receivers``). ``rename`` maps those
@@ -47,7 +49,8 @@ def channel(spec: ChannelSpec, settings: Settings, rename: dict[str, Loc] | None
 
     knobs = (f"rays {spec.rays}, max_interactions {spec.max_interactions}, dynamic_range_db "
              f"{spec.dynamic_range_db:g}, {len(spec.receivers)} receivers"
-             + (f", {len(spec.band.frequencies_hz)} band points" if spec.band is not None else ""))
+             + (f", {band.size} band points" if (band := None if spec.band is None else spec.band.frequencies_hz)
+                is not None else ""))
     lower = ", ".join(".".join(map(str, loc(n))) for n in ("rays", "max_interactions")) + " or dynamic_range_db"
     return Cost(
         work=(Work(loc("rays"), fp.ray_segments, settings.max_ray_segments, "ray segments", "max_ray_segments",
@@ -95,8 +98,6 @@ def travel_time_fields(cells: int, sensors: int, sensors_loc: Loc = ("sensors",)
 def latest_delay_s(phantom, frequency_hz: float, max_interactions: int) -> float:
     """An envelope of the latest delay a traced path can have: at most ``max_interactions + 1`` straight
     segments, each at most the phantom's bounding-box diagonal, in its slowest medium (largest Re n)."""
-    import numpy as np
-
     from raytrace.solver.media import MediaTable
 
     lo, hi = np.asarray(phantom.bounds_m, float)
@@ -128,8 +129,8 @@ def localization_evaluation(phantom, capsule_m, sensors_m, *, ranging: str, mode
     from estimators.toa import METHODS as TOA_METHODS
     from raytrace.spec import Antenna, Band
 
-    sensors = tuple(Antenna(position_m=list(map(float, p)), name=f"sensor_{i}") for i, p in enumerate(sensors_m))
-    spec = ChannelSpec(Antenna(position_m=list(map(float, capsule_m)), name="capsule"), sensors,
+    sensors = tuple(Antenna(position_m=np.asarray(p, float), name=f"sensor_{i}") for i, p in enumerate(sensors_m))
+    spec = ChannelSpec(Antenna(position_m=np.asarray(capsule_m, float), name="capsule"), sensors,
                        frequency_hz=frequency_hz, band=None if band is None else Band(**band), rays=rays,
                        max_interactions=max_interactions, near_field=near_field)
     parts = [channel(spec, settings, {"receivers": ("sensors",), "band.points": ("ranging",)})]

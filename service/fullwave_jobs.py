@@ -280,7 +280,7 @@ class FullwaveJobs(JobKind):
         media = MEDIA.get(path.suffix, "application/octet-stream")
         if path.suffix == ".h5":
             return path, media
-        return self.redact(path.read_text(errors="replace"), d / RUN_DIR).encode(), media
+        return (self.redact(path.read_text(errors="replace"), d / RUN_DIR) or "").encode(), media
 
     # ------------------------------------------------------------ runner
     def execute(self, job_id: str, cancel: threading.Event) -> str:

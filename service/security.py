@@ -68,7 +68,7 @@ def writer(request: Request, settings: Settings) -> str | None:
     error = key_error(given, settings)
     if error is not None:
         raise error
-    return None if not settings.api_keys else owner_id(given)
+    return None if given is None or not settings.api_keys else owner_id(given)
 
 
 def check_owner(stored_owner: str | None, requester: str | None, what: str) -> None:

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -112,7 +113,7 @@ class SweepJobs(JobKind):
             receivers = tuple(Antenna(site=n, name=n) for n, s in phantom.sites.items() if s.kind == "sensor")
         else:
             receivers = tuple(Antenna.from_dict(r) for r in spec["receivers"])
-        tx = Antenna(position_m=[0.0, 0.0, 0.0])  # the footprint depends on the knobs and the counts only
+        tx = Antenna(position_m=np.zeros(3))  # the footprint depends on the knobs and the counts only
         per_frequency = [costs.channel(spec.channel_spec(tx, receivers or (tx,), f, spec["phantom"]), self.settings,
                                        _TRACE_FIELDS) for f in spec["frequencies_hz"]]
         return max(per_frequency, key=lambda c: c.memory_bytes)

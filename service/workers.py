@@ -51,7 +51,7 @@ def register(directory: str) -> None:
 def reap(directory: Path) -> list[int]:
     """Kill (with their process groups) the recorded workers still running, and clear every record; the
     pids killed. Call it only while holding the runner's lock: the records are then a dead runner's."""
-    killed = []
+    killed: list[int] = []
     if not directory.is_dir():
         return killed
     for record in directory.iterdir():
