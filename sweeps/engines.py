@@ -62,12 +62,14 @@ class SerialEngine:
 
 class ProcessEngine:
     """A pool of ``workers`` spawned processes, kept between runs (each worker keeps its phantoms
-    and compiled kernels) until :meth:`close`; rebuilt after a worker died or a run was cancelled."""
+    and compiled kernels) until :meth:`close`; rebuilt after a worker died or a run was cancelled.
+    ``initializer(*initargs)`` runs first in every worker (the service's: service.workers.register)."""
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int, initializer: Callable | None = None, initargs: tuple = ()) -> None:
         self.workers = int(workers)
         self.name = f"local:{self.workers}"
         self.restarts = 0
+        self.initializer, self.initargs = initializer, tuple(initargs)
         self._pool: cf.ProcessPoolExecutor | None = None
 
     @property
@@ -78,7 +80,8 @@ class ProcessEngine:
     def _get_pool(self) -> cf.ProcessPoolExecutor:
         if self._pool is None:
             self._pool = cf.ProcessPoolExecutor(max_workers=self.workers,
-                                                mp_context=multiprocessing.get_context("spawn"))
+                                                mp_context=multiprocessing.get_context("spawn"),
+                                                initializer=self.initializer, initargs=self.initargs)
         return self._pool
 
     def _kill(self) -> None:
@@ -186,12 +189,14 @@ class DaskEngine:
                 client.cancel(unfinished)
 
 
-def make_engine(workers: int | None = None, cluster: str | None = None):
+def make_engine(workers: int | None = None, cluster: str | None = None, initializer: Callable | None = None,
+                initargs: tuple = ()):
     """The engine of a sweep: Dask when ``cluster`` is an address, else the local pool of ``workers``
-    processes (default :func:`default_workers`), or this process for ``workers=0``."""
+    processes (default :func:`default_workers`; each runs ``initializer(*initargs)`` first), or this
+    process for ``workers=0``."""
     if cluster:
         return DaskEngine(cluster)
     n = default_workers() if workers is None else int(workers)
     if n < 0:
         raise ValueError("workers must be >= 0")
-    return SerialEngine() if n == 0 else ProcessEngine(n)
+    return SerialEngine() if n == 0 else ProcessEngine(n, initializer, initargs)

@@ -73,6 +73,12 @@ CROSS_FIELD_RULES = [
     *(("submit_sweep", ["body", part], "sweep_spec", "sites, positions and centrelines of the phantom; bands, "
        "methods and localizers consistent with each other (sweeps.spec)")
       for part in ("capsule_positions", "receivers", "frequencies_hz", "channel", "ranging", "localization")),
+    *(("submit_sweep", ["body", part], "invalid", "each trace's estimated work and memory fit the server's budget "
+       "(docs/service.md, 'Bounded before work')") for part in ("channel", "receivers")),
+    ("track", ["body", "config", "particles"], "invalid", "particles x observations within the tracker's work "
+     "bound, its particles within the memory share (docs/service.md, 'Bounded before work')"),
+    ("track_evaluate", ["body", "rays"], "invalid", "the journey's RF traces (one per grid position it visits) "
+     "within the work budget (docs/service.md, 'Bounded before work')"),
     *((op, ["body", part], kind, "sensors (and a capsule) inside the phantom's body, off its surfaces, apart from "
        "each other and not coplanar, of known sites; one measurement kind for every sensor and the method's, "
        "sigmas for all or none; methods that suit the ranging; a frequency whose wavelength fits the phantom")
