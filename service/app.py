@@ -182,6 +182,10 @@ _LIMITS = [
     ("FullwaveRequest", "rays", "maximum", "max_rays"),
     ("FullwaveRequest", "max_interactions", "maximum", "max_interactions"),
     ("FullwaveRequest", "receivers", "maxItems", "max_receivers"),
+    ("CoverageChannel", "rays", "maximum", "max_rays"),  # POST /v1/design/coverage
+    ("CoverageChannel", "max_interactions", "maximum", "max_interactions"),
+    ("Evaluate", "rays", "maximum", "max_rays"),  # POST /v1/design/layout's end-to-end evaluation
+    ("Evaluate", "max_interactions", "maximum", "max_interactions"),
 ]
 
 

@@ -223,7 +223,8 @@ class LayoutJobs(JobKind):
         by ``owner``, the submitting key's id)."""
         data = dict(data)
         coverage_id = data.pop("coverage", None)
-        layout = normalise_layout(data)
+        layout = normalise_layout(data, max_rays=self.settings.max_rays,
+                                  max_interactions=self.settings.max_interactions)
         d = self.coverage.done_dir(coverage_id, ["body", "coverage"])
         record = cov.CoverageDir(d).record()
         plan = cov.Plan.from_dict(record["plan"])
