@@ -246,7 +246,7 @@ def track_evaluate_cost(req: EvaluateRequest, phantom, rays: int, interactions: 
 
 def _evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
     from evaluation.tracking import evaluate_tracking
-    from service.routes.localize import field_cache_dir
+    from service.operations.localize import field_cache_dir
     from tracking import JourneySpec, TrackingInputError
 
     if req.runs * req.journey.steps > MAX_EVALUATE_RUN_STEPS:
