@@ -35,7 +35,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print(json.dumps({"detail": [{"loc": ["file"], "msg": "give a POST /v1/track body, or --evaluate",
                                       "type": "missing"}]}), file=sys.stderr)
         return 2
-    from service.routes.tracking import TrackRequest, run_track
+    from service.operations.tracking import run_track
+    from service.schemas.tracking import TrackRequest
 
     out = run_file_request(args.file, lambda body: run_track(TrackRequest.model_validate(body), local_registry()[0],
                                                              Budget()), (CapsuleRTError,))
