@@ -86,7 +86,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 def run_channel_request(payload: dict) -> dict[str, Any]:
     """Run one POST /v1/channel body locally (no HTTP); returns the response dict."""
     from raytrace import Budget, trace_channel
-    from service import channel as ops
+    from service.operations import channel as ops
     from service.schemas.channel import ChannelRequest, ChannelResponse
 
     registry, settings = local_registry()
@@ -211,7 +211,7 @@ _KIND = {"reflection": "R", "refraction": "T", "total_internal_reflection": "TIR
 
 
 def _demo_case(title: str, payload: dict) -> None:
-    from service import ranging
+    from service.operations import ranging
     from service.schemas.ranging import PdoaRequest, ToaRequest
     from service.settings import Settings
 
