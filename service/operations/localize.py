@@ -39,13 +39,12 @@ from evaluation.fields import DEFAULT_CELL_SIZE_M
 from raytrace import Budget, Phantom
 from raytrace.errors import InputError, InvalidGeometryError, field_text
 from service import costs
-from service.admission import admit
+from service.admission import admit, lower_or_refuse, trace_knobs
 from service.errors import Unprocessable
 from service.registry import Registry
 from service.schemas.localize import (
     DEFAULT_PHANTOM,
     DEFAULT_RAYS,
-    MAX_EVALUATE_TRIALS,
     LocalizeEvaluateRequest,
     LocalizeRequest,
     PositionOrSite,
@@ -233,11 +232,10 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
     if len(req.sensors) > settings.max_receivers:
         raise Unprocessable(f"{len(req.sensors)} sensors exceed this server's limit of {settings.max_receivers}",
                             loc=["body", "sensors"])
-    trials_cap = min(MAX_EVALUATE_TRIALS, settings.max_trials)
-    if req.trials > trials_cap:
-        raise Unprocessable(f"{req.trials} exceeds this server's limit of {trials_cap}", loc=["body", "trials"])
-    rays, interactions = settings.trace_knobs(req.rays, req.max_interactions, default_rays=DEFAULT_RAYS,
-                                              default_interactions=6)
+    req.trials = lower_or_refuse(req.trials if "trials" in req.model_fields_set else None, "max_trials", settings,
+                                 ("trials",), default=req.trials)
+    rays, interactions = trace_knobs(req.rays, req.max_interactions, settings, default_rays=DEFAULT_RAYS,
+                                     default_interactions=6)
     phantom = _phantom(registry, req.phantom)
     capsule = _place(phantom, req.capsule, "capsule")
     sensors = np.array([_place(phantom, s, f"sensors[{i}]") for i, s in enumerate(req.sensors)])

@@ -9,7 +9,7 @@ import math
 
 from raytrace.solver.budget import Budget
 from service import costs
-from service.admission import admit
+from service.admission import admit, trace_knobs
 from service.schemas.tracking import DEFAULT_EVALUATE_RAYS, MAX_EVALUATE_RUN_STEPS, EvaluateRequest, TrackRequest
 
 #: Particles x observations per request (work bound).
@@ -90,8 +90,8 @@ def evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
 
     if req.runs * req.journey.steps > MAX_EVALUATE_RUN_STEPS:
         raise TrackingInputError(f"runs x steps must be <= {MAX_EVALUATE_RUN_STEPS}", "runs")
-    rays, interactions = settings.trace_knobs(req.rays, req.max_interactions, default_rays=DEFAULT_EVALUATE_RAYS,
-                                              default_interactions=6)
+    rays, interactions = trace_knobs(req.rays, req.max_interactions, settings, default_rays=DEFAULT_EVALUATE_RAYS,
+                                     default_interactions=6)
     phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
     admit(track_evaluate_cost(req, phantom, rays, interactions, settings), settings)
     ev = evaluate_tracking(JourneySpec(**req.journey.model_dump()), req.trackers, phantom=phantom,

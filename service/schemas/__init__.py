@@ -38,7 +38,7 @@ from pydantic import (
 
 from raytrace.body import gltf
 from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
-from service.settings import MAX_BAND_POINTS
+from service.limits import MAX_BAND_POINTS, capped
 
 #: dB value reported for a zero gain / power (instead of -inf) [dB].
 GAIN_DB_FLOOR = -400.0
@@ -122,7 +122,8 @@ class Complex(Strict):
 class Band(Strict):
     start_hz: FrequencyHz = Field(description="First frequency [Hz].")
     stop_hz: FrequencyHz = Field(description="Last frequency [Hz] (> start_hz).")
-    points: Int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].")
+    points: Int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].",
+                        json_schema_extra=capped("max_band_points"))
 
     @model_validator(mode="after")
     def _order(self) -> "Band":

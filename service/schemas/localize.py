@@ -15,8 +15,8 @@ from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY
 from estimators.link import MICS_EIRP_DBM
 from estimators.localization import DEFAULT_DELAY_KIND, DELAY_KINDS
 from estimators.toa import METHODS as TOA_METHODS
+from service.limits import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, capped
 from service.schemas import FrequencyHz, Int, Name, Out, PhantomId, Strict, Vec3, alternatives, int_range
-from service.settings import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS
 
 #: Most sensors of one fix (the estimators accept up to 1024; 64 bounds the model-based fields' work).
 MAX_SENSORS = 64
@@ -157,7 +157,8 @@ class LocalizeEvaluateRequest(Strict):
     phantom: PhantomId = Field(DEFAULT_PHANTOM, description="Phantom (GET /v1/phantoms).")
     capsule: PositionOrSite = Field(description="True capsule position (or site).")
     sensors: list[PositionOrSite] = Field(min_length=4, max_length=MAX_RECEIVERS, description="Sensors (positions or "
-                                   f"sites), 4..{MAX_RECEIVERS} (this server's max_receivers), inside the body.")
+                                   f"sites), 4..{MAX_RECEIVERS} (this server's max_receivers), inside the body.",
+                                   json_schema_extra=capped("max_receivers"))
     ranging: Ranging = Field("gcc", description="Ranging: a TOA method (`gcc`, `first_peak`, `all_peaks`, "
                              "`envelope`), `pdoa` (400-420 MHz regression) or `rss` (CM2 with shadowing).")
     methods: list[Method] | None = Field(None, min_length=1, max_length=5, json_schema_extra={"uniqueItems": True},
@@ -167,15 +168,17 @@ class LocalizeEvaluateRequest(Strict):
     snr_db: float | None = Field(30.0, ge=-50.0, le=200.0, description="SNR of the ranging [dB]; null: noiseless "
                                  "(rss: no shadowing).")
     trials: Int = Field(20, ge=1, le=MAX_EVALUATE_TRIALS, description=f"Monte Carlo trials (<= {MAX_EVALUATE_TRIALS} "
-                        "and this server's max_trials).")
+                        "and this server's max_trials).", json_schema_extra=capped("max_trials"))
     seed: Int = Field(0, ge=0, le=2**53 - 1, description="Seed of the noise [-].")
     relative_permittivity: float = Field(DEFAULT_RELATIVE_PERMITTIVITY, ge=1.0, le=1000.0,
                                          description="Assumed relative permittivity of the constant-velocity "
                                          "methods [-].")
     rays: int_range(1, MAX_RAYS) | None = Field(None, description=f"Rays of the trace (default {DEFAULT_RAYS}, or "
-                                                 "this server's max_rays if lower).")
+                                                 "this server's max_rays if lower).",
+                                                 json_schema_extra=capped("max_rays"))
     max_interactions: int_range(1, MAX_INTERACTIONS) | None = Field(None, description="Max interactions per path "
-                                                                      "(default 6, or this server's limit).")
+                                                                      "(default 6, or this server's limit).",
+                                                                      json_schema_extra=capped("max_interactions"))
     near_field: bool = Field(True, description="The dipole near-field term on direct paths (ChannelSpec.near_field).")
     delay_kind: DelayKind | None = Field(None, description="The kind of delay the model-based fix's travel-time "
                                          "fields are built for; default (null): the kind the ranging measures "

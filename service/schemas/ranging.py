@@ -9,9 +9,9 @@ from pydantic import ConfigDict, Field, StringConstraints, model_validator
 
 from estimators.link import MICS_EIRP_DBM
 from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
+from service.limits import MAX_BAND_POINTS, MAX_PROFILE_PATHS, MAX_TRIALS, capped
 from service.schemas import Band, FrequencyHz, Int, Out, Strict, Vec3, alternatives
 from service.schemas.channel import CfrOut, CirOut, Interaction, Segment, TapsOut
-from service.settings import MAX_BAND_POINTS, MAX_PROFILE_PATHS, MAX_TRIALS
 
 #: Bound on each component of an input path gain [-]: a passive channel has |a| <= 1 (caustics
 #: are capped at +20 dB); the margin keeps |a|^2 sums far from float overflow.
@@ -141,7 +141,7 @@ class RangingCommon(Strict):
     trials: Int = Field(
         100, ge=1, le=MAX_TRIALS,
         description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}; default 100, or this server's limit "
-        "if lower).",
+        "if lower).", json_schema_extra=capped("max_trials"),
     )
     seed: Int = Field(
         0, ge=0, le=2**53 - 1, description="Seed of the noise generator [-] (<= 2^53 - 1: exact as any JSON number)."
@@ -212,7 +212,7 @@ class PdoaRequest(RangingCommon):
         None,
         min_length=2,
         max_length=MAX_BAND_POINTS,
-        json_schema_extra={"uniqueItems": True},
+        json_schema_extra=capped("max_band_points", uniqueItems=True),
         description="Distinct tone frequencies [Hz], in any order (two_tone uses the lowest and the highest; "
         "regression needs them equally spaced). At most one of frequencies_hz and band; neither: the profile's band.",
     )

@@ -8,6 +8,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.limits import LIMIT_KEY
+from service.schemas import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 from sweeps.spec import LIMITS
 
 
@@ -56,8 +58,9 @@ class SweepList(BaseModel):
 
 
 _VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
-#: The sweep spec's shape, from sweeps.spec's own limits (the server lowers rays, interactions and
-#: trials in its served document, service.app). Rules that depend on the phantom (sites, organs,
+#: The sweep spec's shape, from sweeps.spec's own limits (the server lowers the receivers, rays,
+#: interactions and trials marked with service.limits.LIMIT_KEY in its served document). Rules
+#: that depend on the phantom (sites, organs,
 #: centrelines) or relate fields (bands to carriers, localizers to ranging methods) are the
 #: validator's, sweeps.spec, whose 422 names the field.
 SPEC_SCHEMA = {
@@ -91,8 +94,9 @@ SPEC_SCHEMA = {
                            "phantom).",
             "oneOf": [{"const": "sensors"},
                       {"type": "array", "minItems": 1, "maxItems": LIMITS.max_receivers, "items": {"type": "object"}}],
-            "default": "sensors"},
-        "frequencies_hz": {"type": "array", "items": {"type": "number", "minimum": 10.0, "maximum": 20e9},
+            "default": "sensors", LIMIT_KEY: "max_receivers"},
+        "frequencies_hz": {"type": "array",
+                           "items": {"type": "number", "minimum": FREQUENCY_MIN_HZ, "maximum": FREQUENCY_MAX_HZ},
                            "minItems": 1, "maxItems": LIMITS.max_frequencies, "uniqueItems": True,
                            "default": [402e6]},
         "channel": {
@@ -100,8 +104,9 @@ SPEC_SCHEMA = {
             "description": "The ChannelSpec knobs of every trace (defaults: POST /v1/channel's), a band around each "
                            "carrier ({span_hz, points}) or absolute, and the capsule antenna.",
             "properties": {
-                "max_interactions": {"type": "integer", "minimum": 1, "maximum": LIMITS.max_interactions},
-                "rays": {"type": "integer", "minimum": 1, "maximum": LIMITS.max_rays},
+                "max_interactions": {"type": "integer", "minimum": 1, "maximum": LIMITS.max_interactions,
+                                     LIMIT_KEY: "max_interactions"},
+                "rays": {"type": "integer", "minimum": 1, "maximum": LIMITS.max_rays, LIMIT_KEY: "max_rays"},
                 "dynamic_range_db": {"type": "number", "exclusiveMinimum": 0, "maximum": 300},
                 "band": {"type": ["object", "null"]},
                 "homogeneous": {"type": ["object", "null"]},
@@ -113,7 +118,8 @@ SPEC_SCHEMA = {
                                                      "shadowing}."},
         "localization": {"type": ["object", "null"], "description": "{methods: [{name, ranges_from, ...}]}: "
                                                                     "registered localizers only."},
-        "trials": {"type": "integer", "minimum": 1, "maximum": LIMITS.max_trials, "default": 100},
+        "trials": {"type": "integer", "minimum": 1, "maximum": LIMITS.max_trials, "default": 100,
+                   LIMIT_KEY: "max_trials"},
         "seed": {"type": "integer", "minimum": 0, "maximum": 2**53 - 1, "default": 0},
         "chunk_positions": {"type": "integer", "minimum": 1, "maximum": LIMITS.max_chunk_positions, "default": 4},
     },

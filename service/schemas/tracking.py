@@ -7,6 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.limits import capped
 from service.schemas import Int, int_range
 
 #: Observations per request.
@@ -127,10 +128,10 @@ class EvaluateRequest(_Strict):
         default_factory=lambda: ["rf", "video", "fused"], min_length=1, max_length=4)
     rays: int_range(1000, MAX_EVALUATE_RAYS) | None = Field(
         None, description=f"Rays per trace (default {DEFAULT_EVALUATE_RAYS}, or this server's max_rays if lower); "
-                          "at most the server's max_rays.")
+                          "at most the server's max_rays.", json_schema_extra=capped("max_rays"))
     max_interactions: int_range(1, 6) | None = Field(
         None, description="Interactions per trace (default 4, or this server's max_interactions if lower); at most "
-                          "the server's.")
+                          "the server's.", json_schema_extra=capped("max_interactions"))
     rf_grid_m: float = Field(5e-3, ge=1e-3, le=0.05)
     runs: Int = Field(1, ge=1, le=MAX_EVALUATE_RUNS, description="Monte Carlo runs of the journey (each its own "
                       "prior draw, RF noise and visual errors); runs x steps at most "
