@@ -1121,3 +1121,101 @@ def first_of_duplicates(group, dirs, max_angle):
             nxt[row] = head[g]
             head[g] = row
     return out
+
+
+
+@helper
+def _root(parent, a):
+    """The root of ``a`` in the union-find forest ``parent``, halving the path on the way."""
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@kernel
+def link_components(pts, cells, link):
+    """Connected components of the graph linking two rows of ``pts`` (n, 3) whose Euclidean
+    distance is at most ``link`` (single linkage), without listing the pairs: ``cells`` (n, 3)
+    are the rows' integer cubic cells of edge just under ``link / sqrt(3)``
+    (:func:`raytrace.solver.tracer._clusters`), so two rows of one cell are always within
+    ``link`` (a cell is one component at once) and two rows within ``link`` lie at most two
+    cells apart on each axis; two such cells are joined by the first pair of their rows found
+    within ``link`` (squared distances, as a k-d tree's pair query compares them). Returns the
+    label of each row: components numbered in order of their smallest row (as
+    :func:`scipy.sparse.csgraph.connected_components` numbers them)."""
+    n = pts.shape[0]
+    labels = np.empty(n, np.int64)
+    if n == 0:
+        return labels
+    lo_y, lo_z = cells[:, 1].min(), cells[:, 2].min()
+    ny = cells[:, 1].max() - lo_y + 5
+    nz = cells[:, 2].max() - lo_z + 5
+    lo_x = cells[:, 0].min()
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = ((cells[i, 0] - lo_x + 2) * ny + (cells[i, 1] - lo_y + 2)) * nz + (cells[i, 2] - lo_z + 2)
+    order = np.argsort(key, kind="mergesort")
+    parent = np.arange(n)
+    keys = np.empty(n, np.int64)
+    starts = np.empty(n + 1, np.int64)
+    m = 0
+    for j in range(n):
+        k = key[order[j]]
+        if m > 0 and k == keys[m - 1]:
+            a, b = _root(parent, order[j]), _root(parent, order[starts[m - 1]])
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+        else:
+            keys[m] = k
+            starts[m] = j
+            m += 1
+    starts[m] = n
+    link2 = link * link
+    # the key offsets of the cells up to two apart on each axis with a higher key (each pair of
+    # cells once), each with a cursor through the sorted keys (a merge: no search per cell)
+    offsets = np.empty(62, np.int64)
+    o = 0
+    for dx in range(0, 3):
+        for dy in range(-2, 3):
+            for dz in range(-2, 3):
+                if dx == 0 and (dy < 0 or (dy == 0 and dz <= 0)):
+                    continue
+                offsets[o] = (dx * ny + dy) * nz + dz
+                o += 1
+    cursor = np.zeros(62, np.int64)
+    for c in range(m):
+        for o in range(62):
+            want = keys[c] + offsets[o]
+            e = cursor[o]
+            while e < m and keys[e] < want:
+                e += 1
+            cursor[o] = e
+            if e >= m or keys[e] != want:
+                continue
+            if _root(parent, order[starts[c]]) == _root(parent, order[starts[e]]):
+                continue
+            joined = False
+            for p in range(starts[c], starts[c + 1]):
+                i = order[p]
+                for q in range(starts[e], starts[e + 1]):
+                    j = order[q]
+                    ex, ey, ez = pts[i, 0] - pts[j, 0], pts[i, 1] - pts[j, 1], pts[i, 2] - pts[j, 2]
+                    if ex * ex + ey * ey + ez * ez <= link2:
+                        a, b = _root(parent, i), _root(parent, j)
+                        parent[max(a, b)] = min(a, b)
+                        joined = True
+                        break
+                if joined:
+                    break
+    # number the components by their smallest row: every root is its component's smallest row
+    # (unions keep the smaller root), so a row that is its own root opens a new label
+    count = 0
+    for i in range(n):
+        r = _root(parent, i)
+        if r == i:
+            labels[i] = count
+            count += 1
+        else:
+            labels[i] = labels[r]
+    return labels
