@@ -7,6 +7,7 @@
     capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
     capsule-rt sweep SPEC --out DIR [--cluster ADDRESS] [--resume]   (service.sweep_cli)
     capsule-rt experiment NAME --out DIR                             (service.sweep_cli)
+    capsule-rt design coverage|layout|plot ...                       (service.design_cli)
     capsule-rt fullwave REQUEST.json --out DIR [--cell-mm 2] [--coarse-factor 1.5] [--margin-mm 20] [--reuse]
     capsule-rt vision render --out DIR [--start-s-m S] [--frames N] [--advance-m D] ...   (service.vision_cli)
     capsule-rt vision motion DIR|FRAME.png... [--output OUT.csv|.json] [--estimate both] ... (service.vision_cli)
@@ -321,11 +322,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a cell size whose identical input already ran to the end in --out is not run again (its "
                         "output is compared anew): rebuild a report, or finish an interrupted comparison")
     f.set_defaults(func=_cmd_fullwave)
-    from service import localize_cli, track_cli, vision_cli
+    from service import localize_cli, phantom_cli, track_cli, vision_cli
 
+    phantom_cli.add_parsers(sub)
     vision_cli.add_parsers(sub)
     localize_cli.add_parsers(sub)
     track_cli.add_parser(sub)
+    from service import design_cli
+
+    design_cli.add_parser(sub)
     return p
 
 

@@ -3,8 +3,9 @@
 The request body is read chunk by chunk from the ASGI stream and fed to
 python-multipart's streaming parser; a running byte count stops the read
 (413) as soon as the body, or one part, passes its cap, so an oversized
-upload is never buffered whole. Only the two expected parts are kept
-(``mesh`` <= ``max_upload_bytes``, ``manifest`` <= ``max_manifest_bytes``). The reader itself
+upload is never buffered whole. Only the expected parts are kept
+(``mesh`` <= ``max_upload_bytes``, ``manifest`` <= ``max_manifest_bytes``; or ``archive`` <=
+``max_upload_bytes``, a zip of anatomy files that :mod:`service.phantom_builds` builds). The reader itself
 (:func:`read_parts`) serves every multipart operation (the vision frames too).
 """
 
@@ -34,9 +35,12 @@ class _Part:
 
 @dataclass
 class UploadParts:
-    mesh: bytes
-    mesh_filename: str | None
-    manifest: bytes
+    """Either ``mesh`` + ``manifest`` (a ready phantom) or ``archive`` (anatomy files to build)."""
+
+    mesh: bytes = b""
+    mesh_filename: str | None = None
+    manifest: bytes = b""
+    archive: bytes | None = None
 
 
 def _listing(names) -> str:
@@ -58,7 +62,7 @@ async def read_parts(request: Request, caps: dict[str, int], required: tuple[str
     if declared is not None and declared.isdigit() and int(declared) > body_cap:
         raise UploadTooLarge(
             f"request body of {int(declared)} bytes exceeds the upload cap of {body_cap} bytes ({limits})",
-            loc=["body", required[0]],
+            loc=["body", required[0] if required else next(iter(caps))],
         )
     parts: dict[str, _Part] = {}
     state: dict = {"part": None, "hname": bytearray(), "hvalue": bytearray(), "error": None}
@@ -122,7 +126,7 @@ async def read_parts(request: Request, caps: dict[str, int], required: tuple[str
             received += len(chunk)
             if received > body_cap:
                 raise UploadTooLarge(f"request body exceeds the upload cap of {body_cap} bytes ({limits})",
-                                     loc=["body", required[0]])
+                                     loc=["body", required[0] if required else next(iter(caps))])
             try:
                 parser.write(chunk)
             except Exception as exc:  # python-multipart raises its own MultipartParseError
@@ -149,10 +153,21 @@ async def read_parts(request: Request, caps: dict[str, int], required: tuple[str
 
 
 async def read_upload(request: Request, max_mesh_bytes: int, max_manifest_bytes: int) -> UploadParts:
-    """Read ``mesh`` and ``manifest`` parts from a multipart body (413 beyond the caps, 422 if malformed)."""
+    """Read ``mesh`` and ``manifest`` parts, or one ``archive`` part (a zip of anatomy files and a build
+    manifest, at most ``max_mesh_bytes``), from a multipart body (413 beyond the caps, 422 if malformed)."""
+    usage = ("the upload must be multipart/form-data with two parts, 'mesh' (.glb) and 'manifest' (JSON), or one "
+             "part 'archive' (a zip of anatomy files and a build manifest)")
     parts = await read_parts(
-        request, {"mesh": max_mesh_bytes, "manifest": max_manifest_bytes}, ("mesh", "manifest"),
-        "the upload must be multipart/form-data with two parts, 'mesh' (.glb) and 'manifest' (JSON)")
+        request, {"mesh": max_mesh_bytes, "manifest": max_manifest_bytes, "archive": max_mesh_bytes}, (), usage)
+    if "archive" in parts:
+        extra = sorted(set(parts) - {"archive"})
+        if extra:
+            raise Unprocessable(f"part '{extra[0]}' comes with 'archive': send either 'archive' alone or 'mesh' and "
+                                "'manifest'", loc=["body", extra[0]])
+        return UploadParts(archive=bytes(parts["archive"].data))
+    for name in ("mesh", "manifest"):
+        if name not in parts:
+            raise Unprocessable(f"missing part '{name}' ({usage})", loc=["body", name])
     mesh = parts["mesh"]
     if bytes(mesh.data[:4]) != GLB_MAGIC:
         raise InvalidMesh(

@@ -68,6 +68,8 @@ CROSS_FIELD_RULES = [
        "bound, with the antennas inside the grid and outside its absorbing layer, a second cell size in bounds "
        "(docs/validation.md, 'Over HTTP')") for part in ("cell_m", "coarse_factor", "margin_m")),
     ("upload_phantom", ["body", "mesh"], "phantom_validation", "the mesh part is a valid binary glTF"),
+    ("upload_phantom", ["body", "archive"], "invalid", "the archive part is a zip of anatomy files and a build "
+     "manifest that names them (docs/phantoms.md, 'Over HTTP')"),
     *(("submit_sweep", ["body", part], "sweep_spec", "sites, positions and centrelines of the phantom; bands, "
        "methods and localizers consistent with each other (sweeps.spec)")
       for part in ("capsule_positions", "receivers", "frequencies_hz", "channel", "ranging", "localization")),

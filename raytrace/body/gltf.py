@@ -47,19 +47,19 @@ names, e.g. ``("manifest", "organs", "liver")``) or ``mesh`` (the .glb
 container, e.g. ``mesh.nodes[3].name``) and whose message says what is
 wrong; no partially built phantom escapes.
 
-The .glb is decoded here, not by ``trimesh.load``: the container and every
-accessor are bounds-checked against the byte and triangle caps *before*
-any array is allocated, only POSITION and indices of triangle primitives
-are read (textures are never decoded, so no image decompression bombs),
-multi-primitive meshes keep their node name (trimesh renames such nodes),
-and node transforms (matrix or TRS, composed down the hierarchy, winding
-flipped under a mirroring transform as the glTF spec requires) are applied
-exactly once. Identical vertex positions are then merged so that meshes
+The .glb is decoded by trimesh, after the container and its JSON chunk have
+been checked: the byte cap, every accessor inside its bufferView and the
+binary chunk (trimesh reads every accessor), the triangle cap from the
+declared counts, the node tree (names, cycles, transforms) — all before any
+array is allocated. Materials and images are skipped (no image decompression
+bombs), each glTF mesh is one geometry (its primitives merged) under the name
+of its node, and node transforms (matrix or TRS, composed down the hierarchy,
+winding flipped under a mirroring transform as the glTF spec requires) are
+taken from the world matrices the checks computed. Identical vertex positions are then merged so that meshes
 exported with split vertices (per-face normals/UVs) can still be watertight.
-Besides :meth:`Phantom.build` validation (watertight, oriented, nested,
-no vertex of one organ on both sides of another), uploads get an
-edge-crossing test that catches two surfaces crossing with every vertex
-outside the other.
+Validation is :meth:`Phantom.build`'s (watertight, oriented, no surface
+crossing itself or another: every edge cast through one Embree scene of
+all triangles; nested or disjoint).
 
 Export (:func:`export_glb`) writes one node and one mesh per organ named
 after it, float32 positions and uint32 indices, in metres, with the
@@ -355,19 +355,27 @@ class _Reader:
             raise _fail(f"accessor count {count!r} is invalid", where)
         return count
 
-    def read(self, index: int, where: str, *, type_: str, component_types: tuple[int, ...]) -> np.ndarray:
+    def check(self, index: int, where: str, *, type_: str | None = None,
+              component_types: tuple[int, ...] | None = None) -> None:
+        """Bounds-check one accessor against its bufferView and the binary chunk (no data is decoded): what
+        trimesh's decoder will read must lie inside the file."""
         accessor = self.accessors[_index(index, len(self.accessors), where)]
         if "sparse" in accessor:
             raise _fail("sparse accessors are not supported", where)
-        if accessor.get("type") != type_ or accessor.get("componentType") not in component_types:
+        kind, component = accessor.get("type"), accessor.get("componentType")
+        if not isinstance(kind, str) or kind not in _COMPONENTS or isinstance(component, bool) or \
+                not isinstance(component, int) or component not in _DTYPES:
+            raise _fail(f"accessor type {accessor.get('type')!r}/{accessor.get('componentType')!r} is not supported",
+                        where)
+        if (type_ is not None and accessor.get("type") != type_) or \
+                (component_types is not None and accessor.get("componentType") not in component_types):
             raise _fail(f"accessor must be {type_} of componentType {component_types}, got "
                         f"{accessor.get('type')!r}/{accessor.get('componentType')!r}", where)
         if accessor.get("normalized", False):
             raise _fail("normalized accessors are not supported", where)
         count = self.count(index, where)
         dtype = _DTYPES[accessor["componentType"]]
-        n_comp = _COMPONENTS[type_]
-        element = dtype.itemsize * n_comp
+        element = dtype.itemsize * _COMPONENTS[accessor["type"]]
         if "bufferView" not in accessor:
             raise _fail("accessor without a bufferView", where)
         view = self.views[_index(accessor["bufferView"], len(self.views), f"{where}.bufferView")]
@@ -385,16 +393,9 @@ class _Reader:
             raise _fail(f"byteStride {stride} is smaller than the element size {element}", where)
         if view_offset + view_length > len(self.binary):
             raise _fail("bufferView runs past the end of the binary chunk", where)
-        if count == 0:
-            return np.zeros((0, n_comp), dtype.newbyteorder("="))
-        needed = acc_offset + stride * (count - 1) + element
-        if needed > view_length:
-            raise _fail(f"accessor needs {needed} bytes, its bufferView has {view_length}", where)
-        raw = np.frombuffer(self.binary, np.uint8, count=needed - acc_offset,
-                            offset=view_offset + acc_offset)
-        rows = np.lib.stride_tricks.as_strided(raw, shape=(count, element), strides=(stride, 1))
-        return np.ascontiguousarray(rows).view(dtype).reshape(count, n_comp).astype(
-            dtype.newbyteorder("="))
+        if count and acc_offset + stride * (count - 1) + element > view_length:
+            raise _fail(f"accessor needs {acc_offset + stride * (count - 1) + element} bytes, its bufferView has "
+                        f"{view_length}", where)
 
 
 def _node_matrix(node: dict, where: str) -> np.ndarray:
@@ -495,7 +496,15 @@ def _primitives(mesh: dict, where: str) -> list[dict]:
 
 
 def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
-    """node name -> (vertices (V, 3) float64 in file units, faces (F, 3), node field)."""
+    """node name -> (vertices (V, 3) float64 in file units, faces (F, 3), node field).
+
+    Everything the decoder will touch is checked first, from the container and its JSON chunk alone: the
+    byte cap, every accessor inside its bufferView and the binary chunk, the triangle cap from the declared
+    counts, the node tree, names and transforms. trimesh then decodes the file (materials and images
+    skipped, no processing), one mesh per glTF mesh; each mesh node's vertices are taken through its world
+    transform from trimesh's scene graph (winding reversed under a mirroring transform, as glTF requires)."""
+    import io
+
     if len(data) > max_bytes:
         raise _fail(f"the .glb is {len(data)} bytes, over the cap of {max_bytes}", "mesh")
     document, binary = _split_glb(data)
@@ -506,7 +515,6 @@ def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tup
     reader = _Reader(document, binary)
     meshes = _list(document, "meshes")
     nodes = _mesh_nodes(document)
-    # Triangle cap from the declared accessor counts, before decoding anything.
     total = 0
     for name, mesh_index, _, where in nodes:
         for k, p in enumerate(_primitives(meshes[mesh_index], f"mesh.meshes[{mesh_index}]")):
@@ -518,33 +526,53 @@ def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tup
             total += n // 3
     if total > max_triangles:
         raise _fail(f"{total} triangles exceed the cap of {max_triangles}", "mesh")
-    out: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
-    for name, mesh_index, world, where in nodes:
-        all_v, all_f, base = [], [], 0
+    for name, mesh_index, _, where in nodes:
         for k, p in enumerate(meshes[mesh_index]["primitives"]):
             pw = f"mesh.meshes[{mesh_index}].primitives[{k}]"
-            vertices = reader.read(p["attributes"]["POSITION"], f"{pw}.attributes.POSITION",
-                                   type_="VEC3", component_types=(5126,)).astype(float)
-            if not np.isfinite(vertices).all():
-                raise _fail("non-finite vertex coordinates", f"{pw}.attributes.POSITION")
+            reader.check(p["attributes"]["POSITION"], f"{pw}.attributes.POSITION", type_="VEC3",
+                         component_types=(5126,))
             if "indices" in p:
-                idx = reader.read(p["indices"], f"{pw}.indices", type_="SCALAR",
-                                  component_types=(5121, 5123, 5125)).ravel().astype(np.int64)
-            else:
-                idx = np.arange(len(vertices), dtype=np.int64)
-            if len(idx) and idx.max() >= len(vertices):
-                raise _fail(f"index {int(idx.max())} out of range of {len(vertices)} vertices",
-                            f"{pw}.indices")
-            all_v.append(vertices)
-            all_f.append(idx.reshape(-1, 3) + base)
-            base += len(vertices)
-        vertices = np.concatenate(all_v)
-        faces = np.concatenate(all_f)
+                reader.check(p["indices"], f"{pw}.indices", type_="SCALAR", component_types=(5121, 5123, 5125))
+    for k in range(len(reader.accessors)):  # trimesh decodes every accessor: all must lie inside the file
+        reader.check(k, f"mesh.accessors[{k}]")
+    for i, image in enumerate(_list(document, "images")):
+        if "uri" in image:
+            raise _fail("external or data-URI images are not accepted", f"mesh.images[{i}]")
+    try:
+        scene = trimesh.load(io.BytesIO(data), file_type="glb", force="scene", process=False,
+                             merge_primitives=True, skip_materials=True)
+    except Exception as exc:  # trimesh raises ValueError, KeyError, IndexError... on what passed the checks
+        raise _fail(f"the .glb cannot be decoded: {_brief(str(exc) or type(exc).__name__)}", "mesh") from None
+    out: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+    for name, mesh_index, world, where in nodes:
+        mw = f"mesh.meshes[{mesh_index}]"
+        try:
+            _, geometry_name = scene.graph[name]
+            geometry = scene.geometry[geometry_name]
+        except (KeyError, ValueError, TypeError):
+            raise _fail(f"mesh node {name!r} was not decoded (no triangles?)", where) from None
+        vertices = np.asarray(geometry.vertices, float)
+        faces = np.asarray(geometry.faces, np.int64)
+        if not np.isfinite(vertices).all():
+            raise _fail("non-finite vertex coordinates", f"{mw}.primitives[0].attributes.POSITION")
+        if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+            raise _fail(f"index {int(faces.max())} out of range of {len(vertices)} vertices",
+                        f"{mw}.primitives[0].indices")
         vertices = vertices @ world[:3, :3].T + world[:3, 3]
         if np.linalg.det(world[:3, :3]) < 0:  # mirroring transform: glTF flips the winding
             faces = faces[:, ::-1]
         out[name] = (vertices, faces, where)
     return out
+
+
+def read_meshes(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, max_triangles: int = DEFAULT_MAX_TRIANGLES,
+                binary: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+    """Mesh nodes of a .glb (for the anatomy pipeline, ``raytrace.body.anatomy.readers``): node name ->
+    (vertices in file units with the node transforms applied, faces, node field). Same caps and checks
+    as an upload's .glb; JSON glTF (.gltf) is refused (its buffers live in other files)."""
+    if not binary:
+        raise _fail("JSON glTF (.gltf) keeps its geometry in separate files: export binary glTF (.glb)", "mesh")
+    return _decode(bytes(data), max_bytes=max_bytes, max_triangles=max_triangles)
 
 
 # ================================================================ load
@@ -580,9 +608,7 @@ def load_phantom(
         organs.append(Organ(name, material, mesh))
     try:
         phantom = Phantom.build(spec["name"], organs, sites={}, description=spec["description"],
-                                max_triangles=max_triangles)
-        if check_crossings:
-            _check_no_crossings(phantom)
+                                max_triangles=max_triangles, check_crossings=check_crossings)
     except PhantomValidationError as exc:  # Phantom.build names "organs.<name>": the manifest's organs
         field = exc.field
         if isinstance(field, str) and (field == "organs" or field.startswith("organs.")):
@@ -630,41 +656,6 @@ def _add_sites(phantom: Phantom, sites: dict, scale: float) -> None:
         phantom.sites[name] = Site(name, kind, np.array(point, dtype=float), phantom.medium_name(medium))
 
 
-def _check_no_crossings(phantom: Phantom) -> None:
-    """Reject two organ surfaces that cross. Two closed triangle surfaces
-    intersect iff an edge of one crosses a triangle of the other: cast every
-    edge of every organ (inside the target's bounding box) as a ray against
-    each other organ (Embree) and look for a hit within the edge's length."""
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
-
-    boxes = [o.mesh.bounds for o in phantom.organs]
-    edges = []
-    for organ in phantom.organs:
-        v = np.asarray(organ.mesh.vertices)
-        e = np.asarray(organ.mesh.edges_unique)
-        edges.append((v[e[:, 0]], v[e[:, 1]]))
-    for j, target in enumerate(phantom.organs):
-        lo, hi = boxes[j]
-        intersector = None
-        for i, other in enumerate(phantom.organs):
-            if i == j:
-                continue
-            a, b = edges[i]
-            keep = np.all((np.maximum(a, b) >= lo) & (np.minimum(a, b) <= hi), axis=1)
-            if not keep.any():
-                continue
-            a, b = a[keep], b[keep]
-            length = np.linalg.norm(b - a, axis=1)
-            intersector = intersector or RayMeshIntersector(target.mesh)
-            _, ray, loc = intersector.intersects_id(a, (b - a) / length[:, None],
-                                                    multiple_hits=False, return_locations=True)
-            crossing = np.linalg.norm(loc - a[ray], axis=1) <= length[ray]
-            if crossing.any():
-                raise _fail(f"surface of organ {other.name!r} intersects organ {target.name!r} "
-                            f"({int(crossing.sum())} of its edges cross it); organs must nest "
-                            "or be disjoint, never touch", ("manifest", "organs", other.name))
-
-
 # ================================================================ export
 def export_manifest(phantom: Phantom) -> dict:
     """The manifest that, with :func:`export_glb`, reloads ``phantom`` (units m,
@@ -688,7 +679,8 @@ def export_manifest(phantom: Phantom) -> dict:
     }
     if phantom.centrelines:
         manifest["centrelines"] = {
-            name: {"pieces": [{"organ": p.organ, "points": p.points_m.tolist()} for p in line.pieces]}
+            # 0.1 um: far below any geometry, and a real tract's manifest stays under the upload's manifest cap
+            name: {"pieces": [{"organ": p.organ, "points": np.round(p.points_m, 7).tolist()} for p in line.pieces]}
             for name, line in phantom.centrelines.items()}
     if phantom.description:
         manifest["description"] = phantom.description[:2000]

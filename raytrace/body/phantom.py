@@ -26,7 +26,7 @@ from typing import Literal, Mapping, Sequence
 import numpy as np
 import trimesh
 
-from raytrace.body.selfintersect import self_intersections
+from raytrace.body.selfintersect import edge_crossings
 from raytrace.errors import AmbiguousPositionError, Field, InvalidGeometryError, PhantomValidationError
 from raytrace.physics.materials import AIR, Material  # noqa: F401 (AIR re-exported for phantom users)
 
@@ -70,11 +70,18 @@ PROBE_COVER = 1.0 / max(float(np.linalg.norm(np.linalg.solve(_PROBE_DIRECTIONS, 
 
 @dataclass(frozen=True)
 class Organ:
-    """One closed organ surface and what fills it."""
+    """One closed organ surface and what fills it.
+
+    ``crease_angle_deg``: the organ's own smoothing setting, the dihedral angle between two
+    neighbouring facets above which their shared edge is a crease of the surface (the tracer keeps
+    the normal discontinuous there, :mod:`raytrace.engine.scene`); None: the tracer's default
+    (45 deg). 0 makes every facet flat, 180 smooths everything.
+    """
 
     name: str
     material: Material
     mesh: trimesh.Trimesh
+    crease_angle_deg: float | None = None
 
 
 @dataclass(frozen=True)
@@ -119,12 +126,15 @@ class Phantom:
         *,
         description: str = "",
         max_triangles: int | None = None,
+        check_crossings: bool = True,
     ) -> "Phantom":
         """Validate organs, build the containment tree and the combined mesh.
 
         ``sites`` maps a site name to ``(kind, position_m)``. Raises
         :class:`PhantomValidationError` naming the organ and the defect; nothing
-        is returned half-built.
+        is returned half-built. ``check_crossings=False`` skips the edge test of
+        :func:`_check_crossings` (for phantoms validated before, e.g. an upload a
+        sweep worker reloads); the containment tree is built either way.
         """
         organs = tuple(organs)
         if not organs:
@@ -139,7 +149,6 @@ class Phantom:
             )
         for organ in organs:
             _validate_organ_mesh(organ)
-        parent = _containment_tree(organs)
 
         offsets = np.cumsum([0] + [len(o.mesh.vertices) for o in organs])
         vertices = np.concatenate([np.asarray(o.mesh.vertices, float) for o in organs])
@@ -156,7 +165,7 @@ class Phantom:
         phantom = cls(
             name=name,
             organs=organs,
-            parent=parent,
+            parent=np.full(len(organs), AIR_INDEX, dtype=np.int64),
             sites={},
             vertices=vertices,
             faces=faces,
@@ -165,6 +174,9 @@ class Phantom:
             vertex_normals=vertex_normals,
             description=description,
         )
+        if check_crossings:
+            _check_crossings(phantom)
+        phantom.parent = _containment_tree(phantom)
         for site_name, (kind, position) in (sites or {}).items():
             if kind not in ("capsule", "sensor"):
                 raise PhantomValidationError(
@@ -343,6 +355,9 @@ class Phantom:
 def _validate_organ_mesh(organ: Organ) -> None:
     mesh = organ.mesh
     where = f"organs.{organ.name}"
+    if organ.crease_angle_deg is not None and not 0.0 <= float(organ.crease_angle_deg) <= 180.0:
+        raise PhantomValidationError(f"crease_angle_deg must be in [0, 180] deg, got {organ.crease_angle_deg}",
+                                     field=f"{where}.crease_angle_deg")
     if len(mesh.faces) < 4:
         raise PhantomValidationError("mesh has fewer than 4 triangles", field=where)
     if not np.isfinite(np.asarray(mesh.vertices)).all():
@@ -358,53 +373,72 @@ def _validate_organ_mesh(organ: Organ) -> None:
             "mesh is oriented inwards (negative volume); normals must point outwards",
             field=where,
         )
-    crossing = self_intersections(mesh.vertices, mesh.faces, limit=1000)
-    if len(crossing):
-        i, j = (int(k) for k in crossing[0])
-        where_m = np.round(np.asarray(mesh.triangles_center[i], float), 4).tolist()
+
+
+def _check_crossings(phantom: "Phantom") -> None:
+    """Refuse any two triangles that cross, of one organ (it passes through itself) or of two (they cross):
+    every edge of every organ cast once through the one Embree scene of all triangles (:attr:`Phantom.intersector`,
+    the scene every medium lookup uses), :func:`raytrace.body.selfintersect.edge_crossings`. The cost is the
+    scene's BVH build plus about 1.5 rays per triangle (docs/phantoms.md, "Scale")."""
+    offsets = np.cumsum([0] + [len(o.mesh.vertices) for o in phantom.organs])
+    per_organ = [np.asarray(o.mesh.edges_unique, np.int64) for o in phantom.organs]
+    pairs = np.concatenate([e + offsets[i] for i, e in enumerate(per_organ)])
+    owner = np.concatenate([np.full(len(e), i, np.int32) for i, e in enumerate(per_organ)])
+    edge, tri, loc = edge_crossings(phantom.vertices, pairs, phantom.intersector)
+    if not len(edge):
+        return
+    k = 0
+    count = len(edge)
+    edge_organ, hit_organ = int(owner[edge[k]]), int(phantom.face_organ[tri[k]])
+    where = np.round(loc[k], 4).tolist()
+    if edge_organ == hit_organ:
+        name = phantom.organs[edge_organ].name
+        local = int(tri[k]) - int(sum(len(o.mesh.faces) for o in phantom.organs[:edge_organ]))
         raise PhantomValidationError(
-            f"mesh intersects itself: {len(crossing)}{'+' if len(crossing) == 1000 else ''} pairs of "
-            f"triangles that share no vertex cross each other (e.g. triangles {i} and {j}, near "
-            f"{where_m} m); an organ must be one closed surface that does not pass through itself",
-            field=where,
-        )
+            f"mesh intersects itself: {count} of its edges cross its own triangles (e.g. triangle {local}, near "
+            f"{where} m); an organ must be one closed surface that does not pass through itself",
+            field=f"organs.{name}")
+    inner, outer = phantom.organs[edge_organ].name, phantom.organs[hit_organ].name
+    raise PhantomValidationError(
+        f"surface of organ {inner!r} intersects organ {outer!r} ({count} edges cross, e.g. near {where} m); organs "
+        "must nest or be disjoint, never touch", field=f"organs.{inner}")
 
 
-def _containment_tree(organs: tuple[Organ, ...]) -> np.ndarray:
-    """Parent organ of every organ (-1 for air), and a check that no two
-    surfaces intersect: every vertex of organ i must lie on the same side of
-    organ j (all inside or all outside), and containment must nest."""
-    n = len(organs)
-    volumes = np.array([o.mesh.volume for o in organs])
-    boxes = np.array([o.mesh.bounds for o in organs])
-    inside = np.zeros((n, n), dtype=bool)  # inside[i, j]: organ i lies inside organ j
-    for j, outer in enumerate(organs):
-        for i, inner in enumerate(organs):
-            if i == j:
-                continue
-            lo, hi = boxes[j]
-            vi = np.asarray(inner.mesh.vertices)
-            in_box = np.all((vi >= lo) & (vi <= hi), axis=1)
-            if not in_box.any():
-                continue
-            flags = np.zeros(len(vi), dtype=bool)
-            flags[in_box] = outer.mesh.contains(vi[in_box])
-            if flags.all():
-                inside[i, j] = True
-            elif flags.any():
-                raise PhantomValidationError(
-                    f"surface of organ {inner.name!r} intersects organ {outer.name!r} "
-                    f"({int(flags.sum())} of {len(vi)} vertices inside it)",
-                    field=f"organs.{inner.name}",
-                )
+def _containment_tree(phantom: "Phantom") -> np.ndarray:
+    """Parent organ of every organ (-1 for air). Surfaces that do not cross (:func:`_check_crossings`)
+    leave each organ wholly inside or wholly outside each other one, so one point of its surface decides:
+    the centroid of its first triangle, whose ray (a fixed oblique direction) through the one scene of all
+    triangles crosses each organ containing it an odd number of times (every hit counted, the ray re-cast
+    just past each). The parent is the smallest-volume container."""
+    n = len(phantom.organs)
+    volumes = np.array([o.mesh.volume for o in phantom.organs])
+    first_face = np.cumsum([0] + [len(o.mesh.faces) for o in phantom.organs])[:-1]
+    points = phantom.vertices[phantom.faces[first_face]].mean(axis=1)
+    direction = _PROBE_DIRECTIONS[0]
+    counts = np.zeros((n, n), dtype=np.int64)  # counts[i, j]: crossings of organ j by organ i's ray
+    origins = points.copy()
+    alive = np.arange(n)
+    scale = float(np.linalg.norm(phantom.bounds_m[1] - phantom.bounds_m[0])) or 1.0
+    for _ in range(4 * len(phantom.faces) + 8):
+        if not len(alive):
+            break
+        tri, ray, loc = phantom.intersector.intersects_id(origins[alive], np.broadcast_to(direction, (len(alive), 3)),
+                                                          multiple_hits=False, return_locations=True)
+        hit_rays = alive[ray]
+        organs_hit = phantom.face_organ[tri]
+        np.add.at(counts, (hit_rays, organs_hit), 1)
+        origins[hit_rays] = loc + 1e-6 * scale * direction  # past the hit by more than float32 resolves
+        alive = hit_rays
+    inside = counts % 2 == 1
+    np.fill_diagonal(inside, False)
     parent = np.full(n, AIR_INDEX, dtype=np.int64)
     for i in range(n):
         containers = np.flatnonzero(inside[i])
         if len(containers):
             if np.any(inside[i] & inside[:, i]):
                 raise PhantomValidationError(
-                    f"organ {organs[i].name!r} and another organ contain each other",
-                    field=f"organs.{organs[i].name}",
+                    f"organ {phantom.organs[i].name!r} and another organ contain each other",
+                    field=f"organs.{phantom.organs[i].name}",
                 )
             parent[i] = containers[np.argmin(volumes[containers])]
     return parent

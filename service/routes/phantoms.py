@@ -1,4 +1,5 @@
-"""Phantoms: list, describe, upload (.glb + manifest), download mesh, delete."""
+"""Phantoms: list, describe, upload (.glb + manifest, or a zip of anatomy files built as a job), follow a
+build, download mesh, delete."""
 
 from __future__ import annotations
 
@@ -12,7 +13,13 @@ from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, error_responses
 from service.registry import describe_phantom
 from service.schemas import ID_PATTERN
-from service.schemas.phantoms import PhantomOut, PhantomsResponse, UploadResponse
+from service.schemas.phantoms import (
+    PhantomBuildList,
+    PhantomBuildStatus,
+    PhantomOut,
+    PhantomsResponse,
+    UploadResponse,
+)
 from service.security import check_owner, writer
 from service.storage import Full, Missing, is_upload_id, new_upload_id
 from service.uploads import read_upload
@@ -26,31 +33,41 @@ PhantomIdPath = Path(
     examples=["torso"],
 )
 
+_ARCHIVE_PART = {
+    "type": "string",
+    "format": "binary",
+    "description": "A zip of anatomy files (surfaces: VTK, STL, PLY, OBJ, OFF, glTF; a labelled NIfTI volume; "
+    "centreline JSON/CSV) and a build manifest (`manifest.yaml` or `manifest.json`, docs/phantoms.md) at its top.",
+}
+_MESH_PART = {
+    "type": "string",
+    "format": "binary",
+    "description": "Binary glTF (.glb) whose mesh nodes are named after the organs.",
+}
+_MANIFEST_PART = {
+    "type": "string",
+    "contentMediaType": "application/json",
+    "description": "JSON text of a manifest (schema `#/components/schemas/Manifest`): name, units, organs (mesh "
+    "node name -> tissue or explicit medium), sites.",
+}
 _UPLOAD_BODY = {
     "requestBody": {
         "required": True,
         "content": {
             "multipart/form-data": {
                 "schema": {
-                    "type": "object",
-                    "required": ["mesh", "manifest"],
-                    "additionalProperties": False,
-                    "properties": {
-                        "mesh": {
-                            "type": "string",
-                            "format": "binary",
-                            "description": "Binary glTF (.glb) whose mesh nodes are named after the organs.",
-                        },
-                        "manifest": {
-                            "type": "string",
-                            "contentMediaType": "application/json",
-                            "description": "JSON text of a manifest (schema `#/components/schemas/Manifest`): "
-                            "name, units, organs (mesh node name -> tissue or explicit medium), sites.",
-                        },
-                    },
+                    "description": "Either `mesh` and `manifest` (a ready phantom, stored at once: 201), or "
+                    "`archive` alone (anatomy files and a build manifest, built as a job: 202).",
+                    "oneOf": [
+                        {"type": "object", "required": ["mesh", "manifest"], "additionalProperties": False,
+                         "properties": {"mesh": _MESH_PART, "manifest": _MANIFEST_PART}},
+                        {"type": "object", "required": ["archive"], "additionalProperties": False,
+                         "properties": {"archive": _ARCHIVE_PART}},
+                    ],
                 },
                 "encoding": {"mesh": {"contentType": "model/gltf-binary"},
-                             "manifest": {"contentType": "application/json"}},
+                             "manifest": {"contentType": "application/json"},
+                             "archive": {"contentType": "application/zip"}},
             }
         },
     }
@@ -63,6 +80,40 @@ async def list_phantoms(request: Request) -> PhantomsResponse:
     reg = state(request).registry
     summaries = await anyio.to_thread.run_sync(reg.summaries)
     return PhantomsResponse(phantoms=summaries)
+
+
+BuildIdPath = Path(..., pattern=r"^pb-[0-9a-f]{16}$", description="Build id (`pb-` + 16 hex digits).",
+                   examples=["pb-0123456789abcdef"])
+
+
+def _builds(request: Request):
+    return request.app.state.phantom_builds
+
+
+@router.get("/builds", response_model=PhantomBuildList, operation_id="list_phantom_builds",
+            summary="List phantom builds")
+async def list_phantom_builds(request: Request) -> PhantomBuildList:
+    """Every stored phantom build job, oldest first."""
+    return PhantomBuildList(builds=await anyio.to_thread.run_sync(_builds(request).list))
+
+
+@router.get("/builds/{build_id}", response_model=PhantomBuildStatus, operation_id="get_phantom_build",
+            summary="A phantom build's progress, its phantom and its report", responses=error_responses(404, 422))
+async def get_phantom_build(request: Request, build_id: str = BuildIdPath) -> PhantomBuildStatus:
+    """State (`queued`, `running`, `done`, `failed`, `cancelled`), progress and what is being done; once
+    `done` the stored phantom's id (`GET /v1/phantoms/{phantom_id}`, the viewer) and the build report; a
+    `failed` build's `error` names the archive's file, organ or label and why (docs/phantoms.md)."""
+    return PhantomBuildStatus.model_validate(await anyio.to_thread.run_sync(_builds(request).status, build_id))
+
+
+@router.delete("/builds/{build_id}", response_model=PhantomBuildStatus, operation_id="cancel_phantom_build",
+               summary="Cancel or delete a phantom build", responses=error_responses(401, 403, 404, 409, 422))
+async def cancel_phantom_build(request: Request, build_id: str = BuildIdPath) -> PhantomBuildStatus:
+    """A queued or running build is cancelled (nothing is stored); a finished one's record is deleted (its
+    phantom stays, `DELETE /v1/phantoms/{phantom_id}` removes it)."""
+    st = state(request)
+    writer(request, st.settings)
+    return PhantomBuildStatus.model_validate(await anyio.to_thread.run_sync(_builds(request).cancel, build_id))
 
 
 @router.get(
@@ -152,12 +203,17 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
     status_code=201,
     response_model=UploadResponse,
     operation_id="upload_phantom",
-    summary="Upload a phantom: multipart `mesh` (.glb) + `manifest` (JSON)",
+    summary="Upload a phantom: multipart `mesh` (.glb) + `manifest` (JSON), or an `archive` of anatomy files to build",
     openapi_extra=_UPLOAD_BODY,
-    responses=error_responses(400, 401, 403, 413, 422, 503, 504, 507),
+    responses={202: {"model": PhantomBuildStatus, "description": "An `archive` was checked and its build queued "
+                     "(`Location`: /v1/phantoms/builds/{build_id})."},
+               **error_responses(400, 401, 403, 413, 422, 503, 504, 507)},
 )
 async def upload_phantom(request: Request) -> JSONResponse:
-    """Validated like a built-in (closed, outward-oriented organs that neither cross each
+    """With `archive`: the zip's files and build manifest are checked (sizes, voxels, every named file present,
+    the build's memory) and built as a job by the anatomy pipeline (202; follow it at
+    `/v1/phantoms/builds/{build_id}`; docs/phantoms.md). With `mesh` + `manifest`: validated like a built-in
+    (closed, outward-oriented organs that neither cross each
     other nor themselves; every manifest organ present as a mesh node and vice versa; a
     mesh size that fits its units; sites a channel request accepts; size and triangle
     caps) and stored atomically in the data directory: it survives a restart and is
@@ -174,6 +230,10 @@ async def upload_phantom(request: Request) -> JSONResponse:
         )
     request.scope["capsule_rt.error_loc"] = "body"
     parts = await read_upload(request, settings.max_upload_bytes, settings.max_manifest_bytes)
+    if parts.archive is not None:  # anatomy files: checked now, built as a job (docs/phantoms.md, "Over HTTP")
+        status = await anyio.to_thread.run_sync(_builds(request).submit, parts.archive, owner)
+        return JSONResponse(PhantomBuildStatus.model_validate(status).model_dump(), status_code=202,
+                            headers={"Location": f"/v1/phantoms/builds/{status['id']}"})
 
     def build(budget: Budget):
         manifest = parse_manifest(parts.manifest)

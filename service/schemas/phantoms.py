@@ -156,3 +156,42 @@ class Manifest(Strict):
 
 class UploadResponse(PhantomOut):
     pass
+
+
+class BuildError(Out):
+    loc: list[str | int] = Field(description="Where the problem is, as in a 422's detail (the archive's manifest "
+                                             "entry, file, organ or label).")
+    msg: str = Field(description="Why.")
+
+
+class PhantomBuildStatus(Out):
+    """A phantom build job (POST /v1/phantoms with an `archive`; docs/phantoms.md, "Over HTTP")."""
+
+    id: str = Field(description="Build id (`pb-` + 16 hex digits).")
+    name: str = Field(description="The manifest's name.")
+    state: Literal["queued", "running", "done", "failed", "cancelled"]
+    progress: float = Field(ge=0.0, le=1.0, description="Fraction of the build done.")
+    message: str = Field(description="What the build is doing now.")
+    phantom_id: str | None = Field(None, description="The stored phantom (`up-...`), once `done`.")
+    error: BuildError | None = Field(None, description="Why a `failed` build was refused.")
+    created_at: float | None = None
+    started_at: float | None = None
+    finished_at: float | None = None
+    cancel_requested: bool = False
+    deleted: bool = Field(False, description="DELETE of a finished build: its record was deleted.")
+    report: dict[str, Any] | None = Field(None, description="The build report (per organ triangles, volume, "
+                                                             "repairs; generated layers; tracts; sensors), once "
+                                                             "`done`.")
+
+
+class PhantomBuildSummary(Out):
+    id: str
+    name: str
+    state: Literal["queued", "running", "done", "failed", "cancelled"]
+    progress: float
+    phantom_id: str | None = None
+    created_at: float | None = None
+
+
+class PhantomBuildList(Out):
+    builds: list[PhantomBuildSummary]

@@ -1,0 +1,184 @@
+"""Overlaps between organs, and organs against the body: resolved by clipping below a tolerance,
+refused above it (docs/phantoms.md, "Overlaps").
+
+Two organs whose surfaces cross (an edge of one through a triangle of the other, found by one Embree ray per
+edge, :func:`crossing_pairs`) are intersected exactly (manifold3d's boolean intersection). When the
+intersection holds volume but is not the whole of either (one nested in the other is no overlap):
+
+* the *depth* of the overlap is the largest distance from a vertex of one that lies inside the other
+  to the other's surface (both ways; exact distances to the triangles);
+* deeper than ``overlap_tolerance_m``: the build is refused, naming both organs, the depth, the
+  volume they share and where they meet (the centroid of the intersection, in the project frame);
+* otherwise one organ is clipped, the other kept: when most of one lies inside the other it is meant
+  to nest, and the inner one is clipped to the outer one pulled in by ``clearance_m``; else they are
+  neighbours, and the organ listed *later* in the manifest gives way, minus the earlier one grown by
+  ``clearance_m``. The report names the clipped organ, the other, the depth and the volume removed.
+
+Growing or pulling in a surface by ``clearance_m`` moves its vertices along their normals, which is an
+offset as long as ``clearance_m`` is small against the surface's features (a fraction of a millimetre
+against organs of centimetres); the final phantom's checks (:meth:`Phantom.build`) hold either way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from raytrace.body.anatomy.grid import SurfaceDistance
+from raytrace.errors import Field, PhantomValidationError
+
+__all__ = ["clip_inside", "intersect", "resolve_overlaps", "subtract"]
+
+
+def _manifold(mesh: trimesh.Trimesh, origin: np.ndarray):
+    import manifold3d
+
+    m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices - origin, np.float32),
+                                            tri_verts=np.asarray(mesh.faces, np.uint32)))
+    return m
+
+
+def _mesh(m, origin: np.ndarray) -> trimesh.Trimesh:
+    out = m.to_mesh()
+    verts = np.asarray(out.vert_properties, float)[:, :3] + origin
+    return trimesh.Trimesh(verts, np.asarray(out.tri_verts, np.int64), process=True, validate=False)
+
+
+def _offset(mesh: trimesh.Trimesh, distance_m: float) -> trimesh.Trimesh:
+    moved = mesh.copy()
+    moved.vertices = mesh.vertices + distance_m * mesh.vertex_normals
+    return moved
+
+
+def intersect(a: trimesh.Trimesh, b: trimesh.Trimesh) -> trimesh.Trimesh:
+    origin = a.bounds.mean(axis=0)
+    return _mesh(_manifold(a, origin) ^ _manifold(b, origin), origin)
+
+
+def subtract(a: trimesh.Trimesh, b: trimesh.Trimesh) -> trimesh.Trimesh:
+    origin = a.bounds.mean(axis=0)
+    return _mesh(_manifold(a, origin) - _manifold(b, origin), origin)
+
+
+def _touching(a: trimesh.Trimesh, b: trimesh.Trimesh, clearance_m: float) -> bool:
+    """Whether the surfaces of two neighbouring organs come closer than ``clearance_m`` (manifold3d's
+    ``min_gap``). A pair whose bounding boxes nest is left to the phantom's own checks: one organ is then
+    most likely inside the other, and giving way would hollow the outer one."""
+    lo_a, hi_a = a.bounds
+    lo_b, hi_b = b.bounds
+    if np.any(hi_a + clearance_m < lo_b) or np.any(hi_b + clearance_m < lo_a):
+        return False
+    if (np.all(lo_a <= lo_b) and np.all(hi_b <= hi_a)) or (np.all(lo_b <= lo_a) and np.all(hi_a <= hi_b)):
+        return False
+    origin = a.bounds.mean(axis=0)
+    return float(_manifold(a, origin).min_gap(_manifold(b, origin), clearance_m)) < clearance_m
+
+
+def _drop_specks(mesh: trimesh.Trimesh, min_volume: float) -> trimesh.Trimesh:
+    parts = mesh.split(only_watertight=False)
+    keep = [p for p in parts if abs(p.volume) >= min_volume]
+    return trimesh.util.concatenate(keep) if len(keep) != len(parts) and keep else mesh
+
+
+def _depth(a: trimesh.Trimesh, b: trimesh.Trimesh, b_distance: SurfaceDistance) -> float:
+    inside = b.contains(a.vertices) if len(a.vertices) else np.zeros(0, bool)
+    return float(b_distance(a.vertices[inside]).max()) if inside.any() else 0.0
+
+
+def _mm(x: float) -> str:
+    return f"{x * 1e3:.3g} mm"
+
+
+def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field], tolerance_m: float,
+                     clearance_m: float, crossing: set[tuple[int, int]] | None = None,
+                     ) -> tuple[dict[str, trimesh.Trimesh], dict[str, list[str]]]:
+    """Organs (in manifest order) with their pairwise overlaps resolved, and the notes per organ (module doc);
+    ``crossing``: the pairs :func:`crossing_pairs` found, when the caller has them."""
+    names = list(organs)
+    meshes = dict(organs)
+    notes: dict[str, list[str]] = {n: [] for n in names}
+    if crossing is None:
+        crossing = crossing_pairs([meshes[n] for n in names])
+    for i, first in enumerate(names):
+        for j in range(i + 1, len(names)):
+            second = names[j]
+            a, b = meshes[first], meshes[second]
+            if (i, j) not in crossing:
+                if _touching(a, b, clearance_m):  # surfaces closer than the clearance, e.g. shared caps of cut pieces
+                    moved = _drop_specks(subtract(b, _offset(a, clearance_m)), 1e-9)
+                    if len(moved.faces):
+                        removed = float(b.volume - moved.volume)
+                        meshes[second] = moved
+                        notes[second].append(f"touched {first!r}: gave way by {_mm(clearance_m)} "
+                                             f"({removed * 1e6:.3g} mL removed)")
+                continue
+            shared = intersect(a, b)
+            volume = float(shared.volume) if len(shared.faces) else 0.0
+            if volume <= 0.0 or volume >= (1.0 - 1e-6) * min(a.volume, b.volume):
+                continue  # disjoint, or one nested in the other: no surface crosses (the phantom checks touching)
+            da, db = SurfaceDistance(a.vertices, a.faces, clearance_m * 4 + 1e-4), \
+                SurfaceDistance(b.vertices, b.faces, clearance_m * 4 + 1e-4)
+            depth = max(_depth(a, b, db), _depth(b, a, da))
+            where = np.round(shared.centroid * 1e3, 1).tolist()
+            if depth > tolerance_m:
+                raise PhantomValidationError(
+                    f"organs {first!r} and {second!r} overlap by {_mm(depth)} ({volume * 1e6:.3g} mL shared, "
+                    f"around {where} mm in the project frame), more than overlap_tolerance_m = {_mm(tolerance_m)}: "
+                    "they cross; "
+                    "fix the surfaces (or raise options.overlap_tolerance_m to clip the later one)",
+                    field=fields[second])
+            a_in_b = float(np.mean(b.contains(a.vertices)))
+            b_in_a = float(np.mean(a.contains(b.vertices)))
+            if b_in_a >= 0.5 or a_in_b >= 0.5:
+                inner, outer = (second, first) if b_in_a >= a_in_b else (first, second)
+                clipped = intersect(meshes[inner], _offset(meshes[outer], -clearance_m))
+                how = f"clipped to the inside of {outer!r} (it is meant to nest in it)"
+            else:
+                inner, outer = second, first
+                clipped = subtract(meshes[inner], _offset(meshes[outer], clearance_m))
+                how = f"gave way to {outer!r} (listed before it)"
+            clipped = _drop_specks(clipped, 1e-9)
+            if not len(clipped.faces):
+                raise PhantomValidationError(f"organ {inner!r} lies within {outer!r}: clipping left nothing of it",
+                                             field=fields[inner])
+            removed = float(meshes[inner].volume - clipped.volume)
+            meshes[inner] = clipped
+            notes[inner].append(f"overlapped {outer!r} by {_mm(depth)} around {where} mm: {how}, "
+                                f"{removed * 1e6:.3g} mL removed, {_mm(clearance_m)} clearance")
+    return meshes, notes
+
+
+def crossing_pairs(meshes: list[trimesh.Trimesh]) -> set[tuple[int, int]]:
+    """Pairs ``(i, j)``, ``i <= j``, of surfaces that cross (``(i, i)``: surface i crosses itself): every edge
+    cast once through one Embree scene of all of them (:func:`raytrace.body.selfintersect.edge_crossings`), so
+    that only crossing pairs pay for a boolean."""
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    from raytrace.body.selfintersect import edge_crossings
+
+    if not meshes:
+        return set()
+    union = trimesh.util.concatenate(meshes)
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
+    edges = np.concatenate([np.asarray(m.edges_unique, np.int64) + offsets[k] for k, m in enumerate(meshes)])
+    owner = np.concatenate([np.full(len(m.edges_unique), k) for k, m in enumerate(meshes)])
+    face_owner = np.concatenate([np.full(len(m.faces), k) for k, m in enumerate(meshes)])
+    edge, tri, _ = edge_crossings(np.asarray(union.vertices, float), edges, RayMeshIntersector(union))
+    out = set()
+    for e, t in zip(owner[edge].tolist(), face_owner[tri].tolist()):
+        out.add((min(e, t), max(e, t)))
+    return out
+
+
+def clip_inside(organ: trimesh.Trimesh, container: trimesh.Trimesh, what: str) -> tuple[trimesh.Trimesh, str | None]:
+    """``organ`` inside ``container`` (unchanged when it already is); the note when it was clipped."""
+    outside = ~container.contains(organ.vertices)
+    if not outside.any():
+        return organ, None
+    clipped = _drop_specks(intersect(organ, container), 1e-9)
+    if not len(clipped.faces):
+        return clipped, f"nothing of it lies inside {what}"
+    removed = float(organ.volume - clipped.volume)
+    where = np.round(organ.vertices[outside].mean(axis=0) * 1e3, 1).tolist()
+    return clipped, (f"clipped to {what} where it came too close to the skin (around {where} mm): "
+                     f"{removed * 1e6:.3g} mL removed")

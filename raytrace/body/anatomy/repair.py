@@ -1,0 +1,307 @@
+"""Checks and repairs of one organ's surface (docs/phantoms.md, "Checks and repairs").
+
+:func:`repair_surface` takes the triangles of every file of an organ (already in metres, in the
+project's frame) and answers one closed, consistently outward-wound, self-intersection-free
+surface, or refuses naming the organ and what to fix. In order, each step recorded in the report
+only when it changed something:
+
+1. **join and weld**: the files' triangles are concatenated and vertices closer than
+   ``weld_m`` merged (so pieces that share their cut edges become one surface);
+2. **degenerate and duplicate faces**: triangles with a repeated vertex or an area below
+   ``weld_m**2``, and second copies of a triangle, are removed; a triangle given twice with opposite
+   windings is the wall between two pieces that share it (the caps of an organ cut into segments), and
+   both copies are removed, so the pieces join into one surface;
+3. **holes**: boundary loops are found; a loop whose span is at most ``max_hole_m`` is filled,
+   and so is a loop of any size that is planar within ``planar_fraction`` of its span (a planar
+   cut: an organ cut into segments, an open tube end where it leaves the scan). A fill is a fan
+   of triangles from the loop to its centroid. A loop that is neither is refused, naming its size
+   and where it is;
+4. **winding**: every shell is wound consistently and outward (trimesh ``fix_normals``);
+5. **pieces**: when the surface still has edges shared by more than two triangles, or crosses
+   itself (pieces that overlap or touch, caps that cut through each other), the union of its
+   closed shells is **remeshed on a voxel grid** of ``voxel_m``: the cells inside any shell
+   (ray parity, :func:`raytrace.body.anatomy.grid.inside_mask`), smoothed by a Gaussian of
+   ``smoothing_voxels`` cells and meshed by marching cubes at the half level, then decimated to
+   the organ's triangle budget (:mod:`raytrace.body.anatomy.decimate`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from raytrace.body.anatomy.grid import Grid, inside_mask, surface_from_field
+from raytrace.body.anatomy.manifest import Options
+from raytrace.body.selfintersect import edge_crossings
+from raytrace.errors import Field, PhantomValidationError
+
+__all__ = ["Repaired", "boundary_loops", "repair_surface", "voxel_union"]
+
+
+@dataclass
+class Repaired:
+    mesh: trimesh.Trimesh
+    repairs: list[str] = field(default_factory=list)
+
+
+def _fail(reason: str, where: Field) -> PhantomValidationError:
+    return PhantomValidationError(reason, field=where)
+
+
+def _mm(x: float) -> str:
+    return f"{x * 1e3:.3g} mm"
+
+
+def weld(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Merge every group of vertices linked by distances of at most ``weld_m`` (pairs from a k-d tree,
+    groups as connected components); answers the new arrays and how many vertices merged away."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(vertices).query_pairs(weld_m, output_type="ndarray")
+    if not len(pairs):
+        return vertices, faces, 0
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, group = connected_components(graph, directed=False)
+    _, first = np.unique(group, return_index=True)
+    return vertices[first], group[faces], n - count
+
+
+def clean_faces(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple[np.ndarray, int, int, int]:
+    """Faces without degenerate triangles, duplicates and inner walls; answers (faces, degenerate, duplicates,
+    inner walls). A triangle given twice with the same winding is a duplicate (one copy kept); twice with
+    opposite windings it is the wall between two pieces that share it (the caps of an organ cut into
+    segments), and both copies go, so the pieces become one surface."""
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    degenerate = repeated | (area <= weld_m**2)
+    faces = faces[~degenerate]
+    key = _keys(np.sort(faces, axis=1))
+    _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    # the winding of a face: its rotation that starts at its smallest vertex, as a key
+    start = np.argmin(faces, axis=1)
+    rotated = np.stack([faces[np.arange(len(faces)), (start + k) % 3] for k in range(3)], axis=1)
+    winding = _keys(rotated)
+    opposite = np.zeros(len(counts), dtype=bool)
+    pairs = np.flatnonzero(counts == 2)
+    if len(pairs):
+        members = np.argsort(inverse, kind="stable")
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        a = members[offsets[pairs]]
+        b = members[offsets[pairs] + 1]
+        opposite[pairs] = winding[a] != winding[b]
+    keep = np.zeros(len(faces), dtype=bool)
+    keep[first] = True
+    keep &= ~opposite[inverse]
+    walls = int(opposite.sum())
+    duplicates = len(faces) - int(keep.sum()) - 2 * walls
+    return faces[keep], int(degenerate.sum()), duplicates, walls
+
+
+def _keys(rows: np.ndarray) -> np.ndarray:
+    """One int64 per row of 2 or 3 vertex indices (below 2**21 for three, 2**31 for two), so that
+    ``np.unique`` sorts numbers instead of rows."""
+    rows = np.asarray(rows, np.int64)
+    if rows.shape[1] == 2:
+        return (rows[:, 0] << 31) | rows[:, 1]
+    if rows.max(initial=0) < (1 << 21):
+        return (rows[:, 0] << 42) | (rows[:, 1] << 21) | rows[:, 2]
+    return np.unique(rows, axis=0, return_inverse=True)[1].ravel()
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Closed loops of boundary edges (edges of one triangle only), each as vertex indices in the
+    order of the triangles' winding; edges of a vertex where several holes meet are followed in turn."""
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    _, inverse, counts = np.unique(_keys(np.sort(edges, axis=1)), return_inverse=True, return_counts=True)
+    boundary = edges[counts[inverse.ravel()] == 1]
+    nxt: dict[int, list[int]] = {}
+    for a, b in boundary.tolist():
+        nxt.setdefault(a, []).append(b)
+    loops = []
+    while nxt:
+        start = next(iter(nxt))
+        loop = [start]
+        current = start
+        while True:
+            targets = nxt.get(current)
+            if not targets:
+                break
+            b = targets.pop()
+            if not targets:
+                del nxt[current]
+            if b == start:
+                break
+            loop.append(b)
+            current = b
+            if len(loop) > len(boundary):
+                break
+        if len(loop) >= 3:
+            loops.append(np.array(loop, dtype=np.int64))
+    return loops
+
+
+def _cap(vertices: np.ndarray, faces: np.ndarray, loop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A fan from the loop's centroid; the boundary edge (a, b) of a face is used as (b, a)."""
+    centre = vertices[loop].mean(axis=0)
+    c = len(vertices)
+    a = loop
+    b = np.roll(loop, -1)
+    fan = np.stack([b, a, np.full(len(loop), c)], axis=1)
+    return np.vstack([vertices, centre]), np.vstack([faces, fan])
+
+
+def _planarity(points: np.ndarray) -> tuple[float, float]:
+    """(largest distance from the best-fit plane, span) of a loop."""
+    centred = points - points.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    off = float(np.max(np.abs(centred @ vt[2])))
+    span = float(np.max(np.linalg.norm(points[:, None, :] - points[None, ::max(1, len(points) // 64), :], axis=2)))
+    return off, span
+
+
+def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label: str, options: Options,
+                   *, budget: int, max_cells: int, check_crossings: bool = True) -> Repaired:
+    """One closed outward surface from the triangles of an organ's files (module docstring).
+    ``check_crossings=False`` leaves the self-crossing test of step 5 to the caller (the build tests every
+    organ at once, :func:`raytrace.body.anatomy.overlap.crossing_pairs`, and calls :func:`union_of` then)."""
+    repairs: list[str] = []
+    vertices, faces, merged = weld(np.asarray(vertices, float), np.asarray(faces, np.int64), options.weld_m)
+    if merged:
+        repairs.append(f"welded {merged} vertices closer than {_mm(options.weld_m)}")
+    faces, degenerate, duplicate, walls = clean_faces(vertices, faces, options.weld_m)
+    if degenerate:
+        repairs.append(f"removed {degenerate} degenerate triangles")
+    if duplicate:
+        repairs.append(f"removed {duplicate} duplicate triangles")
+    if walls:
+        repairs.append(f"removed {walls} triangles given twice with opposite windings (the walls between pieces "
+                       "that share a cap: the pieces joined into one surface)")
+    vertices_used = np.unique(faces)
+    if len(vertices_used) < len(vertices):
+        remap = np.full(len(vertices), -1, np.int64)
+        remap[vertices_used] = np.arange(len(vertices_used))
+        vertices, faces = vertices[vertices_used], remap[faces]
+    if len(faces) < 4:
+        raise _fail(f"{label}: fewer than 4 triangles are left after removing degenerate ones", where)
+    filled, capped = 0, 0
+    for loop in boundary_loops(faces):
+        points = vertices[loop]
+        off, span = _planarity(points)
+        if span <= options.max_hole_m:
+            filled += 1
+        elif off <= options.planar_fraction * span:
+            capped += 1
+        else:
+            centre = np.round(points.mean(axis=0) * 1e3, 1).tolist()
+            raise _fail(
+                f"{label} is open: a hole {_mm(span)} across (boundary of {len(loop)} edges, around {centre} mm in "
+                f"the project frame) is larger than the fill limit max_hole_m = {_mm(options.max_hole_m)} and not a "
+                f"planar cut (it leaves its best-fit plane by {_mm(off)}, over {options.planar_fraction:g} of its "
+                "span); close the surface, or raise options.max_hole_m", where)
+        vertices, faces = _cap(vertices, faces, loop)
+    if filled:
+        repairs.append(f"filled {filled} hole(s) up to {_mm(options.max_hole_m)} across")
+    if capped:
+        repairs.append(f"capped {capped} planar cut(s)")
+    mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
+    mesh.remove_unreferenced_vertices()
+    needs_union = _non_manifold(mesh.faces) or (check_crossings and crosses_itself(mesh))
+    if not needs_union:
+        consistent = mesh.is_winding_consistent
+        inward = consistent and mesh.volume < 0
+        trimesh.repair.fix_normals(mesh, multibody=True)
+        if not (mesh.is_watertight and mesh.is_winding_consistent):
+            needs_union = True
+        elif inward:
+            repairs.append("turned the surface outward (it was wound inward)")
+        elif not consistent:
+            repairs.append("made the triangles' winding consistent and outward")
+    if needs_union:
+        shells = _closed_shells(mesh)
+        mesh, note = voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells)
+        repairs.append(note)
+    return Repaired(mesh, repairs)
+
+
+def crosses_itself(mesh: trimesh.Trimesh) -> bool:
+    """Whether an edge of the surface crosses one of its triangles (one Embree ray per edge,
+    :func:`raytrace.body.selfintersect.edge_crossings`)."""
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    edge, _, _ = edge_crossings(np.asarray(mesh.vertices, float), np.asarray(mesh.edges_unique, np.int64),
+                                RayMeshIntersector(mesh))
+    return len(edge) > 0
+
+
+def union_of(mesh: trimesh.Trimesh, where: Field, label: str, options: Options, *, budget: int,
+             max_cells: int) -> tuple[trimesh.Trimesh, str]:
+    """Step 5 for a surface found crossing itself after the repairs."""
+    return voxel_union(_closed_shells(mesh), where, label, options, budget=budget, max_cells=max_cells)
+
+
+def _non_manifold(faces: np.ndarray) -> bool:
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(_keys(edges), return_counts=True)
+    return bool(np.any(counts > 2))
+
+
+def _closed_shells(mesh: trimesh.Trimesh) -> list[trimesh.Trimesh]:
+    """The surface's connected pieces (through shared vertices: a non-manifold edge joins them), each
+    oriented outward; a piece that is not closed cannot say what is inside it and is refused by the caller."""
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+    shells = []
+    for k in np.unique(labels):
+        part = trimesh.Trimesh(mesh.vertices, mesh.faces[labels == k], process=False)
+        part.remove_unreferenced_vertices()
+        trimesh.repair.fix_normals(part, multibody=True)
+        if part.volume < 0:
+            part.invert()
+        shells.append(part)
+    return shells
+
+
+def voxel_union(shells: list[trimesh.Trimesh], where: Field, label: str, options: Options, *, budget: int,
+                max_cells: int) -> tuple[trimesh.Trimesh, str]:
+    """One surface around the union of closed shells, remeshed on a voxel grid (module docstring, step 5)."""
+    from scipy.ndimage import gaussian_filter
+
+    from raytrace.body.anatomy.decimate import decimate
+
+    lo = np.min([s.bounds[0] for s in shells], axis=0)
+    hi = np.max([s.bounds[1] for s in shells], axis=0)
+    h = options.voxel_m
+    grid = Grid.around(lo, hi, h, 3, max_cells, where, f"remeshing {label}")
+    inside = np.zeros(grid.shape, dtype=bool)
+    bad = 0
+    for shell in shells:
+        m = inside_mask(shell, grid)
+        inside |= m.mask
+        bad += m.bad_columns
+    if not inside.any():
+        raise _fail(f"{label}: its pieces enclose no volume at {_mm(h)} voxels (open sheets, or thinner than a "
+                    "voxel): give closed surfaces or a smaller options.voxel_m", where)
+    raw_volume = float(inside.sum()) * h**3
+    field = gaussian_filter(inside.astype(np.float32), sigma=options.smoothing_voxels) if options.smoothing_voxels \
+        else inside.astype(np.float32)
+    mesh = surface_from_field(0.5 - field, grid, 0.0)
+    if mesh.volume < 0:
+        mesh.invert()
+    parts = mesh.split(only_watertight=False)
+    if len(parts) > 1:  # specks of a voxel or two: keep the pieces that hold volume
+        keep = [p for p in parts if abs(p.volume) >= 8 * h**3]
+        mesh = trimesh.util.concatenate(keep) if keep else mesh
+    mesh, error = decimate(mesh, budget, options.decimation_error_m)
+    decimated = (f"decimated to {len(mesh.faces)} triangles, within {_mm(error)}" if error > 0 or
+                 len(mesh.faces) <= budget else f"{len(mesh.faces)} triangles: no decimation kept it closed")
+    note = (f"remeshed the union of {len(shells)} closed piece(s) on a {_mm(h)} voxel grid (smoothing "
+            f"{options.smoothing_voxels:g} voxel, {decimated}); voxel volume {raw_volume * 1e6:.4g} mL")
+    if bad:
+        note += f"; {bad} grid column(s) of ambiguous parity left out"
+    return mesh, note
