@@ -361,7 +361,7 @@ class TracerScene:
     def embree_shooting(self) -> EmbreeView:
         """The same faces with Embree's fast (non-robust) traversal, for seed searches only
         (module doc); built on first use (the full scene of the final re-trace never needs it)."""
-        if self._own is not None:
+        if self._own is not None and self.visible is not None:  # a subset with scenes of its own
             with self._lock:
                 if self._own[1] is None:
                     self._own = (self._own[0], EmbreeScene(*self.tables.buffers, robust=False,
