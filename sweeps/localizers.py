@@ -41,7 +41,7 @@ from estimators.localization import (
     nonlinear_fix,
     rss_fix,
 )
-from sweeps.localization import LocalizationInputs, register
+from sweeps.base import LocalizationInputs, SweepSpecError, rss_model
 
 __all__: list[str] = []
 
@@ -49,8 +49,6 @@ _LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 
 def _fail(reason: str, field: str):
-    from sweeps.spec import SweepSpecError
-
     return SweepSpecError(reason, field=field)
 
 
@@ -73,8 +71,6 @@ def _ranges(fix):
 
 
 def _rss(inputs: LocalizationInputs, options: dict[str, Any]):
-    from sweeps.spec import rss_model
-
     ok = _usable(inputs.path_loss_db, "a path")
     return rss_fix(inputs.receivers_m[ok], inputs.path_loss_db[ok],
                    model=rss_model(options.get("model", "cm2_deep_tissue"), "model")).position_m
@@ -134,8 +130,6 @@ def _validate_ranges(allowed: set[str]):
 
 
 def _validate_rss(options: dict, where: str) -> dict:
-    from sweeps.spec import rss_model
-
     extra = sorted(set(options) - {"model"})
     if extra:
         raise _fail(f"unknown option(s) {', '.join(extra)}; allowed: model", f"{where}.{extra[0]}")
@@ -143,11 +137,14 @@ def _validate_rss(options: dict, where: str) -> dict:
     return options
 
 
-register("linear", _ranges(linear_fix), validate=_validate_ranges({"ranges_from"}),
-         description="closed-form least squares on the ranges")
-register("nonlinear", _ranges(nonlinear_fix), validate=_validate_ranges({"ranges_from", "loss"}),
-         description="weighted nonlinear least squares on the ranges")
-register("rss", _rss, validate=_validate_rss, description="path losses through a path-loss model, multilaterated")
-register("model_based", _model_based, validate=_validate_model_based,
-         description="the ranging's delays on travel-time fields through the phantom, built for the delays' kind "
-                     f"(delay_kind: {' | '.join(DELAY_KINDS)}; default the kind ranges_from measures)")
+#: The built-in localizers as (name, fn, validate, description); sweeps.localization registers them
+#: when its registry is first read (this module does not import it: no cycle).
+BUILTINS = (
+    ("linear", _ranges(linear_fix), _validate_ranges({"ranges_from"}), "closed-form least squares on the ranges"),
+    ("nonlinear", _ranges(nonlinear_fix), _validate_ranges({"ranges_from", "loss"}),
+     "weighted nonlinear least squares on the ranges"),
+    ("rss", _rss, _validate_rss, "path losses through a path-loss model, multilaterated"),
+    ("model_based", _model_based, _validate_model_based,
+     "the ranging's delays on travel-time fields through the phantom, built for the delays' kind "
+     f"(delay_kind: {' | '.join(DELAY_KINDS)}; default the kind ranges_from measures)"),
+)
