@@ -36,15 +36,13 @@ from pydantic import (
     model_validator,
 )
 
-from raytrace.body import gltf
-from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 from service.limits import MAX_BAND_POINTS, capped
+from service.schemas.constants import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ, NAME_PATTERN
 
 #: dB value reported for a zero gain / power (instead of -inf) [dB].
 GAIN_DB_FLOOR = -400.0
 
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
-NAME_PATTERN = gltf.NAME_PATTERN.pattern  # organ and site names: the upload's own rule
 
 PhantomId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 ScenarioId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]

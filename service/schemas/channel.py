@@ -3,13 +3,11 @@ band, outputs) and the response (profiles of paths, channel outputs, trace stati
 
 from __future__ import annotations
 
-from dataclasses import fields as dataclass_fields
 from typing import Literal
 
 from pydantic import ConfigDict, Field
 
 from estimators.channel_response import MIN_RATE_HZ
-from raytrace.spec import MAX_DYNAMIC_RANGE_DB, ChannelSpec
 from service.limits import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, capped
 from service.schemas import (
     GAIN_DB_FLOOR,
@@ -25,9 +23,9 @@ from service.schemas import (
     alternatives,
     int_range,
 )
+from service.schemas.constants import MAX_DYNAMIC_RANGE_DB, SPEC_DEFAULTS
 
 #: The channel spec's defaults, quoted in the field descriptions (the spec applies them).
-SPEC_DEFAULTS = {f.name: f.default for f in dataclass_fields(ChannelSpec)}
 
 
 class HomogeneousMedium(Strict):

@@ -8,10 +8,10 @@ from typing import Annotated, Literal
 from pydantic import ConfigDict, Field, StringConstraints, model_validator
 
 from estimators.link import MICS_EIRP_DBM
-from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 from service.limits import MAX_BAND_POINTS, MAX_PROFILE_PATHS, MAX_TRIALS, capped
 from service.schemas import Band, FrequencyHz, Int, Out, Strict, Vec3, alternatives
 from service.schemas.channel import CfrOut, CirOut, Interaction, Segment, TapsOut
+from service.schemas.constants import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 
 #: Bound on each component of an input path gain [-]: a passive channel has |a| <= 1 (caustics
 #: are capped at +20 dB); the margin keeps |a|^2 sums far from float overflow.
