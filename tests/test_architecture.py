@@ -206,3 +206,30 @@ def test_the_cycle_check_finds_a_cycle_hidden_in_a_function(tmp_path):
     assert import_cycles(graph) == [["pkg.a", "pkg.sub.b", "pkg.sub.c"]]
     (pkg / "sub" / "c.py").write_text("def late():\n    return 1\n")
     assert import_cycles(module_graph(tmp_path, ["pkg"])) == []
+
+
+# ------------------------------------------------------------------------------- the service's layers
+def _service_modules(under: str = ""):
+    for module, path in _modules("service"):
+        if module.startswith(f"service.{under}" if under else "service"):
+            yield module, path, {m for m in _imports(path) if m.split(".")[0] in PROJECT}
+
+
+def test_only_the_app_imports_the_routes():
+    """Routes are thin handlers (docs/architecture.md, "The service's layers"): the CLIs, the client, the
+    jobs and the operations share the application layer (service.operations) and the models
+    (service.schemas), never a route module."""
+    for module, _, imported in _service_modules():
+        if module.startswith("service.routes") or module == "service.app":
+            continue
+        assert not [m for m in imported if m.startswith("service.routes")], (module, imported)
+
+
+def test_operations_know_no_http_and_schemas_no_tracer():
+    for module, path, _ in _service_modules("operations"):
+        assert not [m for m in _imports(path) if m.split(".")[0] in ("fastapi", "starlette")
+                    or m.startswith("service.routes")], module
+    for module, path, _ in _service_modules("schemas"):
+        bad = [m for m in _imports(path) if m.split(".")[0] in ("raytrace", "fullwave", "fastapi")
+               or m.startswith(("service.operations", "service.routes", "service.settings"))]
+        assert not bad, (module, bad)
