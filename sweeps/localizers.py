@@ -34,12 +34,10 @@ from estimators.constants import velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.localization import (
     DELAY_KINDS,
+    Measurements,
     check_delay_kind,
-    linear_fix,
+    locate,
     measured_delay_kind,
-    model_based_fix,
-    nonlinear_fix,
-    rss_fix,
 )
 from sweeps.base import LocalizationInputs, SweepSpecError, rss_model
 
@@ -60,20 +58,20 @@ def _usable(values: np.ndarray, what: str) -> np.ndarray:
     return ok
 
 
-def _ranges(fix):
+def _ranges(name: str):
     def localize(inputs: LocalizationInputs, options: dict[str, Any]):
         ok = _usable(inputs.ranges_m, "a range")
         sigma = inputs.sigma_m[ok]
         weights = sigma if np.all(np.isfinite(sigma) & (sigma > 0)) else None
-        kwargs = {"loss": options["loss"]} if "loss" in options else {}
-        return fix(inputs.receivers_m[ok], inputs.ranges_m[ok], weights, **kwargs).position_m
+        return locate(name, Measurements(sensors_m=inputs.receivers_m[ok], ranges_m=inputs.ranges_m[ok],
+                                         sigma_m=weights, loss=options.get("loss"))).position_m
     return localize
 
 
 def _rss(inputs: LocalizationInputs, options: dict[str, Any]):
     ok = _usable(inputs.path_loss_db, "a path")
-    return rss_fix(inputs.receivers_m[ok], inputs.path_loss_db[ok],
-                   model=rss_model(options.get("model", "cm2_deep_tissue"), "model")).position_m
+    return locate("rss", Measurements(sensors_m=inputs.receivers_m[ok], path_loss_db=inputs.path_loss_db[ok],
+                                      model=rss_model(options.get("model", "cm2_deep_tissue"), "model"))).position_m
 
 
 #: Cell edge of the model-based localizer's travel-time grids [m] (as evaluation.fields').
@@ -100,8 +98,8 @@ def _model_based(inputs: LocalizationInputs, options: dict[str, Any]):
                                 field="receivers")
     sigma = inputs.sigma_m[ok]
     sigma_s = sigma / v if np.all(np.isfinite(sigma) & (sigma > 0)) else None
-    kwargs = {"loss": options["loss"]} if "loss" in options else {}
-    return model_based_fix(fields, inputs.ranges_m[ok] / v, sigma_s, **kwargs).position_m
+    return locate("model_based", Measurements(fields=fields, delays_s=inputs.ranges_m[ok] / v, sigma_s=sigma_s,
+                                              loss=options.get("loss"))).position_m
 
 
 def _validate_model_based(options: dict, where: str) -> dict:
@@ -140,8 +138,8 @@ def _validate_rss(options: dict, where: str) -> dict:
 #: The built-in localizers as (name, fn, validate, description); sweeps.localization registers them
 #: when its registry is first read (this module does not import it: no cycle).
 BUILTINS = (
-    ("linear", _ranges(linear_fix), _validate_ranges({"ranges_from"}), "closed-form least squares on the ranges"),
-    ("nonlinear", _ranges(nonlinear_fix), _validate_ranges({"ranges_from", "loss"}),
+    ("linear", _ranges("linear"), _validate_ranges({"ranges_from"}), "closed-form least squares on the ranges"),
+    ("nonlinear", _ranges("nonlinear"), _validate_ranges({"ranges_from", "loss"}),
      "weighted nonlinear least squares on the ranges"),
     ("rss", _rss, _validate_rss, "path losses through a path-loss model, multilaterated"),
     ("model_based", _model_based, _validate_model_based,

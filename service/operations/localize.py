@@ -19,6 +19,7 @@ between sensors' travel-time fields, between trials, and inside the trace.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -26,14 +27,7 @@ import numpy as np
 
 from estimators.constants import velocity_m_per_s
 from estimators.errors import EstimatorInputError
-from estimators.localization import (
-    PositionResult,
-    joint_velocity_fix,
-    linear_fix,
-    model_based_fix,
-    nonlinear_fix,
-    rss_fix,
-)
+from estimators.localization import METHODS, Measurements, PositionResult, locate
 from estimators.rss import CM2_MODELS
 from evaluation.fields import DEFAULT_CELL_SIZE_M
 from raytrace import Budget, Phantom
@@ -53,6 +47,9 @@ from service.settings import Settings
 
 #: Cell edge of the model-based travel-time grids [m] (docs/localization.md, "Travel-time fields").
 CELL_SIZE_M = DEFAULT_CELL_SIZE_M
+#: The sensor fields that give what a method measures (its registry entry's ``measures``): a delay is
+#: turned into a range at the request's relative permittivity.
+_NEEDS = {"ranges_m": ("range_m", "delay_s"), "delays_s": ("delay_s",), "path_loss_db": ("rss_dbm",)}
 #: Most cells of a model-based grid (phantom bounds / CELL_SIZE_M plus a margin); the torso has 0.7 M.
 MAX_GRID_CELLS = 8_000_000
 
@@ -127,8 +124,7 @@ def _measurements(req: LocalizeRequest) -> tuple[str, np.ndarray, np.ndarray | N
         if k != kind:
             raise Unprocessable(f"sensor 0 gives {kind}, this one {k}: give every sensor the same kind",
                                 loc=["body", "sensors", i, k])
-    needs = {"rss": ("rss_dbm",), "joint_velocity": ("delay_s",), "model_based": ("delay_s",)}.get(
-        req.method, ("range_m", "delay_s"))
+    needs = _NEEDS[METHODS[req.method].measures]
     if kind not in needs:
         raise Unprocessable(f"method {req.method} needs {' or '.join(needs)} per sensor, got {kind}",
                             loc=["body", "sensors", 0, kind])
@@ -161,24 +157,22 @@ def _with_sensor_loc(exc: EstimatorInputError, kind: str) -> EstimatorInputError
 def localize(req: LocalizeRequest, registry: Registry, settings: Settings, budget: Budget | None = None) -> dict:
     """A POST /v1/localize body -> the response dict (no HTTP; the CLI calls it too)."""
     kind, values, sigma_m = _measurements(req)
-    uses_phantom = req.phantom is not None or req.method == "model_based" or any(s.site for s in req.sensors)
+    entry = METHODS[req.method]  # the one registry of position methods (estimators.localization.methods)
+    uses_phantom = req.phantom is not None or entry.needs_fields or any(s.site for s in req.sensors)
     phantom = _phantom(registry, req.phantom) if uses_phantom else None
     sensors = np.array([_place(phantom, s, f"sensors[{i}]") for i, s in enumerate(req.sensors)])
     _stop(budget)
     v = velocity_m_per_s(req.relative_permittivity)
-    loss = {"loss": req.loss} if req.loss is not None else {}
+    given = Measurements(sensors_m=sensors, sigma_m=sigma_m, sigma_s=None if sigma_m is None else sigma_m / v,
+                         loss=req.loss, model=CM2_MODELS[req.path_loss_model])
     try:
-        if req.method in ("linear", "nonlinear"):
-            ranges = values if kind == "range_m" else values * v
-            if req.method == "linear":
-                fix = linear_fix(sensors, ranges, sigma_m)
-            else:
-                fix = nonlinear_fix(sensors, ranges, sigma_m, **loss)
-        elif req.method == "joint_velocity":
-            fix = joint_velocity_fix(sensors, values, None if sigma_m is None else sigma_m / v, **loss)
-        elif req.method == "rss":
-            fix = rss_fix(sensors, req.transmit_power_dbm - values, CM2_MODELS[req.path_loss_model], **loss)
+        if entry.measures == "ranges_m":
+            given = replace(given, ranges_m=values if kind == "range_m" else values * v)
+        elif entry.measures == "path_loss_db":
+            given = replace(given, path_loss_db=req.transmit_power_dbm - values)
         else:
+            given = replace(given, delays_s=values)
+        if entry.needs_fields:
             from estimators.localization._validate import sensor_positions
             from evaluation.fields import sensor_fields
 
@@ -188,11 +182,12 @@ def localize(req: LocalizeRequest, registry: Registry, settings: Settings, budge
             fields = sensor_fields(phantom, sensors, req.frequency_hz, CELL_SIZE_M, delay_kind=req.delay_kind,
                                    check=lambda: _stop(budget), cache_dir=field_cache_dir(settings))
             _stop(budget)
-            fix = model_based_fix(fields, values, None if sigma_m is None else sigma_m / v, **loss)
+            given = replace(given, fields=fields)
+        fix = locate(req.method, given)
     except EstimatorInputError as exc:
         raise _with_sensor_loc(exc, kind) from exc
-    out = _fix_dict(fix, sensors, bounded=sigma_m is not None or req.method == "rss")
-    out["delay_kind"] = req.delay_kind if req.method == "model_based" else None
+    out = _fix_dict(fix, sensors, bounded=sigma_m is not None or entry.measures == "path_loss_db")
+    out["delay_kind"] = req.delay_kind if entry.needs_fields else None
     return out
 
 

@@ -13,7 +13,7 @@ from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY
 from estimators.link import MICS_EIRP_DBM
-from estimators.localization import DEFAULT_DELAY_KIND, DELAY_KINDS
+from estimators.localization import DEFAULT_DELAY_KIND, DELAY_KINDS, POSITION_METHODS
 from estimators.toa import METHODS as TOA_METHODS
 from service.limits import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, capped
 from service.schemas import FrequencyHz, Int, Name, Out, PhantomId, Strict, Vec3, alternatives, int_range
@@ -26,7 +26,7 @@ MAX_EVALUATE_TRIALS = 200
 DEFAULT_RAYS = 100_000
 DEFAULT_PHANTOM = "torso"
 
-Method = Literal["linear", "nonlinear", "joint_velocity", "model_based", "rss"]
+Method = Literal[POSITION_METHODS]  # type: ignore[valid-type]  # the registry's (estimators.localization.methods)
 Loss = Literal["linear", "soft_l1", "huber", "cauchy", "arctan"]
 Ranging = Literal[(*TOA_METHODS, "pdoa", "rss")]  # type: ignore[valid-type]
 DelayKind = Literal[DELAY_KINDS]  # type: ignore[valid-type]
