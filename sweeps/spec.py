@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from estimators.errors import EstimatorInputError
+from estimators.pdoa import METHODS as PDOA_METHODS
 from estimators.toa import METHODS as TOA_METHODS
 from estimators.toa import make_waveform
 from raytrace.body.centreline import GI_TRACT
@@ -63,7 +64,6 @@ __all__ = [
     "method_columns",
 ]
 
-PDOA_METHODS = ("two_tone", "regression")
 #: Largest seed: what a JSON number holds exactly (the HTTP schema's maximum too).
 MAX_SEED = 2**53 - 1
 

@@ -14,6 +14,7 @@ from pydantic import ConfigDict, Field, field_validator, model_validator
 from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY
 from estimators.link import MICS_EIRP_DBM
 from estimators.localization import DEFAULT_DELAY_KIND, DELAY_KINDS, POSITION_METHODS
+from estimators.rss import CM2_MODELS
 from estimators.toa import METHODS as TOA_METHODS
 from service.limits import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, capped
 from service.schemas import FrequencyHz, Int, Name, Out, PhantomId, Strict, Vec3, alternatives, int_range
@@ -118,7 +119,7 @@ class LocalizeRequest(Strict):
                               "model_based soft_l1).")
     transmit_power_dbm: float = Field(MICS_EIRP_DBM, ge=-100.0, le=100.0, description="rss: transmit power [dBm] "
                                       "(path loss = transmit_power_dbm - rss_dbm).")
-    path_loss_model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
+    path_loss_model: Literal[tuple(CM2_MODELS)] = Field(  # type: ignore[valid-type]  # estimators.rss's
         "cm2_deep_tissue", description="rss: the IEEE 802.15.6 CM2 path-loss model inverted.")
 
 

@@ -8,6 +8,9 @@ from typing import Annotated, Literal
 from pydantic import ConfigDict, Field, StringConstraints, model_validator
 
 from estimators.link import MICS_EIRP_DBM
+from estimators.pdoa import METHODS as PDOA_METHODS
+from estimators.rss import CM2_MODELS
+from estimators.toa import METHODS as TOA_METHODS
 from service.limits import MAX_BAND_POINTS, MAX_PROFILE_PATHS, MAX_TRIALS, capped
 from service.schemas import Band, FrequencyHz, Int, Out, Strict, Vec3, alternatives
 from service.schemas.channel import CfrOut, CirOut, Interaction, Segment, TapsOut
@@ -180,7 +183,7 @@ class ToaRequest(RangingCommon):
             ]
         },
     )
-    method: Literal["first_peak", "all_peaks", "gcc", "envelope", "all"] = Field(
+    method: Literal[(*TOA_METHODS, "all")] = Field(  # type: ignore[valid-type]  # estimators.toa's registry
         "gcc",
         description="TOA estimator: `first_peak` (Eq 4.18), `all_peaks` (Eq 4.19-4.21), `gcc` (Eq 4.22-4.24), "
         "`envelope` (cross-correlation envelope only, no carrier phase), `all`: the thesis' three.",
@@ -207,7 +210,8 @@ class PdoaRequest(RangingCommon):
             "allOf": [{"not": {"required": ["frequencies_hz", "band"]}}, {"not": {"required": ["snr_db", "link"]}}],
         },
     )
-    method: Literal["two_tone", "regression"] = Field("two_tone", description="PDOA estimator.")
+    method: Literal[PDOA_METHODS] = Field(  # type: ignore[valid-type]  # estimators.pdoa's methods
+        "two_tone", description="PDOA estimator.")
     frequencies_hz: list[FrequencyHz] = Field(
         None,
         min_length=2,
@@ -248,7 +252,7 @@ class RssRequest(RangingCommon):
             ]),
         },
     )
-    model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
+    model: Literal[tuple(CM2_MODELS)] = Field(  # type: ignore[valid-type]  # estimators.rss's models
         "cm2_deep_tissue", description="IEEE 802.15.6 CM2 path-loss model (thesis Table 2.2)."
     )
     profile: ProfileIn = Field(
