@@ -24,13 +24,12 @@ def track_cost(req: TrackRequest, settings) -> costs.Cost:
 
 def run_track(req: TrackRequest, registry, budget: Budget, settings=None) -> dict:
     from tracking import (
+        TRACKERS,
         Observation,
         RfFix,
         TrackerConfig,
         TrackingInputError,
         VisualMotion,
-        kalman_track,
-        particle_track,
     )
 
     if req.tracker == "particle":
@@ -51,10 +50,8 @@ def run_track(req: TrackRequest, registry, budget: Budget, settings=None) -> dic
         conf["speed_range_m_per_s"] = tuple(conf["speed_range_m_per_s"])
     cfg = TrackerConfig(**conf)
     budget.charge()
-    if req.tracker == "particle":  # checked at every step: past the deadline, or once the client left, it stops
-        out = particle_track(line, obs, cfg, name=req.tracker, check=budget.charge)
-    else:
-        out = kalman_track(line, obs, cfg, name=req.tracker)
+    # the particle filter checks the budget at every step: past the deadline, or once the client left, it stops
+    out = TRACKERS[req.tracker](line, obs, cfg, name=req.tracker, check=budget.charge)
     budget.charge()
     return out.to_dict()
 

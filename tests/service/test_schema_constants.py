@@ -1,6 +1,6 @@
 """The request models' copies of the tracer's constants (service/schemas/constants.py, kept there so the
-typed client imports no tracer) equal their sources: a change in raytrace or fullwave fails here until
-the copy follows."""
+typed client imports no tracer) equal their sources, and the names they restate are the registries': a
+change in raytrace, fullwave or tracking fails here until the copy follows."""
 
 from __future__ import annotations
 
@@ -32,3 +32,14 @@ def test_the_channel_and_fdtd_defaults_are_their_specs():
     assert copy.SPEC_DEFAULTS == {k: defaults[k] for k in copy.SPEC_DEFAULTS}
     fd = FdtdOptions()
     assert copy.FDTD_DEFAULTS == {k: getattr(fd, k) for k in copy.FDTD_DEFAULTS}
+
+
+def test_the_track_request_offers_the_trackers_registry():
+    """POST /v1/track's ``tracker`` restates tracking.TRACKERS (the models do not import the tracker,
+    which loads the tracer); the journey evaluation's filters are registered trackers."""
+    from evaluation.tracking import FILTERS
+    from service.schemas.tracking import TrackRequest
+    from tracking import TRACKERS
+
+    assert tuple(TrackRequest.model_json_schema()["properties"]["tracker"]["enum"]) == tuple(TRACKERS)
+    assert set(FILTERS.values()) <= set(TRACKERS)
