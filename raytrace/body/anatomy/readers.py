@@ -117,6 +117,7 @@ def _read_ply(data: bytes, label: str, where: Field, max_triangles: int) -> tupl
     import io
 
     import trimesh
+    from trimesh.exchange.ply import load_ply
 
     header = data[:data.find(b"end_header")] if b"end_header" in data[:65536] else b""
     if not data.startswith(b"ply") or not header:
@@ -124,13 +125,22 @@ def _read_ply(data: bytes, label: str, where: Field, max_triangles: int) -> tupl
     match = re.search(rb"^element\s+face\s+(\d+)", header, re.M)
     if match and int(match.group(1)) > max_triangles:
         raise _fail(f"{label} declares {int(match.group(1))} faces, over the cap of {max_triangles}", where)
-    try:
-        mesh = trimesh.load(io.BytesIO(data), file_type="ply", process=False, force="mesh")
-        vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    try:  # trimesh's PLY reader itself: the arrays, without a mesh or a scene made (and copied) around them
+        loaded = load_ply(io.BytesIO(data), skip_materials=True)
+        vertices = np.asarray(loaded.get("vertices"), float)
+        faces = loaded.get("faces")
+        faces = np.zeros((0, 3), np.int64) if faces is None else np.asarray(faces)
+        if faces.dtype == object or faces.ndim != 2:  # polygons of several sizes: trimesh triangulates them
+            mesh = trimesh.load(io.BytesIO(data), file_type="ply", process=False, force="mesh")
+            vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+        faces = faces.astype(np.int64, copy=False)
     except Exception as exc:  # trimesh raises ValueError, KeyError, IndexError... on a broken file
         raise _fail(f"{label} is not a readable .ply surface mesh: {str(exc)[:200] or type(exc).__name__}",
                     where) from None
-    if faces.ndim != 2 or faces.shape[1:] != (3,) or not len(faces):
+    if faces.ndim == 2 and faces.shape[1] > 3:  # quads, polygons of one size: fans from their first corner
+        faces = np.concatenate([faces[:, [0, i, i + 1]] for i in range(1, faces.shape[1] - 1)])
+    if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,) or \
+            not len(faces):
         raise _fail(f"{label} holds no surface triangles: not a surface mesh", where)
     _check(vertices, faces, label, where, max_triangles)
     return vertices, faces
