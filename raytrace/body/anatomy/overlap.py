@@ -61,19 +61,25 @@ def subtract(a: trimesh.Trimesh, b: trimesh.Trimesh) -> trimesh.Trimesh:
     return _mesh(_manifold(a, origin) - _manifold(b, origin), origin)
 
 
+def _box(mesh: trimesh.Trimesh) -> np.ndarray:
+    """(2, 3) bounds of a mesh's vertices (numpy's; trimesh's property hashes the arrays to validate its cache)."""
+    vertices = np.asarray(mesh.vertices)
+    return np.stack([vertices.min(axis=0), vertices.max(axis=0)])
+
+
 class _Gaps:
     """min_gap between organs (manifold3d), each organ's manifold and bounds made once (in float32 about one
     origin, the organs' common centre: a body's extent keeps a float32 ulp below 0.1 um)."""
 
     def __init__(self, meshes: dict[str, trimesh.Trimesh]) -> None:
-        self.bounds = {id(m): np.asarray(m.bounds, float) for m in meshes.values()}
+        self.bounds = {id(m): _box(m) for m in meshes.values()}
         every = np.array(list(self.bounds.values())) if self.bounds else np.zeros((1, 2, 3))
         self.origin = 0.5 * (every[:, 0].min(axis=0) + every[:, 1].max(axis=0))
         self.manifolds: dict[int, object] = {}
 
     def _bounds(self, mesh: trimesh.Trimesh) -> np.ndarray:
         if id(mesh) not in self.bounds:
-            self.bounds[id(mesh)] = np.asarray(mesh.bounds, float)
+            self.bounds[id(mesh)] = _box(mesh)
         return self.bounds[id(mesh)]
 
     def _manifold(self, mesh: trimesh.Trimesh):

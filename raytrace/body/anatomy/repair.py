@@ -55,16 +55,44 @@ def _mm(x: float) -> str:
     return f"{x * 1e3:.3g} mm"
 
 
+#: The sweep direction of :func:`close_pairs`: no coordinate axis (grids of vertices line up along those).
+_SWEEP = np.array([0.5773502691896258, 0.5345224838248488, 0.6172133998483676])
+
+
+def close_pairs(points: np.ndarray, distance: float) -> np.ndarray:
+    """Every pair ``i < j`` of points at most ``distance`` apart, (K, 2). Points that close have projections
+    on any direction at most that far apart, so after one sort of the projections on :data:`_SWEEP` only the
+    neighbours within ``distance`` in that order are candidates, each then measured (a sweep: no false
+    negative, and on a mesh a handful of candidates, where a k-d tree builds a hierarchy of every point).
+    When the candidates would be many (a distance wide against the points' spacing), a k-d tree answers."""
+    projection = points @ _SWEEP
+    order = np.argsort(projection, kind="stable")
+    ordered = projection[order]
+    span = np.searchsorted(ordered, ordered + distance, side="right") - np.arange(len(ordered)) - 1
+    first = np.flatnonzero(span > 0)
+    if not len(first):
+        return np.zeros((0, 2), np.int64)
+    counts = span[first]
+    if int(counts.sum()) > 8 * len(points) + 1000:  # a distance wide against the points' spacing: a k-d tree
+        from scipy.spatial import cKDTree
+
+        return cKDTree(points).query_pairs(distance, output_type="ndarray").astype(np.int64)
+    i = np.repeat(first, counts)
+    j = i + 1 + (np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts))
+    a, b = order[i], order[j]
+    near = np.einsum("ij,ij->i", points[a] - points[b], points[a] - points[b]) <= distance * distance
+    a, b = a[near], b[near]
+    return np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+
+
 def weld(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """Merge every group of vertices linked by distances of at most ``weld_m`` (pairs from a k-d tree,
-    groups as connected components); answers the new arrays and how many vertices merged away."""
+    """Merge every group of vertices linked by distances of at most ``weld_m`` (pairs from
+    :func:`close_pairs`, groups as connected components); answers the new arrays and how many vertices
+    merged away."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
 
-    # an unbalanced tree without compacted nodes: built about twice as fast, and the query (pairs within a
-    # micrometre) is as quick
-    pairs = cKDTree(vertices, balanced_tree=False, compact_nodes=False).query_pairs(weld_m, output_type="ndarray")
+    pairs = close_pairs(vertices, weld_m)
     if not len(pairs):
         return vertices, faces, 0
     n = len(vertices)
@@ -84,7 +112,9 @@ def clean_faces(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     degenerate = repeated | (area <= weld_m**2)
     faces = faces[~degenerate]
-    key = _keys(np.sort(faces, axis=1))
+    low, high = np.minimum(faces[:, 0], faces[:, 1]), np.maximum(faces[:, 0], faces[:, 1])
+    key = _keys(np.stack([np.minimum(low, faces[:, 2]), np.maximum(low, np.minimum(high, faces[:, 2])),
+                          np.maximum(high, faces[:, 2])], axis=1))  # each row sorted
     ordered = np.sort(key)
     if not np.any(ordered[1:] == ordered[:-1]):  # no triangle twice: nothing more to remove
         return faces, int(degenerate.sum()), 0, 0
