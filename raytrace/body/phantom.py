@@ -160,7 +160,7 @@ class Phantom:
         meshes = tuple(o.mesh for o in organs)
         reuse = checked is not None and checked.scene is not None and not checked.crossings and \
             len(checked.meshes) == len(meshes) and all(a is b for a, b in zip(checked.meshes, meshes))
-        surfaces = checked if reuse else check_surfaces(meshes, names)  # type: ignore[assignment]
+        surfaces = checked if reuse and checked is not None else check_surfaces(meshes, names)
         phantom = cls(
             name=name,
             organs=organs,

@@ -35,7 +35,7 @@ from raytrace.body.anatomy import tissuemap
 from raytrace.body.anatomy.decimate import decimate
 from raytrace.body.anatomy.manifest import BuildManifest, Options, load_manifest
 from raytrace.body.anatomy.overlap import clip_inside, crossing_pairs, resolve_overlaps
-from raytrace.body.anatomy.readers import read_surface
+from raytrace.body.anatomy.readers import gltf_buffer_files, read_surface, suffix_of
 from raytrace.body.anatomy.repair import repair_surface, union_of
 from raytrace.body.anatomy.sensors import belt_positions
 from raytrace.body.anatomy.tracts import build_tract, read_points
@@ -110,6 +110,9 @@ def _plan(ctx: _Context) -> dict[str, Any]:
         if size > limits.max_file_bytes:
             raise _fail(f"{name} is {size} bytes, over the cap of {limits.max_file_bytes} bytes per file", where)
         total += size
+        if suffix_of(name) == ".gltf":  # its buffer files count too (and an upload must hold them)
+            for buffer in gltf_buffer_files(path, ctx.root, where, max_bytes=limits.max_file_bytes):
+                total += buffer.stat().st_size
     if total > limits.max_total_bytes:
         raise _fail(f"the files hold {total} bytes, over the cap of {limits.max_total_bytes}", "manifest")
     voxels = 0
@@ -161,7 +164,7 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
         for i, f in enumerate(files):
             fw = (*where, i) if isinstance(where, tuple) and len(files) > 1 else where
             v, t = read_surface(_resolve(ctx, f, fw), fw, max_bytes=ctx.limits.max_file_bytes,
-                                max_triangles=triangles_left[0])
+                                max_triangles=triangles_left[0], root=ctx.root)
             triangles_left[0] -= len(t)
             all_v.append(v)
             all_f.append(t + base)
