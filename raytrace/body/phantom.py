@@ -381,7 +381,8 @@ class Surfaces(NamedTuple):
 def check_surfaces(meshes: Sequence[trimesh.Trimesh], names: Sequence[str]) -> Surfaces:
     """Refuse a surface that is not closed, consistently and outward wound, of non-degenerate triangles,
     naming it (``organs.<name>``); the surfaces as one triangle table, their unit facet normals (trimesh's
-    ``face_normals``, computed the same way over all triangles at once), volumes and edges
+    ``face_normals``, computed the same way over all triangles at once, and also for triangles under its
+    TOL_ZERO), volumes and edges
     (:func:`raytrace.body.topology.closed_edges`, for the crossing test)."""
     meshes = tuple(meshes)
     for mesh, name in zip(meshes, names):
@@ -398,7 +399,10 @@ def check_surfaces(meshes: Sequence[trimesh.Trimesh], names: Sequence[str]) -> S
     v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
     cross = cross_rows(v1 - v0, v2 - v1)  # trimesh.triangles.cross
     norm = np.sqrt(np.dot(cross * cross, [1.0, 1.0, 1.0]))  # trimesh.util.unitize, bit for bit
-    bad = np.flatnonzero(~(norm > trimesh.util.TOL_ZERO))  # where trimesh would give no normal
+    # only a triangle of exactly zero area has no normal (as the phantom's check has always been): trimesh
+    # gives no normal below TOL_ZERO (1e-12 m^2 of |cross|), but marching cubes leaves corner triangles of
+    # ~0.5 um^2 where a surface passes a hair off a grid node, whose float64 normals are well defined
+    bad = np.flatnonzero(~(norm > 0.0))
     if len(bad):
         raise PhantomValidationError("mesh has degenerate (zero-area) triangles",
                                      field=f"organs.{names[face_organ[bad[0]]]}")

@@ -177,14 +177,15 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
                               max_cells=ctx.limits.max_grid_cells, check_crossings=False)
     mesh = repaired.mesh
     notes += repaired.repairs
-    if len(mesh.faces) > budget:
+    if len(mesh.faces) > budget and not repaired.remeshed:  # a remeshed surface was decimated from its voxels
         before = len(mesh.faces)
         mesh, error = decimate(mesh, budget, options.decimation_error_m)
         if len(mesh.faces) < before:
-            notes.append(f"decimated {before} -> {len(mesh.faces)} triangles (within {error * 1e3:.3g} mm)")
+            over = f", over the budget of {budget}: no fewer kept it closed" if len(mesh.faces) > budget else ""
+            notes.append(f"decimated {before} -> {len(mesh.faces)} triangles (within {error * 1e3:.3g} mm{over})")
         else:
-            notes.append(f"kept {before} triangles, over the budget of {budget}: every decimation tried pinched "
-                         "the surface (edges shared by more than two triangles)")
+            notes.append(f"kept {before} triangles, over the budget of {budget}: no decimation within "
+                         f"decimation_error_m kept the surface closed and two-manifold")
     return mesh, notes, source
 
 

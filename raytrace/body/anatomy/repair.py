@@ -45,6 +45,9 @@ __all__ = ["Repaired", "boundary_loops", "repair_surface", "voxel_union"]
 class Repaired:
     mesh: trimesh.Trimesh
     repairs: list[str] = field(default_factory=list)
+    #: remeshed on a voxel grid and decimated there (its error measured from the marching-cubes surface): a
+    #: second decimation would add its error to the first one's
+    remeshed: bool = False
 
 
 def _fail(reason: str, where: Field) -> PhantomValidationError:
@@ -267,7 +270,7 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
         shells = _closed_shells(mesh)
         mesh, note = voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells)
         repairs.append(note)
-    return Repaired(mesh, repairs)
+    return Repaired(mesh, repairs, remeshed=needs_union)
 
 
 def _drop_unused(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -366,7 +369,8 @@ def voxel_union(shells: list[trimesh.Trimesh], where: Field, label: str, options
         keep = [p for p in parts if abs(p.volume) >= 8 * h**3]
         mesh = trimesh.util.concatenate(keep) if keep else mesh
     mesh, error = decimate(mesh, budget, options.decimation_error_m)
-    decimated = (f"decimated to {len(mesh.faces)} triangles, within {_mm(error)}" if error > 0 or
+    over = f", over the budget of {budget}: no fewer kept it closed" if len(mesh.faces) > budget else ""
+    decimated = (f"decimated to {len(mesh.faces)} triangles, within {_mm(error)}{over}" if error > 0 or
                  len(mesh.faces) <= budget else f"{len(mesh.faces)} triangles: no decimation kept it closed")
     note = (f"remeshed the union of {len(shells)} closed piece(s) on a {_mm(h)} voxel grid (smoothing "
             f"{options.smoothing_voxels:g} voxel, {decimated}); voxel volume {raw_volume * 1e6:.4g} mL")
