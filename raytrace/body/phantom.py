@@ -378,12 +378,15 @@ class Surfaces(NamedTuple):
     crossings: frozenset = frozenset()  # pairs (i, j), i <= j, of surfaces that cross ((i, i): i crosses itself)
 
 
-def check_surfaces(meshes: Sequence[trimesh.Trimesh], names: Sequence[str]) -> Surfaces:
+def check_surfaces(meshes: Sequence[trimesh.Trimesh], names: Sequence[str],
+                   known: Sequence[ClosedEdges | None] | None = None) -> Surfaces:
     """Refuse a surface that is not closed, consistently and outward wound, of non-degenerate triangles,
     naming it (``organs.<name>``); the surfaces as one triangle table, their unit facet normals (trimesh's
     ``face_normals``, computed the same way over all triangles at once, and also for triangles under its
     TOL_ZERO), volumes and edges
-    (:func:`raytrace.body.topology.closed_edges`, for the crossing test)."""
+    (:func:`raytrace.body.topology.closed_edges`, for the crossing test). ``known``: each surface's closed
+    edges when the caller has them (the anatomy build's repairs), else None: those are taken, offset into
+    the table, instead of sorting every half-edge again; the surfaces' own vertices then never share one."""
     meshes = tuple(meshes)
     for mesh, name in zip(meshes, names):
         where = f"organs.{name}"
@@ -407,7 +410,7 @@ def check_surfaces(meshes: Sequence[trimesh.Trimesh], names: Sequence[str]) -> S
         raise PhantomValidationError("mesh has degenerate (zero-area) triangles",
                                      field=f"organs.{names[face_organ[bad[0]]]}")
     face_normals = cross * (1.0 / norm).reshape((-1, 1))
-    edges = closed_edges(faces)
+    edges = closed_edges(faces) if known is None else _joined_edges(meshes, known, offsets)
     if edges is None:  # find the surface and say what is wrong with it
         for mesh, name in zip(meshes, names):
             if closed_edges(np.asarray(mesh.faces, np.int64)) is None:
@@ -424,6 +427,21 @@ def check_surfaces(meshes: Sequence[trimesh.Trimesh], names: Sequence[str]) -> S
                                      field=f"organs.{names[inward[0]]}")
     areas = np.bincount(face_organ, norm, len(meshes)) / 2.0
     return Surfaces(meshes, vertices, faces, face_organ, face_normals, volumes, areas, edges)
+
+
+def _joined_edges(meshes: Sequence[trimesh.Trimesh], known: Sequence[ClosedEdges | None],
+                  offsets: np.ndarray) -> ClosedEdges | None:
+    """The surfaces' closed edges as one table (``known`` where given, else sorted here), vertex and triangle
+    indices offset as in :func:`check_surfaces`'s table; None if a surface is not closed."""
+    parts, face_base = [], 0
+    for mesh, edges in zip(meshes, known):
+        if edges is None:
+            edges = closed_edges(np.asarray(mesh.faces, np.int64))
+            if edges is None:
+                return None
+        parts.append((edges.edges + offsets[len(parts)], edges.face + face_base, edges.twin + face_base))
+        face_base += len(mesh.faces)
+    return ClosedEdges(*(np.concatenate([part[k] for part in parts]) for k in range(3)))
 
 
 def _volumes_and_areas(vertices: np.ndarray, faces: np.ndarray, face_organ: np.ndarray,

@@ -42,6 +42,7 @@ from raytrace.body.anatomy.tracts import build_tract, read_points
 from raytrace.body.anatomy.volume import LabelVolume, label_surface, open_volume
 from raytrace.body.anatomy.wall import generate_wall
 from raytrace.body.phantom import AIR_INDEX, Organ, Phantom, Site, Surfaces
+from raytrace.body.topology import ClosedEdges
 from raytrace.errors import Field, InvalidGeometryError, PhantomValidationError
 from raytrace.physics.materials import Material
 
@@ -78,6 +79,8 @@ class _Context:
     progress: Progress
     volume: LabelVolume | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    #: id of a surface as its repairs left it -> its closed edges (handed to the phantom's checks)
+    edges: dict[int, ClosedEdges] = field(default_factory=dict)
 
 
 def _fail(reason: str, where: Field) -> PhantomValidationError:
@@ -177,6 +180,8 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
                               max_cells=ctx.limits.max_grid_cells, check_crossings=False)
     mesh = repaired.mesh
     notes += repaired.repairs
+    if repaired.edges is not None:
+        ctx.edges[id(mesh)] = repaired.edges
     if len(mesh.faces) > budget and not repaired.remeshed:  # a remeshed surface was decimated from its voxels
         before = len(mesh.faces)
         mesh, error = decimate(mesh, budget, options.decimation_error_m)
@@ -248,7 +253,7 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     labels = ([m.body.name] if m.body is not None else []) + names  # type: ignore[union-attr]
     everything = ([body_mesh] if body_mesh is not None else []) + [organ_meshes[n] for n in names]
     try:
-        checked: Surfaces | None = crossing_pairs(everything, labels)
+        checked: Surfaces | None = crossing_pairs(everything, labels, [ctx.edges.get(id(x)) for x in everything])
     except PhantomValidationError as exc:
         raise _fail(exc.reason, _manifest_field(exc.field, fields, m)) from None
     assert checked is not None

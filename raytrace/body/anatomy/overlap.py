@@ -26,23 +26,30 @@ import trimesh
 
 from raytrace.body.anatomy.grid import SurfaceDistance
 from raytrace.body.phantom import Surfaces, check_surfaces, surface_crossings
+from raytrace.body.topology import ClosedEdges
 from raytrace.errors import Field, PhantomValidationError
 
 __all__ = ["clip_inside", "intersect", "resolve_overlaps", "subtract"]
 
 
 def _manifold(mesh: trimesh.Trimesh, origin: np.ndarray):
+    """manifold3d's solid of a closed surface, in float64 about ``origin`` (float32 would merge the vertices
+    nanometres apart that marching cubes leaves, into triangles of no area)."""
     import manifold3d
 
-    m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices - origin, np.float32),
-                                            tri_verts=np.asarray(mesh.faces, np.uint32)))
-    return m
+    return manifold3d.Manifold(manifold3d.Mesh64(np.ascontiguousarray(mesh.vertices - origin, np.float64),
+                                                 np.ascontiguousarray(mesh.faces, np.uint64)))
 
 
 def _mesh(m, origin: np.ndarray) -> trimesh.Trimesh:
-    out = m.to_mesh()
-    verts = np.asarray(out.vert_properties, float)[:, :3] + origin
-    return trimesh.Trimesh(verts, np.asarray(out.tri_verts, np.int64), process=True, validate=False)
+    """The surface of a manifold3d solid as it indexes it: never welded by position (trimesh's ``process``
+    joins vertices closer than 1e-8 without regard to the triangles around them, which can leave an edge
+    shared by four triangles)."""
+    out = m.to_mesh64()
+    verts = np.array(out.vert_properties, np.float64)[:, :3] + origin
+    mesh = trimesh.Trimesh(verts, np.array(out.tri_verts, np.int64), process=False, validate=False)
+    mesh.remove_unreferenced_vertices()
+    return mesh
 
 
 def _offset(mesh: trimesh.Trimesh, distance_m: float) -> trimesh.Trimesh:
@@ -174,13 +181,15 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
     return meshes, notes
 
 
-def crossing_pairs(meshes: list[trimesh.Trimesh], names: list[str] | None = None) -> Surfaces:
+def crossing_pairs(meshes: list[trimesh.Trimesh], names: list[str] | None = None,
+                   known: list[ClosedEdges | None] | None = None) -> Surfaces:
     """The surfaces checked and tested for crossings (:func:`raytrace.body.phantom.surface_crossings`): its
     ``crossings`` are the pairs ``(i, j)``, ``i <= j``, of surfaces that cross (``(i, i)``: surface i crosses
     itself), every edge cast once as a segment through one Embree scene of all of them, so that only
-    crossing pairs pay for a boolean; the anatomy build hands the result on to :meth:`Phantom.build`."""
+    crossing pairs pay for a boolean; the anatomy build hands the result on to :meth:`Phantom.build`.
+    ``known``: the surfaces' closed edges where the caller has them (:func:`check_surfaces`)."""
     names = names or [f"surface{k}" for k in range(len(meshes))]
-    return surface_crossings(check_surfaces(meshes, names))
+    return surface_crossings(check_surfaces(meshes, names, known))
 
 
 def clip_inside(organ: trimesh.Trimesh, container: trimesh.Trimesh, what: str) -> tuple[trimesh.Trimesh, str | None]:

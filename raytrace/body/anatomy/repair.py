@@ -48,6 +48,9 @@ class Repaired:
     #: remeshed on a voxel grid and decimated there (its error measured from the marching-cubes surface): a
     #: second decimation would add its error to the first one's
     remeshed: bool = False
+    #: the closed edges of ``mesh`` as repaired (None when remeshed): the build hands them to the phantom's
+    #: checks (:func:`raytrace.body.phantom.check_surfaces`) instead of sorting the half-edges again
+    edges: ClosedEdges | None = None
 
 
 def _fail(reason: str, where: Field) -> PhantomValidationError:
@@ -259,8 +262,11 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
             if edges is not None:
                 repairs.append("made the triangles' winding consistent and outward")
         if edges is not None:
-            faces, turned = _outward(vertices, faces, edges)
-            if turned:
+            faces, turned, flip = _outward(vertices, faces, edges)
+            if flip is not None:  # a turned triangle holds its edges' other half-edges: face and twin swap
+                swap = flip[edges.face]
+                edges = ClosedEdges(edges.edges, np.where(swap, edges.twin, edges.face),
+                                    np.where(swap, edges.face, edges.twin))
                 repairs.append("turned the surface outward (it was wound inward)" if turned == "all" else
                                f"turned {turned} of its shells outward (they were wound inward)")
     mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
@@ -270,7 +276,7 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
         shells = _closed_shells(mesh)
         mesh, note = voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells)
         repairs.append(note)
-    return Repaired(mesh, repairs, remeshed=needs_union)
+    return Repaired(mesh, repairs, remeshed=needs_union, edges=None if needs_union else edges)
 
 
 def _drop_unused(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -282,9 +288,11 @@ def _drop_unused(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
     return vertices[used], remap[faces]
 
 
-def _outward(vertices: np.ndarray, faces: np.ndarray, edges: ClosedEdges) -> tuple[np.ndarray, str | int]:
+def _outward(vertices: np.ndarray, faces: np.ndarray,
+             edges: ClosedEdges) -> tuple[np.ndarray, str | int, np.ndarray | None]:
     """Closed, consistently wound ``faces`` with every shell (connected through its edges) wound outward
-    (positive volume, by the divergence theorem); and ``"all"``, the number of shells turned, or 0."""
+    (positive volume, by the divergence theorem); ``"all"``, the number of shells turned, or 0; and which
+    triangles were turned (None when none)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -296,11 +304,11 @@ def _outward(vertices: np.ndarray, faces: np.ndarray, edges: ClosedEdges) -> tup
     face_shell = shell[faces[:, 0]]
     inward = np.bincount(face_shell, weights=signed, minlength=count) < 0
     if not inward.any():
-        return faces, 0
+        return faces, 0, None
     flip = inward[face_shell]
     faces = faces.copy()
     faces[flip] = faces[flip][:, ::-1]
-    return faces, "all" if inward.all() else int(inward.sum())
+    return faces, "all" if inward.all() else int(inward.sum()), flip
 
 
 def crosses_itself(mesh: trimesh.Trimesh) -> bool:
