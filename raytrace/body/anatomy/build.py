@@ -262,8 +262,8 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
         if i != j:
             continue
         label = labels[i]
-        where = fields.get(label, ("manifest", "body", "surface"))
-        mesh, note = union_of(everything[i], where, label, options, budget=options.max_triangles_per_surface,
+        surface_field: Field = fields.get(label, ("manifest", "body", "surface"))
+        mesh, note = union_of(everything[i], surface_field, label, options, budget=options.max_triangles_per_surface,
                               max_cells=limits.max_grid_cells)
         if i >= offset:
             organ_meshes[label] = mesh
@@ -331,7 +331,7 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     t0 = time.perf_counter()
     sensors = _sensor_positions(m, body_mesh)
     try:
-        phantom = Phantom.build(m.name, organs, sites={n: ("sensor", p) for n, p in sensors.items()},
+        phantom = Phantom.build(m.name, organs, sites={n: ("sensor", p.tolist()) for n, p in sensors.items()},
                                 description=m.description or f"Built from {len(organs)} surfaces by the anatomy "
                                 "pipeline (docs/phantoms.md).", max_triangles=limits.max_output_triangles,
                                 checked=checked)
@@ -340,24 +340,25 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     ctx.timings["phantom_build_s"] = time.perf_counter() - t0
     sensor_report = _check_sensors(phantom, sensors, m)
     tracts_report = []
-    for spec in m.tracts.values():
-        points = read_points(_resolve(ctx, spec.file, ("manifest", "tracts", spec.name, "file")),
-                             ("manifest", "tracts", spec.name, "file"))
-        tract = build_tract(spec, points, _to_metres(m)[0], phantom)
-        phantom.centrelines[spec.name] = tract.centreline
+    for tract_spec in m.tracts.values():
+        points = read_points(_resolve(ctx, tract_spec.file, ("manifest", "tracts", tract_spec.name, "file")),
+                             ("manifest", "tracts", tract_spec.name, "file"))
+        tract = build_tract(tract_spec, points, _to_metres(m)[0], phantom)
+        phantom.centrelines[tract_spec.name] = tract.centreline
         for mark, point in tract.landmark_points_m.items():
-            site = f"{spec.name}_{mark}"
+            site = f"{tract_spec.name}_{mark}"
             try:
-                medium = phantom.antenna_medium(point, field=("manifest", "tracts", spec.name, "landmarks", mark))
+                medium = phantom.antenna_medium(point, field=("manifest", "tracts", tract_spec.name, "landmarks", mark))
             except InvalidGeometryError as exc:
                 raise PhantomValidationError(exc.reason, field=exc.field) from None
-            if phantom.medium_name(medium) != spec.organ:
-                raise _fail(f"landmark {mark!r} lies in {phantom.medium_name(medium)!r}, not in {spec.organ!r}",
-                            ("manifest", "tracts", spec.name, "landmarks", mark))
-            phantom.sites[site] = Site(site, "capsule", np.asarray(point, float), spec.organ)
-        tracts_report.append({"name": spec.name, "organ": spec.organ, "length_mm": tract.centreline.length_m * 1e3,
+            if phantom.medium_name(medium) != tract_spec.organ:
+                raise _fail(f"landmark {mark!r} lies in {phantom.medium_name(medium)!r}, not in {tract_spec.organ!r}",
+                            ("manifest", "tracts", tract_spec.name, "landmarks", mark))
+            phantom.sites[site] = Site(site, "capsule", np.asarray(point, float), tract_spec.organ)
+        tracts_report.append({"name": tract_spec.name, "organ": tract_spec.organ,
+                              "length_mm": tract.centreline.length_m * 1e3,
                               "points": int(sum(len(p.points_m) for p in tract.centreline.pieces)),
-                              "reverse": spec.reverse,
+                              "reverse": tract_spec.reverse,
                               "landmarks_s_mm": {k: v * 1e3 for k, v in tract.landmarks_s_m.items()},
                               "notes": tract.notes})
     phantom.metadata.update({"source": "anatomy", "tracts": {t["name"]: t["landmarks_s_mm"] for t in tracts_report}})
@@ -368,8 +369,10 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     return BuildResult(phantom, report)
 
 
-def _manifest_field(field_: Field, fields: dict[str, Field], m: BuildManifest) -> Field:
+def _manifest_field(field_: Field | None, fields: dict[str, Field], m: BuildManifest) -> Field:
     """The manifest entry a phantom check's field (``organs.<name>``, ``sites.<name>``) is about."""
+    if field_ is None:
+        return "manifest"
     if isinstance(field_, str) and field_.startswith("organs."):
         name = field_.split(".", 1)[1]
         if m.body is not None and name == m.body.name:
