@@ -11,6 +11,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from service.limits import MAX_INTERACTIONS, MAX_RAYS, capped
 from service.schemas import Int, PhantomId, Strict, Vec3, int_range
 
 COVERAGE_EXAMPLE: dict[str, Any] = {
@@ -64,8 +65,9 @@ class CandidateOptions(Strict):
 
 
 class CoverageChannel(Strict):
-    rays: Int = Field(30_000, ge=1, le=1_000_000, description="Rays launched per capsule position.")
-    max_interactions: Int = Field(4, ge=1, le=10)
+    rays: Int = Field(30_000, ge=1, le=MAX_RAYS, description="Rays launched per capsule position.",
+                      json_schema_extra=capped("max_rays"))
+    max_interactions: Int = Field(4, ge=1, le=MAX_INTERACTIONS, json_schema_extra=capped("max_interactions"))
     dynamic_range_db: float = Field(40.0, gt=0.0, le=300.0)
     near_field: bool = True
     capsule_polarization: Vec3 = Field([0.0, 0.0, 1.0], description="The capsule antenna's axis.")
@@ -166,8 +168,8 @@ class Search(Strict):
 class Evaluate(Strict):
     trials: int_range(1, 1000) = Field(20, description="Monte Carlo trials per capsule position.")
     seed: int_range(0, 2**31 - 1) = 0
-    rays: int_range(1, 1_000_000) = 100_000
-    max_interactions: int_range(1, 10) = 6
+    rays: int_range(1, MAX_RAYS) = Field(100_000, json_schema_extra=capped("max_rays"))
+    max_interactions: int_range(1, MAX_INTERACTIONS) = Field(6, json_schema_extra=capped("max_interactions"))
 
 
 class LayoutRequest(Strict):
