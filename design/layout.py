@@ -5,6 +5,8 @@ The spec (JSON; only ``sensors`` is required)::
     {"sensors": 8,
      "criterion": "p90",                  # or "mean" (design.criterion)
      "model_error": "none",               # or "bias": the delay model's own error too (design.criterion)
+     "max_model_error_s": null,           # links whose measured delay departs more from the model are not
+                                          # usable; null: the travel-time grid's stated error n_max h / c
      "snr_db": null,                      # null: each link's SNR from the coverage's link budget; a number: every link
      "min_snr_db": null,                  # links below are not detected
      "require_direct_path": true,
@@ -49,7 +51,7 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     ``max_rays`` / ``max_interactions``: the caps of the evaluation's traces (a server's settings)."""
     data = mapping(data if data is not None else {}, "", {"sensors", "criterion", "snr_db", "min_snr_db",
                                                          "require_direct_path", "min_sensors", "constraints",
-                                                         "model_error",
+                                                         "model_error", "max_model_error_s",
                                                          "search", "evaluate", "coverage"})
     if "sensors" not in data:
         raise DesignInputError("is required: how many sensors to place", "sensors")
@@ -114,8 +116,11 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     model_error = data.get("model_error", "none")
     if model_error not in ("none", "bias"):
         raise DesignInputError("must be none or bias", "model_error")
+    tol = data.get("max_model_error_s")
+    tol = None if tol is None else number(tol, "max_model_error_s", lo=0.0, hi=1e-6)
     return {
         "sensors": n, "criterion": kind, "snr_db": snr, "min_snr_db": min_snr, "model_error": model_error,
+        "max_model_error_s": tol,
         "require_direct_path": boolean(data.get("require_direct_path", True), "require_direct_path"),
         "min_sensors": integer(data.get("min_sensors", 4), "min_sensors", lo=1, hi=MAX_SENSORS),
         "constraints": {"axis": axis.tolist(), "belts": belts, "keep_out": keep_out,
@@ -128,12 +133,25 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     }
 
 
+def model_tolerance_s(layout: dict, grid_error_s: float) -> float:
+    """The largest |measured delay - model delay| of a usable link: ``max_model_error_s``, or the
+    travel-time grid's stated error when null (docs/design.md, "The criterion")."""
+    tol = layout.get("max_model_error_s")
+    return float(grid_error_s if tol is None else tol)
+
+
 def problem_of(layout: dict, coverage: dict, plan: Plan, arrays: dict[str, np.ndarray], prior_m: float,
-               grid_error_s: float = 0.0) -> Problem:
-    """The criterion's :class:`Problem` from a coverage's link arrays (design.criterion docstring). With
-    ``model_error: bias`` each link's sigma also holds the travel-time grid's error as a uniform error
-    (``grid_error_s`` / sqrt 3, the model-based fix's own weighting) and its mismatch
-    (traced first arrival - eikonal delay) enters as a linearised bias."""
+               grid_error_s: float) -> Problem:
+    """The criterion's :class:`Problem` from a coverage's link arrays (design.criterion docstring).
+
+    A link is usable when it has a path (a refraction-only one with ``require_direct_path``), its SNR
+    is at least ``min_snr_db`` and its *model mismatch* m = ranging delay - eikonal delay (what TOA
+    measures without noise minus what the travel-time model predicts) is at most
+    :func:`model_tolerance_s` in magnitude: a link the model cannot explain within its own stated
+    accuracy biases the model-based fix, whatever its bound (docs/design.md, "Why the bound alone
+    misled the search"). With ``model_error: bias`` each link's sigma also holds the grid's error as
+    a uniform error (``grid_error_s`` / sqrt 3, the model-based fix's own weighting) and m enters
+    as a linearised bias."""
     usable = arrays["paths"] > 0
     if layout["require_direct_path"]:
         usable &= arrays["direct_path"]
@@ -141,14 +159,25 @@ def problem_of(layout: dict, coverage: dict, plan: Plan, arrays: dict[str, np.nd
     snr = np.where(np.isfinite(snr), snr, -np.inf)
     if layout["min_snr_db"] is not None:
         usable &= snr >= layout["min_snr_db"]
+    e = arrays["ranging_delay_s"] - arrays["eikonal_delay_s"]
+    with np.errstate(invalid="ignore"):
+        usable &= np.abs(np.nan_to_num(e, nan=np.inf)) <= model_tolerance_s(layout, grid_error_s)
     sigma = toa_sigma_s(np.where(usable, snr, 0.0), waveform_of(coverage))
     mismatch = None
     if layout.get("model_error", "none") == "bias":
         sigma = np.sqrt(sigma**2 + grid_error_s**2 / 3.0)
-        e = np.nan_to_num(arrays["first_delay_s"] - arrays["eikonal_delay_s"])
-        mismatch = np.where(usable, e / sigma, 0.0)
+        mismatch = np.where(usable, np.nan_to_num(e) / sigma, 0.0)
     info = np.where(usable[:, :, None], arrays["gradient_s_per_m"] / sigma[:, :, None], 0.0)
     return Problem(info, usable, layout["criterion"], layout["min_sensors"], prior_m, mismatch)
+
+
+def stated_grid_error_s(phantom, coverage: dict) -> float:
+    """The travel-time fields' stated error n_max h / c (docs/localization.md), n_max the largest
+    phase index of the phantom's organs at the coverage's carrier, h its cell."""
+    from evaluation.fields import organ_indices
+
+    n_max = float(np.max(organ_indices(phantom, coverage["frequency_hz"], "phase")))
+    return n_max * coverage["cell_size_m"] / 299_792_458.0
 
 
 def constraints_of(layout: dict, candidates_m: np.ndarray, is_site: np.ndarray) -> tuple[Constraints, np.ndarray]:
@@ -226,10 +255,7 @@ def run_layout(layout: dict, record: dict, plan: Plan, table, phantom, *,
     arrays = link_arrays(table, P, C)
     lo, hi = (np.asarray(b, float) for b in phantom.bounds_m)
     prior = float(np.linalg.norm(hi - lo))
-    from evaluation.fields import organ_indices
-
-    n_max = float(np.max(organ_indices(phantom, coverage["frequency_hz"], "phase")))
-    grid_error = n_max * coverage["cell_size_m"] / 299_792_458.0  # the fields' stated error (docs/localization.md)
+    grid_error = stated_grid_error_s(phantom, coverage)
     problem = problem_of(layout, coverage, plan, arrays, prior, grid_error)
     cands = plan.candidates.positions_m
     is_site = np.array([bool(s) for s in plan.candidates.site])
@@ -262,6 +288,7 @@ def run_layout(layout: dict, record: dict, plan: Plan, table, phantom, *,
         "sensors": [{"position_m": cands[c].tolist(), "candidate_index": int(c), "belt": int(belt_of[c])
                      if belt_of[c] >= 0 else None} for c in found.subset],
         "criterion": layout["criterion"], "criterion_m": best["criterion_m"], "uncovered_positions": best["uncovered"],
+        "model_tolerance_s": model_tolerance_s(layout, grid_error),
         "baseline_criterion_m": None if baseline is None else baseline["criterion_m"],
         "baseline_sensors": None if baseline is None else [
             {"position_m": cands[c].tolist(), "candidate_index": int(c), "site": plan.candidates.site[c]}

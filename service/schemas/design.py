@@ -180,6 +180,9 @@ class LayoutRequest(Strict):
     model_error: Literal["none", "bias"] = Field("none", description="`none`: the position CRLB; `bias`: plus the "
                                                  "delay model's own error (grid, linearised bias of each link's "
                                                  "traced-first-arrival minus eikonal mismatch).")
+    max_model_error_s: float | None = Field(None, ge=0.0, le=1e-6, description="A link whose noiseless ranging delay "
+                                            "departs from the travel-time model by more is not usable [s]; null: "
+                                            "the travel-time grid's stated error n_max h / c.")
     snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="Every link's SNR [dB]; null: the coverage's "
                                  "link budget per link.")
     min_snr_db: float | None = Field(None, ge=-300.0, le=200.0, description="Links below are not detected [dB].")
@@ -206,6 +209,7 @@ class LayoutResult(BaseModel):
     baseline_criterion_m: float | None = Field(description="The best same-size subset of the phantom's sensor sites, "
                                                "found the same way [m].")
     uncovered_positions: int
+    model_tolerance_s: float | None = Field(None, description="The model-mismatch tolerance applied [s].")
     baseline_uncovered_positions: int | None = None
     baseline_sensors: list[LayoutSensor] | None = None
     search: dict[str, Any]

@@ -136,3 +136,47 @@ def test_the_criterion_with_model_bias_against_the_exhaustive_optimum(seed):
     problem = Problem(info, usable, kind="p90", min_sensors=4, prior_m=prior, mismatch=mismatch)
     got = search(problem, Constraints(np.ones(len(cands), bool), cands), n, restarts=6, seed=seed, exact_limit=0)
     assert got.key[0] == best[0] and got.key[1] == pytest.approx(best[1], rel=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_links_the_model_cannot_explain_are_not_usable(seed):
+    """``max_model_error_s``: a link whose noiseless ranging delay departs from the eikonal delay by more
+    than the tolerance does not count (docs/design.md, "The criterion"). The arrays go through the
+    layout's own ``problem_of`` (the path from a coverage); the oracle applies the rule with its own loop
+    and enumerates every set. Every link at one SNR, so every sigma is the same and, with a negligible
+    prior (1 km against bounds of micrometres), the ranking of sets does not depend on its value."""
+    from design.coverage import normalise_spec
+    from design.layout import normalise_layout, problem_of
+
+    _, usable, cands, grad, _ = _case(40 + seed)
+    rng = np.random.default_rng(seed)
+    P, C = usable.shape
+    eikonal = rng.uniform(1e-9, 3e-9, (P, C))
+    far = rng.random((P, C)) < 0.2  # a fifth of the links are off by 200-400 ps, the rest within 100 ps
+    ranging = eikonal + rng.choice([1.0, -1.0], (P, C)) * np.where(far, rng.uniform(200e-12, 400e-12, (P, C)),
+                                                                    rng.uniform(0.0, 100e-12, (P, C)))
+    tol = 150e-12
+    arrays = {"paths": np.where(usable, 3.0, 0.0), "direct_path": usable.copy(), "snr_db": np.full((P, C), 5.0),
+              "ranging_delay_s": ranging, "eikonal_delay_s": eikonal, "first_delay_s": eikonal,
+              "gradient_s_per_m": grad}
+    layout = normalise_layout({"sensors": 5, "snr_db": 30, "max_model_error_s": tol, "min_sensors": 3,
+                               "evaluate": None})
+    problem = problem_of(layout, normalise_spec({}), None, arrays, 1e3, 124e-12)
+    ok = np.zeros((P, C), bool)
+    for p in range(P):
+        for c in range(C):
+            ok[p, c] = bool(usable[p, c]) and abs(ranging[p, c] - eikonal[p, c]) <= tol
+    assert 0 < ok.sum() < usable.sum()  # the rule bites on this case
+    (u, v), _ = _oracle(grad, np.full((P, C), 1e-12), ok, 5, "p90", 1e3, 3)
+    assert u < P  # some sets cover positions: the ranking is not all ties
+    # the rule is what is tested here, so the search's exact path (462 sets); its local search is a local
+    # search: on seed 0 greedy with swaps and 6 restarts ends 25 % above this optimum (docs/design.md)
+    got = search(problem, Constraints(np.ones(C, bool), cands), 5)
+    assert got.method == "exact"
+    mine = tuple(sorted(int(c) for c in got.subset))  # the oracle's own score of the search's set
+    (gu, gv), _ = _oracle(grad, np.full((P, C), 1e-12), ok, 5, "p90", 1e3, 3, lambda s: s == mine)
+    assert gu == u and gv == pytest.approx(v, rel=1e-9)
+    # null: the grid's stated error is the tolerance
+    grid = normalise_layout({"sensors": 5, "snr_db": 30, "min_sensors": 3, "evaluate": None})
+    assert np.array_equal(problem_of(grid, normalise_spec({}), None, arrays, 1e3, 124e-12).usable,
+                          usable & (np.abs(ranging - eikonal) <= 124e-12))
