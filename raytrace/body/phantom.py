@@ -196,9 +196,10 @@ class Phantom:
     def triangle_count(self) -> int:
         return int(len(self.faces))
 
-    @property
+    @cached_property
     def bounds_m(self) -> np.ndarray:
-        """(2, 3) axis-aligned bounds of all organs [m]."""
+        """(2, 3) axis-aligned bounds of all organs [m] (computed once: every antenna of every
+        request checks against it, ~20 ms a time at 1 M triangles)."""
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
 
     @cached_property
