@@ -232,6 +232,8 @@ def ranging_delay_s(paths, frequency_hz: float, waveform: ToneBurst, velocity_m_
     first traced arrival does not (docs/design.md, "Coverage")."""
     est = estimate_toa(PathProfile.from_traced(paths, frequency_hz), method="gcc", waveform=waveform, snr_db=None,
                        trials=1, seed=0, return_estimates=True)[0]
+    if est.estimates_m is None:  # asked for: return_estimates
+        raise AssertionError("estimate_toa returned no estimates")
     return float(est.estimates_m[0]) / velocity_m_per_s_
 
 

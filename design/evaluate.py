@@ -50,14 +50,15 @@ def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[st
     link = LinkBudget(**coverage["link"])
     noise_dbm = link.noise_power_dbm(noise_bandwidth_hz(coverage))
     names = list(layouts)
-    union, index = [], {}
+    points: list[np.ndarray] = []
+    index: dict[tuple, int] = {}
     for name in names:
         for p in np.asarray(layouts[name], float):
             key = tuple(np.round(p, 12))
             if key not in index:
-                index[key] = len(union)
-                union.append(p)
-    union = np.asarray(union)
+                index[key] = len(points)
+                points.append(p)
+    union = np.asarray(points)
     members = {name: [index[tuple(np.round(p, 12))] for p in np.asarray(layouts[name], float)] for name in names}
     fields = {name: sensor_fields(phantom, union[members[name]], f, coverage["cell_size_m"], delay_kind="phase")  # GCC
               for name in names}

@@ -83,8 +83,9 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     if any(c is not None for c in counts):
         if any(c is None for c in counts):
             raise DesignInputError("give a count for every belt or for none", "constraints.belts")
-        if sum(counts) != n:
-            raise DesignInputError(f"the belts' counts add up to {sum(counts)}, not to sensors = {n}",
+        total = sum(int(c or 0) for c in counts)
+        if total != n:
+            raise DesignInputError(f"the belts' counts add up to {total}, not to sensors = {n}",
                                    "constraints.belts")
     keep_out = []
     raw = cons.get("keep_out") or []
