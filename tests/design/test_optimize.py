@@ -180,3 +180,46 @@ def test_links_the_model_cannot_explain_are_not_usable(seed):
     grid = normalise_layout({"sensors": 5, "snr_db": 30, "min_sensors": 3, "evaluate": None})
     assert np.array_equal(problem_of(grid, normalise_spec({}), None, arrays, 1e3, 124e-12).usable,
                           usable & (np.abs(ranging - eikonal) <= 124e-12))
+
+
+def test_the_rss_criterion_against_the_closed_form_and_the_exhaustive_optimum():
+    """``ranging: rss``: the CM2 path-loss model's position bound (log-normal shadowing sigma_dB, exponent
+    eta): F = sum_c k^2 e_c e_c^T / d_c^2 with k = 10 eta / (ln 10 sigma_dB). Closed form: six sensors at
+    distance d on the +-axes around the capsule give F = 2 k^2 / d^2 I, so b = d sqrt(3 / 2) / k (the
+    prior of 1 km changes it by (b / 1 km)^2 relative, below 1e-9). Then 4 of 9 random candidates for 3
+    capsule positions against the exhaustive oracle with its own Fisher sums."""
+    from types import SimpleNamespace
+
+    from design.coverage import normalise_spec
+    from design.layout import normalise_layout, problem_of
+
+    eta, sigma_db = 4.26, 7.85  # cm2_deep_tissue (IEEE 802.15.6 CM2)
+    k = 10.0 * eta / (math.log(10.0) * sigma_db)
+    d = 0.12
+    axes = np.vstack([np.eye(3), -np.eye(3)]) * d
+    plan = SimpleNamespace(positions=SimpleNamespace(positions_m=np.zeros((1, 3))),
+                           candidates=SimpleNamespace(positions_m=axes))
+    ones = np.ones((1, 6))
+    arrays = {"paths": ones, "direct_path": ones.astype(bool), "snr_db": ones * 10.0}
+    layout = normalise_layout({"sensors": 6, "ranging": "rss", "evaluate": None})
+    problem = problem_of(layout, normalise_spec({}), plan, arrays, 1e3, 124e-12)
+    assert problem.bounds_m(range(6))[0] == pytest.approx(d * math.sqrt(1.5) / k, rel=1e-9)
+
+    rng = np.random.default_rng(7)
+    caps = rng.normal(0.0, 0.04, (3, 3))
+    cands = rng.normal(0.0, 1.0, (9, 3))
+    cands = 0.15 * cands / np.linalg.norm(cands, axis=1, keepdims=True)
+    usable = rng.random((3, 9)) > 0.2
+    plan = SimpleNamespace(positions=SimpleNamespace(positions_m=caps),
+                           candidates=SimpleNamespace(positions_m=cands))
+    arrays = {"paths": usable * 1.0, "direct_path": usable, "snr_db": np.full((3, 9), 10.0)}
+    problem = problem_of(normalise_layout({"sensors": 4, "ranging": "rss", "min_sensors": 3, "evaluate": None}),
+                         normalise_spec({}), plan, arrays, 0.5, 124e-12)
+    grad = np.zeros((3, 9, 3))
+    for p in range(3):
+        for c in range(9):
+            v = caps[p] - cands[c]
+            grad[p, c] = 10.0 * eta / math.log(10.0) * v / (v @ v)  # d(path loss)/dx per dB of shadowing
+    (u, v), _ = _oracle(grad, np.full((3, 9), sigma_db), usable, 4, "p90", 0.5, 3)
+    got = search(problem, Constraints(np.ones(9, bool), cands), 4, exact_limit=0, restarts=6)
+    assert got.key[0] == u and got.key[1] == pytest.approx(v, rel=1e-9)
