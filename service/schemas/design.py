@@ -179,7 +179,7 @@ class LayoutRequest(Strict):
     criterion: Literal["p90", "mean"] = Field("p90", description="Statistic of the position bound along the tract.")
     model_error: Literal["none", "bias"] = Field("none", description="`none`: the position CRLB; `bias`: plus the "
                                                  "delay model's own error (grid, linearised bias of each link's "
-                                                 "traced-first-arrival minus eikonal mismatch).")
+                                                 "noiseless-ranging minus eikonal mismatch).")
     ranging: Literal["toa", "rss"] = Field("toa", description="Whose position bound: `toa` (GCC, the travel-time "
                                            "model) or `rss` (the CM2 path-loss model's, distance-based).")
     rss_model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field("cm2_deep_tissue", description="The path-loss "
