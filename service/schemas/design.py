@@ -181,7 +181,14 @@ class LayoutRequest(Strict):
     criterion: Literal["p90", "mean"] = Field("p90", description="Statistic of the position bound along the tract.")
     model_error: Literal["none", "bias"] = Field("none", description="`none`: the position CRLB; `bias`: plus the "
                                                  "delay model's own error (grid, linearised bias of each link's "
-                                                 "traced-first-arrival minus eikonal mismatch).")
+                                                 "noiseless-ranging minus eikonal mismatch).")
+    ranging: Literal["toa", "rss"] = Field("toa", description="Whose position bound: `toa` (GCC, the travel-time "
+                                           "model) or `rss` (the CM2 path-loss model's, distance-based).")
+    rss_model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field("cm2_deep_tissue", description="The path-loss "
+                                                                      "model of ranging rss.")
+    max_model_error_s: float | None = Field(None, ge=0.0, le=1e-6, description="A link whose noiseless ranging delay "
+                                            "departs from the travel-time model by more is not usable [s]; null: "
+                                            "the travel-time grid's stated error n_max h / c.")
     snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="Every link's SNR [dB]; null: the coverage's "
                                  "link budget per link.")
     min_snr_db: float | None = Field(None, ge=-300.0, le=200.0, description="Links below are not detected [dB].")
@@ -208,6 +215,8 @@ class LayoutResult(BaseModel):
     baseline_criterion_m: float | None = Field(description="The best same-size subset of the phantom's sensor sites, "
                                                "found the same way [m].")
     uncovered_positions: int
+    ranging: str = "toa"
+    model_tolerance_s: float | None = Field(None, description="The model-mismatch tolerance applied [s] (TOA).")
     baseline_uncovered_positions: int | None = None
     baseline_sensors: list[LayoutSensor] | None = None
     search: dict[str, Any]
