@@ -270,3 +270,32 @@ def test_corner_normals_are_the_numpy_expressions_bit_for_bit(torso, case):
     # exact zeros' signs too (assert_array_equal takes -0.0 == 0.0)
     assert corner_normals(vertices, faces, fn, crease).tobytes() == \
         _corner_normals_numpy(vertices, faces, fn, crease).tobytes()
+
+
+def test_a_pickled_embree_scene_is_built_again_where_it_is_loaded(tmp_path):
+    """An Embree scene pickled (a phantom's scene of every face travels with the phantom to a
+    sweep's worker or a bench's child) casts in the process that loads it: the same first hits
+    as the scene it was pickled from. Run in a fresh interpreter: a scene that pickled its
+    handle (a pointer into the first process) crashed there."""
+    import pickle
+    import subprocess
+    import sys
+
+    box = trimesh.creation.box(extents=[1.0, 2.0, 3.0])
+    faces = np.asarray(box.faces)
+    geometry = (np.array([0, 6]), np.array([6, 12]), np.array([1, 2], np.uint32))
+    from raytrace.engine.embree import Geometry
+
+    scene = EmbreeScene(np.asarray(box.vertices), faces, geometry=Geometry(*geometry))
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(200, 3))
+    d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    o = np.zeros((200, 3), np.float32)
+    expected = [np.asarray(a) for a in scene.intersect(o, d, 2)]
+    (tmp_path / "scene.pkl").write_bytes(pickle.dumps((scene, o, d, expected)))
+    code = ("import pickle, sys, numpy as np\n"
+            f"scene, o, d, expected = pickle.load(open({str(tmp_path / 'scene.pkl')!r}, 'rb'))\n"
+            "got = scene.intersect(o, d, 2)\n"
+            "assert all(np.array_equal(np.asarray(a), b) for a, b in zip(got, expected)), 'hits differ'\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
