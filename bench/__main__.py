@@ -142,13 +142,13 @@ def rows(report: dict) -> list[tuple[str, str, str]]:
                 row(f"  {label} = {x}", f"{p['trace_s']:.3f} s {p['peak_rss_mb']:.0f} MB")
     for k, v in report["estimators"].items():
         row(k.replace("_", " "), f"{v:.3e}")
-    localization.print_rows(report["localization"], _row)
+    localization.print_rows(report["localization"], row)
     if "sweeps" in report:
-        sweeps_bench.print_rows(report["sweeps"], _row)
+        sweeps_bench.print_rows(report["sweeps"], row)
     if "sweeps_cluster" in report:
-        sweeps_cluster.print_rows(report["sweeps_cluster"], _row)
+        sweeps_cluster.print_rows(report["sweeps_cluster"], row)
     if "scene_build" in report:
-        scene_build.print_rows(report["scene_build"], _row)
+        scene_build.print_rows(report["scene_build"], row)
     for r in report.get("sionna_room", []):
         found = (f"; oracle paths found {r['capsule_found']} / {r['sionna_found']} of {r['oracle_paths']}"
                  if "oracle_paths" in r else "")
