@@ -259,8 +259,8 @@ class EmbreeScene:
 
     def __reduce__(self):
         """Pickled as what builds it, and built again when loaded: the handle is a pointer into
-        this process (a phantom pickled with its scene of every face, loaded in a sweep's worker
-        or a bench's child, crashed on its first cast)."""
+        this process (a phantom pickled with its scene of every face and loaded in another
+        process, as the scene bench's children load it, crashed on its first cast)."""
         return EmbreeScene, (self._vertices, self._faces, self._robust, self._geometry)
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, mask: int = ALL) -> Hits:
