@@ -77,8 +77,10 @@ class PathProfile:
         gains_include_delay_phase: see module docstring.
         reference_frequency_hz: frequency at which ``gains`` were evaluated
             (required when ``gains_include_delay_phase`` or ``group_delays_s``).
-        group_delays_s: optional (K,) absolute group delays (finite, >= 0): the
-            first-order dispersive model of the module docstring.
+        group_delays_s: optional (K,) absolute group delays (finite): the
+            first-order dispersive model of the module docstring. A traced path's is the
+            phase slope of its gain, which a dipole's reactive near field can turn negative
+            (a few cm apart in fat at 402 MHz; docs/science.md (S22)).
 
     Raises:
         EstimatorInputError naming ``profile.paths`` / ``profile.paths.delay_s`` /
@@ -139,9 +141,9 @@ class PathProfile:
             if group.size != delays.size:
                 raise EstimatorInputError(f"{group.size} group delays for {delays.size} paths (one per path)",
                                           "profile.paths.group_delay_s")
-            bad = np.flatnonzero(~np.isfinite(group) | (group < 0.0))
+            bad = np.flatnonzero(~np.isfinite(group))
             if bad.size:
-                raise EstimatorInputError(f"must be finite and >= 0, got {group[bad[0]]!r}",
+                raise EstimatorInputError(f"must be finite, got {group[bad[0]]!r}",
                                           f"profile.paths[{bad[0]}].group_delay_s")
             if ref is None:
                 raise EstimatorInputError(

@@ -49,7 +49,8 @@ class Path:
 
     ``delay_s`` is its phase delay at the carrier, ``sum L_i Re n_i / c``: what the carrier's
     phase (and so PDOA on a narrow band, or a gain's argument) sees. ``group_delay_s`` is its
-    group delay, ``sum L_i n_g,i / c`` with the tissues' group index (docs/science.md (S22)):
+    group delay, the phase slope ``-d arg(gain) / d w`` at the carrier with everything that varies
+    with frequency (the tissues' group index, lossy Fresnel phases, the near field; docs/science.md (S22)):
     when a pulse's envelope arrives, what a TOA estimator on a band-limited waveform measures.
     In dispersive tissue the two differ by ~10 % (docs/science.md, "Phase and group delay").
     """
@@ -72,7 +73,7 @@ class Path:
 #: Regimes where full-wave (FDTD) comparisons showed geometric optics to be off (docs/validation.md,
 #: "Validity per receiver"); a profile lists those its receiver is in.
 VALIDITY_FLAGS: tuple[str, ...] = ("near_field", "in_air_near_body", "grazing_exit", "near_critical_angle",
-                                   "no_direct_path")
+                                   "curved_layers", "no_direct_path", "earlier_arrival")
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,11 @@ class ReceiverProfile:
 
     ``validity`` names the regimes of :data:`VALIDITY_FLAGS` the receiver is in (empty: none of
     them; the FDTD error bands of each are in docs/validation.md).
+
+    ``first_arrival_s`` and ``earlier_arrival_s`` are filled by :func:`evaluation.arrivals.annotate`
+    (None otherwise): the eikonal (Fermat) first arrival at the receiver, and by how much it precedes
+    the first traced path where it does beyond the eikonal grid's error (a head wave along the fat
+    the tracer does not build; flag ``earlier_arrival``).
     """
 
     receiver: str
@@ -98,6 +104,8 @@ class ReceiverProfile:
     smallest_organ_size_wavelengths: float | None = None
     warnings: tuple[str, ...] = ()
     validity: tuple[str, ...] = ()
+    first_arrival_s: float | None = None
+    earlier_arrival_s: float | None = None
 
     @property
     def first_path_delay_s(self) -> float | None:

@@ -19,6 +19,7 @@ from raytrace.solver.tracer import warm_up
 from service import __version__
 from service.compute import ComputeGate
 from service.deps import AppState
+from service.design_jobs import CoverageJobs, DesignEngine, LayoutJobs
 from service.errors import install_error_handlers
 from service.fullwave_jobs import FullwaveJobs
 from service.jobs import JobRunner
@@ -31,6 +32,7 @@ from service.routes import (
     bounds,
     catalogue,
     channel,
+    design,
     fullwave,
     localize,
     ops,
@@ -75,6 +77,8 @@ TAGS = [
     {"name": "sweeps", "description": "Sweep jobs: positions x receivers x frequencies, run in worker processes."},
     {"name": "fullwave", "description": "Full-wave (gprMax FDTD) cross-checks of the tracer, as jobs on the sweeps' "
                                         "queue."},
+    {"name": "design", "description": "Sensor-layout design: coverage over the skin and optimised sensor positions "
+                                      "along the GI tract, as jobs on the one queue."},
     {"name": "operations", "description": "Health, readiness, metrics."},
 ]
 
@@ -89,6 +93,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     sweep_jobs = SweepJobs(settings, registry, jobs)
     fullwave_jobs = FullwaveJobs(settings, registry, jobs)
     phantom_builds = PhantomBuilds(settings, registry, jobs)
+    design_engine = DesignEngine(settings)  # one warm pool for both design kinds (docs/design.md)
+    coverage_jobs = CoverageJobs(settings, registry, jobs, design_engine)
+    layout_jobs = LayoutJobs(settings, registry, jobs, design_engine, coverage_jobs)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -126,8 +133,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.sweeps = sweep_jobs
     app.state.fullwave = fullwave_jobs
     app.state.phantom_builds = phantom_builds
+    app.state.coverage = coverage_jobs
+    app.state.layout = layout_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, vision,
+    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, design, vision,
                    tracking, ops):
         app.include_router(module.router)
     pages.install(app)
@@ -143,6 +152,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                         ("/v1/plots/", settings.max_ranging_body_bytes),
                                         ("/v1/sweeps", settings.max_json_body_bytes),
                                         ("/v1/fullwave", settings.max_json_body_bytes),
+                                        ("/v1/design/", settings.max_json_body_bytes),
                                         ("/v1/vision/render", settings.max_json_body_bytes)])
     app.add_middleware(OriginGuard, allowed_origins=settings.cors_origins)
     if settings.cors_origins:

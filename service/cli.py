@@ -7,6 +7,7 @@
     capsule-rt plot KIND INPUT.json --output OUT.png|svg|pdf [--receiver NAME]
     capsule-rt sweep SPEC --out DIR [--cluster ADDRESS] [--resume]   (service.sweep_cli)
     capsule-rt experiment NAME --out DIR                             (service.sweep_cli)
+    capsule-rt design coverage|layout|plot ...                       (service.design_cli)
     capsule-rt fullwave REQUEST.json --out DIR [--cell-mm 2] [--coarse-factor 1.5] [--margin-mm 20] [--reuse]
     capsule-rt vision render --out DIR [--start-s-m S] [--frames N] [--advance-m D] ...   (service.vision_cli)
     capsule-rt vision motion DIR|FRAME.png... [--output OUT.csv|.json] [--estimate both] ... (service.vision_cli)
@@ -327,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
     vision_cli.add_parsers(sub)
     localize_cli.add_parsers(sub)
     track_cli.add_parser(sub)
+    from service import design_cli
+
+    design_cli.add_parser(sub)
     return p
 
 

@@ -159,6 +159,17 @@ class Settings(BaseSettings):
         None, ge=1, le=256, description="OpenMP threads of gprMax (default: the CPUs this process may use)."
     )
 
+    # Sensor-layout design (docs/design.md, "Over HTTP").
+    design_max_links: int = Field(
+        250_000, ge=1, le=1_000_000,
+        description="Max links (capsule positions x sensor candidates) of one coverage job, refused (422 naming "
+        "the field) before it is queued beyond it.",
+    )
+    design_max_queue: int = Field(
+        4, ge=1, le=1024, description="Design jobs (coverage and layout, each kind) queued or running at once; "
+        "beyond: 503.",
+    )
+
     # Access (docs/service.md, "Security").
     api_keys: CommaList = Field(
         default_factory=list,

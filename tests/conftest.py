@@ -4,7 +4,9 @@
 * ``api`` -- an in-process ``TestClient`` over ``create_app`` (small limits).
 * ``live_url`` -- base URL of a real uvicorn server: ``CAPSULE_RT_URL`` when set
   (the client container), else a subprocess on 127.0.0.1 and a free port,
-  started once per session.
+  started once per session (per pytest-xdist worker: each worker has its own).
+  A ``CAPSULE_RT_URL`` server that requires an API key gets ``CAPSULE_RT_KEY`` with
+  every write the suite sends it.
 * ``glb_phantom`` -- builds a small valid (or deliberately broken) .glb + manifest.
 """
 
@@ -77,6 +79,25 @@ def wait_ready(url: str, timeout_s: float = 120.0, proc: subprocess.Popen | None
     raise RuntimeError(f"server at {url} not ready after {timeout_s} s")
 
 
+def _send_key_to(url: str, key: str) -> None:
+    """Every write (POST, PUT, PATCH, DELETE) this process sends to ``url`` without an
+    ``X-API-Key`` header gets ``key`` in it, as a user's client configured with the key would
+    send it: the server container of CI requires one (docker/podman-ci.sh). Only ``url``: the
+    tests of keys start servers of their own and send (or omit) keys themselves."""
+    from service.security import API_KEY_HEADER
+
+    def with_key(send):
+        def handle(self, request):
+            if str(request.url).startswith(url + "/") and request.method in ("POST", "PUT", "PATCH", "DELETE") \
+                    and API_KEY_HEADER not in request.headers:
+                request.headers[API_KEY_HEADER] = key
+            return send(self, request)
+        return handle
+
+    httpx.HTTPTransport.handle_request = with_key(httpx.HTTPTransport.handle_request)
+    httpx.AsyncHTTPTransport.handle_async_request = with_key(httpx.AsyncHTTPTransport.handle_async_request)
+
+
 @pytest.fixture(scope="session")
 def live_url(tmp_path_factory):
     """A running server: ``CAPSULE_RT_URL`` if set, else ``capsule-rt serve`` in a subprocess."""
@@ -84,6 +105,8 @@ def live_url(tmp_path_factory):
     if url:
         url = url.rstrip("/")
         wait_ready(url)
+        if os.environ.get("CAPSULE_RT_KEY"):
+            _send_key_to(url, os.environ["CAPSULE_RT_KEY"])
         yield url
         return
     port = free_port()

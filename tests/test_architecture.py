@@ -70,6 +70,9 @@ LIBRARIES = {
     "plots": {"estimators"},
     "vision": {"raytrace"},
     "fullwave": {"raytrace"},
+    # sensor layout design: traces (raytrace), bounds and fixes (estimators), travel-time fields (evaluation),
+    # the sweeps' engines, phantom sources and atomic writes (sweeps) (docs/design.md)
+    "design": {"raytrace", "estimators", "evaluation", "sweeps"},
 }
 PROJECT = {"raytrace", "estimators", "service", *LIBRARIES}
 

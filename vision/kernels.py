@@ -1,8 +1,8 @@
 """The package's compiled (numba) code, all of it in this one module (docs/architecture.md, "One
 engine fence"): the motion search's warp + quantise + joint histogram, the solid noise and the
 mucosa of the texture (:mod:`vision.noise`, :mod:`vision.mucosa`), the wall hits' geometry and
-the LEDs' shading (:mod:`vision.render`) and the PNG scanline unfilter (:mod:`vision.png`). The
-modules named hold the models and their documentation; here is only their inner loops.
+the LEDs' shading (:mod:`vision.render`). The modules named hold the models and their
+documentation; here is only their inner loops.
 
 The motion search: warp + quantise + joint histogram in one pass.
 
@@ -491,37 +491,3 @@ def shade_points(points, normals, albedo, view_dirs, leds, forward, per_led, exp
                     specular += e * spec_norm * n_h**shininess
         for c in range(3):
             out[i, c] = diffuse * albedo[i, c] / math.pi + specular
-
-
-# --- PNG scanlines (vision.png)
-
-@njit(cache=True, nogil=True)
-def png_unfilter(raw, height, stride, bpp, out):
-    """Undo the per-scanline filters of PNG spec 9.2 (None, Sub, Up, Average, Paeth) of ``height``
-    scanlines of ``stride`` bytes, each prefixed by its filter type; -1, or the first row whose
-    filter type is unknown."""
-    for y in range(height):
-        src = y * (stride + 1)
-        kind = raw[src]
-        src += 1
-        for x in range(stride):
-            v = np.int32(raw[src + x])
-            a = np.int32(out[y, x - bpp]) if x >= bpp else np.int32(0)
-            b = np.int32(out[y - 1, x]) if y > 0 else np.int32(0)
-            if kind == 0:
-                pass
-            elif kind == 1:
-                v += a
-            elif kind == 2:
-                v += b
-            elif kind == 3:
-                v += (a + b) >> 1
-            elif kind == 4:
-                c = np.int32(out[y - 1, x - bpp]) if (y > 0 and x >= bpp) else np.int32(0)
-                p = a + b - c
-                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
-                v += a if (pa <= pb and pa <= pc) else (b if pb <= pc else c)
-            else:
-                return y
-            out[y, x] = v & 0xFF
-    return -1

@@ -70,11 +70,18 @@ PROBE_COVER = 1.0 / max(float(np.linalg.norm(np.linalg.solve(_PROBE_DIRECTIONS, 
 
 @dataclass(frozen=True)
 class Organ:
-    """One closed organ surface and what fills it."""
+    """One closed organ surface and what fills it.
+
+    ``crease_angle_deg``: the organ's own smoothing setting, the dihedral angle between two
+    neighbouring facets above which their shared edge is a crease of the surface (the tracer keeps
+    the normal discontinuous there, :mod:`raytrace.engine.scene`); None: the tracer's default
+    (45 deg). 0 makes every facet flat, 180 smooths everything.
+    """
 
     name: str
     material: Material
     mesh: trimesh.Trimesh
+    crease_angle_deg: float | None = None
 
 
 @dataclass(frozen=True)
@@ -347,6 +354,9 @@ class Phantom:
 def _validate_organ_mesh(organ: Organ) -> None:
     mesh = organ.mesh
     where = f"organs.{organ.name}"
+    if organ.crease_angle_deg is not None and not 0.0 <= float(organ.crease_angle_deg) <= 180.0:
+        raise PhantomValidationError(f"crease_angle_deg must be in [0, 180] deg, got {organ.crease_angle_deg}",
+                                     field=f"{where}.crease_angle_deg")
     if len(mesh.faces) < 4:
         raise PhantomValidationError("mesh has fewer than 4 triangles", field=where)
     if not np.isfinite(np.asarray(mesh.vertices)).all():

@@ -22,11 +22,16 @@ capsules x 24 receivers: the same 5732 paths either way.
 
 Normals: the facet normal decides the side (entering / leaving an organ);
 directions (reflection, refraction) use smooth normals interpolated from the
-hit's barycentrics over per-corner normals (vertex normals with Max's
-weights, exact for vertices on a sphere). A corner whose vertex normal
-deviates from its facet normal by more than :data:`CREASE_ANGLE_RAD` (a box
-corner, a cylinder rim) uses the facet normal instead, so flat faces stay
-exactly flat and curved faceted organs get continuous normals.
+hit's barycentrics over per-corner normals (:func:`corner_normals`). An edge
+whose two faces meet at a dihedral angle (between their normals) above the
+organ's crease angle (:data:`CREASE_ANGLE_DEG` unless the organ sets its own
+``crease_angle_deg``) is a crease: the corner normal of a face at a vertex
+averages (with Max's weights, exact for vertices on a sphere) only the faces
+reachable round that vertex without crossing a crease. So every face of a box,
+whatever its proportions, keeps exactly its facet normal (its only edges
+between differently oriented faces are 90 deg creases), and a smooth faceted
+organ, whose neighbouring facets differ by a few degrees, gets one continuous
+normal per vertex (docs/tracer.md, "Numerical care").
 """
 
 from __future__ import annotations
@@ -37,13 +42,17 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from raytrace.body.phantom import Phantom
 from raytrace.engine.embree import EmbreeScene
 from raytrace.engine.records import SceneTables, ShotScene, build
 
-#: Corners whose vertex normal deviates more than this from the facet normal are creases.
-CREASE_ANGLE_RAD = np.deg2rad(35.0)
+#: Default crease angle [deg]: an edge whose two faces' normals differ by more than this is a crease
+#: (module doc). Above the built-in torso's largest dihedral angle between neighbouring facets
+#: (33.6 deg on the skin's rim at resolution 48), below a box's 90 deg.
+CREASE_ANGLE_DEG = 45.0
 #: Spawn offset in float32 ulps of the largest (centred) coordinate.
 OFFSET_ULPS = 16.0
 
@@ -90,9 +99,9 @@ class TracerScene:
         embree = EmbreeScene(centred, faces if face_map is None else faces[face_map])
         fn = np.asarray(phantom.face_normals, dtype=float)
         fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
-        corners = vertex_normals_max(vertices, faces)[faces]  # (F, 3, 3)
-        crease = np.einsum("fcj,fj->fc", corners, fn) < np.cos(CREASE_ANGLE_RAD)
-        corners = np.where(crease[..., None], fn[:, None, :], corners)
+        crease_deg = np.array([CREASE_ANGLE_DEG if o.crease_angle_deg is None else float(o.crease_angle_deg)
+                               for o in phantom.organs])
+        corners = corner_normals(vertices, faces, fn, crease_deg[np.asarray(phantom.face_organ, np.int64)])
         magnitude = float(np.abs(centred).max())
         ulp = np.spacing(np.float32(max(magnitude, 1e-6)))
         return cls(
@@ -226,23 +235,69 @@ class TracerScene:
         return np.where(flip[:, None], fallback, nrm)
 
 
-def vertex_normals_max(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit vertex normals with Max's weights: sum over incident faces of
-    ``(e1 x e2) / (|e1|^2 |e2|^2)`` (N. Max, "Weights for computing vertex normals
-    from facet normals", J. Graphics Tools 4(2), 1999), exact for vertices on a
-    sphere. The plain area-weighted average (trimesh's) is off by ~0.15 deg on a
-    5120-face icosphere, which skews the curvature the ray tube sees by ~4 %.
-    Organs never share vertices in a phantom, so no normal mixes two organs."""
+def corner_normals(vertices: np.ndarray, faces: np.ndarray, face_normals: np.ndarray,
+                   crease_deg: float | np.ndarray = CREASE_ANGLE_DEG) -> np.ndarray:
+    """(F, 3, 3) unit normal of each face at each of its corners (module doc).
+
+    Two faces sharing an edge are joined across it when the angle between their (unit, outward)
+    ``face_normals`` is at most the crease angle (``crease_deg``: one value, or one per face, the
+    smaller of the two faces' applies); the corners of one vertex joined that way, directly or
+    through other faces round the vertex, form a smoothing group, and every corner of a group
+    gets the group's normal: the sum over its faces of Max's weights ``(e1 x e2) / (|e1|^2 |e2|^2)``
+    (e1, e2 the face's two edges from the vertex; N. Max, "Weights for computing vertex normals from
+    facet normals", J. Graphics Tools 4(2), 1999: exact for vertices on a sphere, where the plain
+    area-weighted average is off by ~0.15 deg on a 5120-face icosphere and skews the curvature a ray
+    tube sees by ~4 %), normalised. Without any crease round a vertex that is the vertex
+    normal; a face alone in its group (every neighbour across a crease) keeps its facet normal
+    exactly. An edge shared by other than two faces (not in a phantom: meshes are closed) joins
+    nothing."""
+    faces = np.asarray(faces, np.int64)
+    nf = len(faces)
+    if nf == 0:
+        return np.zeros((0, 3, 3))
+    fn = np.asarray(face_normals, float)
+    crease = np.broadcast_to(np.asarray(crease_deg, float), (nf,))
     v = vertices[faces]  # (F, 3, 3)
-    acc = np.zeros_like(vertices)
+    weights = np.empty((nf, 3, 3))
     for i in range(3):
         e1 = v[:, (i + 1) % 3] - v[:, i]
         e2 = v[:, (i + 2) % 3] - v[:, i]
-        w = np.cross(e1, e2) / (np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2))[:, None]
-        for k in range(3):
-            acc[:, k] += np.bincount(faces[:, i], weights=w[:, k], minlength=len(vertices))
+        weights[:, i] = np.cross(e1, e2) / (np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2))[:, None]
+    # half-edges: face f, corner i -> corner i + 1; an edge is the sorted vertex pair
+    hf = np.repeat(np.arange(nf), 3)
+    hc = np.tile(np.arange(3), nf)
+    a, b = faces[hf, hc], faces[hf, (hc + 1) % 3]
+    key = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    k = key[order]
+    same = np.all(k[1:] == k[:-1], axis=1)
+    starts = np.flatnonzero(np.concatenate([[True], ~same]))
+    counts = np.diff(np.concatenate([starts, [len(k)]]))
+    runs = np.repeat(counts, counts)  # how many half-edges carry each one's edge (two: manifold)
+    pair = same & (runs[:-1] == 2)
+    h1, h2 = order[:-1][pair], order[1:][pair]
+    f1, f2 = hf[h1], hf[h2]
+    limit = np.cos(np.radians(np.minimum(crease[f1], crease[f2])))
+    smooth = np.einsum("ij,ij->i", fn[f1], fn[f2]) >= limit
+    h1, h2, f1, f2 = h1[smooth], h2[smooth], f1[smooth], f2[smooth]
+    # the corners of f1 and f2 at the edge's two vertices (vertex a of h1, then its b)
+    c1a, c1b = hc[h1], (hc[h1] + 1) % 3
+    va, vb = faces[f1, c1a], faces[f1, c1b]
+    c2a = np.argmax(faces[f2] == va[:, None], axis=1)
+    c2b = np.argmax(faces[f2] == vb[:, None], axis=1)
+    node1 = np.concatenate([3 * f1 + c1a, 3 * f1 + c1b])
+    node2 = np.concatenate([3 * f2 + c2a, 3 * f2 + c2b])
+    graph = coo_matrix((np.ones(len(node1), np.int8), (node1, node2)), shape=(3 * nf, 3 * nf))
+    _, label = connected_components(graph, directed=False)
+    acc = np.zeros((label.max() + 1, 3))
+    flat = weights.reshape(-1, 3)
+    for j in range(3):
+        acc[:, j] = np.bincount(label, weights=flat[:, j], minlength=len(acc))
     norm = np.linalg.norm(acc, axis=1, keepdims=True)
-    return acc / np.where(norm > 0.0, norm, 1.0)
+    out = (acc / np.where(norm > 0.0, norm, 1.0))[label].reshape(nf, 3, 3)
+    alone = np.bincount(label, minlength=len(acc))[label].reshape(nf, 3) == 1
+    degenerate = (norm[label, 0] <= 0.0).reshape(nf, 3)
+    return np.where((alone | degenerate)[..., None], fn[:, None, :], out)
 
 
 _CACHE: dict[tuple, tuple[weakref.ref, TracerScene]] = {}

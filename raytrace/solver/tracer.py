@@ -273,7 +273,8 @@ def trace_channel(spec: ChannelSpec, phantom: Phantom | None = None, *, budget: 
         j = max(rows, key=lambda j: abs(fields.gains[j, 0]))
         straight = not any(rec.steps.valid[s, j] and rec.steps.kind[s, j] != KIND_PASS
                            for s in range(rec.steps.valid.shape[0]))
-        strongest_direct.append((straight, float(fields.max_sin_t[j]), float(fields.exit_sin_t[j])))
+        strongest_direct.append((straight, float(fields.max_sin_t[j]), float(fields.exit_sin_t[j]),
+                                 float(fields.stack_tilt_deg[j])))
     lam_tx = C0 / frequency_hz / float(media.n_real[tx_medium + 1])
     flags = receiver_flags(phantom, rx, rx_medium, np.linalg.norm(rx - tx, axis=1), lam_tx, spec.near_field,
                            strongest_direct)

@@ -23,8 +23,19 @@ Two kinds of statement, both reported with every receiver profile:
 2. **Per-receiver regimes** (:func:`receiver_flags`): where full-wave comparisons showed
    geometric optics to be off.
 
-   docs/validation.md ("Validity per receiver") gives the FDTD error band of each flag. A
-   receiver is flagged (``raytrace.results.VALIDITY_FLAGS``):
+   docs/validation.md ("Validity per receiver") gives the FDTD error band of each flag. When a
+   receiver's strongest direct path is evaluated as the generalized-ray integral through the layers
+   it crosses (dipole antennas, ``near_field`` on, layers within 40 deg of parallel:
+   :mod:`raytrace.solver.stratified`), its near field, the lateral wave along the layers and the
+   lossy oblique Fresnel coefficients are all in it and none of the geometric-optics flags below
+   applies; it is flagged only
+
+   * ``curved_layers``: when its layers are tilted by more than :data:`CURVED_DEG` from parallel
+     (the integral assumes planar, parallel ones; on the torso within 0.7 dB of gprMax up to 19 deg
+     and to 1.1 dB at 24-34 deg).
+
+   Otherwise (geometric optics: isotropic antennas, the near-field term off, layers too far from
+   parallel) a receiver is flagged (``raytrace.results.VALIDITY_FLAGS``):
 
    * ``near_field``: within :data:`NEAR_FIELD_WAVELENGTHS` wavelengths (in the transmitter's
      medium) of the transmitter, and its strongest direct path is not the exact dipole field
@@ -102,15 +113,20 @@ GRAZING_DEG = 70.0
 #: Transmitted angle above which a refraction into a tissue counts as near critical [deg]
 #: (module docstring: between the FDTD's 31.8 deg, GO within 0.03 dB, and 38.6 deg, 1.1 dB low).
 OBLIQUE_TISSUE_DEG = 35.0
+#: Tilt of the layers [deg] beyond which a path evaluated on a stack of planar layers counts as
+#: crossing curved ones (module docstring; torso: 18-19 deg within 0.7 dB of gprMax, 24-34 deg to 1.1 dB).
+CURVED_DEG = 20.0
 
 
 def receiver_flags(phantom: Phantom, rx_m: np.ndarray, rx_medium: np.ndarray, distance_m: np.ndarray,
-                   wavelength_tx_m: float, near_field: bool, strongest_direct: list[tuple[bool, float, float] | None]
-                   ) -> list[tuple[str, ...]]:
-    """Flags per receiver. ``strongest_direct[r]``: None without a direct path, else (straight,
-    largest sin of its transmitted angles into tissue, the same into air)."""
+                   wavelength_tx_m: float, near_field: bool,
+                   strongest_direct: list[tuple[bool, float, float, float] | None]) -> list[tuple[str, ...]]:
+    """Flags per receiver (module docstring). ``strongest_direct[r]``: None without a direct path,
+    else (straight, largest sin of its transmitted angles into tissue, the same into air, the tilt of
+    its layers [deg] where its gain is the generalized-ray integral through them, else NaN)."""
     out: list[list[str]] = [[] for _ in range(len(rx_m))]
-    in_air = np.flatnonzero(np.asarray(rx_medium) < 0)
+    layered = np.array([info is not None and np.isfinite(info[3]) for info in strongest_direct], bool)
+    in_air = np.flatnonzero((np.asarray(rx_medium) < 0) & ~layered)
     if len(in_air):
         outer = [o.mesh for o, parent in zip(phantom.organs, phantom.parent) if parent < 0]
         dist = np.full(len(in_air), np.inf)
@@ -126,7 +142,13 @@ def receiver_flags(phantom: Phantom, rx_m: np.ndarray, rx_medium: np.ndarray, di
         if info is None:
             out[r].append("no_direct_path")
             continue
-        straight, sin_t, sin_exit = info
+        straight, sin_t, sin_exit, tilt_deg = info
+        if layered[r]:
+            # the layers' exact integral: near field, lateral wave and lossy obliques are in it; exact
+            # when the layers are parallel, approximate on tilted (curved) ones
+            if tilt_deg > CURVED_DEG:
+                out[r].append("curved_layers")
+            continue
         if distance_m[r] < NEAR_FIELD_WAVELENGTHS * wavelength_tx_m and not (near_field and straight):
             out[r].insert(0, "near_field")
         if sin_exit > s_graze:

@@ -47,7 +47,7 @@ from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import Unprocessable, error_responses
 from service.registry import Registry
-from service.schemas import FrequencyHz, Int, Name, Out, PhantomId, Strict, Vec3, int_range
+from service.schemas import FrequencyHz, Int, Name, Out, PhantomId, Strict, Vec3, alternatives, int_range
 from service.settings import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, Settings
 
 router = APIRouter(prefix="/v1/localize", tags=["localization"], route_class=ThreadedJsonRoute)
@@ -79,7 +79,7 @@ class PositionOrSite(Strict):
     """A position: ``position_m`` or a phantom ``site`` (exactly one)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True,
-                              json_schema_extra={"oneOf": _POINT_ONE_OF})
+                              json_schema_extra=alternatives(_POINT_ONE_OF))
 
     position_m: Vec3 | None = Field(None, description="Position [m] (phantom coordinates).")
     site: Name | None = Field(None, description="Name of one of the phantom's sites (GET /v1/phantoms/{id}).")
@@ -96,7 +96,7 @@ class LocalizeSensor(PositionOrSite):
     ``range_m``, ``delay_s``, ``rss_dbm``; every sensor of a request the same kind)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True,
-                              json_schema_extra={"allOf": [{"oneOf": _POINT_ONE_OF}, {"oneOf": _MEASUREMENT_ONE_OF}]})
+                              json_schema_extra=alternatives(_POINT_ONE_OF, _MEASUREMENT_ONE_OF))
 
     range_m: float | None = Field(None, ge=0.0, le=100.0, description="Measured range [m] (constant-velocity "
                                   "methods: linear, nonlinear).")

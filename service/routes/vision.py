@@ -30,7 +30,7 @@ from pydantic import ConfigDict, Field, ValidationError, model_validator
 from raytrace import Budget
 from service.deps import state
 from service.errors import ServiceError, Unprocessable, error_responses, field_to_loc
-from service.schemas import ID_PATTERN, ErrorResponse, Int, Name, Out, Strict, Vec3
+from service.schemas import ID_PATTERN, ErrorResponse, Int, Name, Out, Strict, Vec3, alternatives
 from service.uploads import read_parts
 from vision.advance import advance_for_scale
 from vision.camera import DEFAULT_FOV_DEG, DEFAULT_SIZE_PX, FisheyeCamera, Pose
@@ -69,11 +69,12 @@ class PoseIn(Strict):
     """Where the capsule is: ``s_m`` along the phantom's GI-tract centreline (looking along the
     direction of travel), or ``position_m`` with a view ``direction`` (exactly one of the two)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"oneOf": [
-        {"required": ["s_m"], "properties": {"s_m": {"type": "number"}, "position_m": False, "direction": False,
-                                             "organ": False}},
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra=alternatives([
+        {"required": ["s_m"], "properties": {"s_m": {"type": "number"}},
+         "not": {"anyOf": [{"required": ["position_m"]}, {"required": ["direction"]}, {"required": ["organ"]}]}},
         {"required": ["position_m", "direction"], "properties": {"position_m": {"type": "array"},
-                                                                 "direction": {"type": "array"}, "s_m": False}}]})
+                                                                 "direction": {"type": "array"}},
+         "not": {"required": ["s_m"]}}]))
 
     s_m: _range(0.0, 100.0) | None = Field(
         None, description="Arc length along the phantom's GI-tract centreline [m] (GET /v1/phantoms/{id}: "

@@ -12,7 +12,7 @@ Conventions:
   (``NaN`` / ``Infinity`` get a 422), and its types are strict: a boolean or
   a numeric string is not a number, 1.5 is not an integer. Where fields
   depend on each other (exactly one of two), the schema says it with
-  ``oneOf``. Responses never contain non-finite numbers either:
+  ``oneOf`` nested in ``allOf`` (:func:`alternatives`). Responses never contain non-finite numbers either:
   a zero gain's ``-inf`` dB is clamped to :data:`GAIN_DB_FLOOR` (-400 dB).
 * Complex numbers are ``{"re": float, "im": float}``.
 * Array sizes and compute knobs are bounded; the ``le`` bounds here are the
@@ -72,6 +72,19 @@ def int_range(ge: int, le: int) -> Any:
     return Annotated[int, Field(ge=ge, le=le), BeforeValidator(_integral)]
 
 FrequencyHz = Annotated[float, Field(ge=FREQUENCY_MIN_HZ, le=FREQUENCY_MAX_HZ)]
+
+
+def alternatives(*groups: list[dict], keyword: str = "oneOf") -> dict:
+    """The ``json_schema_extra`` of an object whose fields depend on each other: each group (a list
+    of branches, e.g. "``position_m`` or ``site``") becomes ``{keyword: group}``, all of them under
+    ``allOf``. JSON Schema reads ``{"allOf": [{"oneOf": X}]}`` exactly as ``{"oneOf": X}``; client
+    generators do not: given an object-level ``oneOf`` they make the type a union of its bare
+    branches and drop the object's own properties (openapi-python-client then refuses the
+    schema), while they merge ``allOf`` and leave the nested ``oneOf`` to the server. A field
+    that a branch excludes is written ``"not": {"required": [name]}``, never a ``false`` schema
+    (which OpenAPI 3.1 allows but generators cannot parse). ``tests/service/test_generated_client.py``
+    holds the generators to this."""
+    return {"allOf": [{keyword: branches} for branches in groups]}
 
 
 class Strict(BaseModel):

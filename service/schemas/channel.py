@@ -21,6 +21,7 @@ from service.schemas import (
     ScenarioId,
     Strict,
     Vec3,
+    alternatives,
     int_range,
 )
 from service.settings import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS
@@ -39,9 +40,9 @@ class AntennaIn(Strict):
     :class:`raytrace.spec.Antenna`, enforces it and the schema states it)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False,
-                              json_schema_extra={"oneOf": [
+                              json_schema_extra=alternatives([
                                   {"required": ["position_m"], "properties": {"position_m": {"type": "array"}}},
-                                  {"required": ["site"], "properties": {"site": {"type": "string"}}}]})
+                                  {"required": ["site"], "properties": {"site": {"type": "string"}}}]))
 
     position_m: Vec3 | None = Field(None, description="Position [m] (phantom coordinates).")
     site: Name | None = Field(None, description="Name of one of the phantom's sites (GET /v1/phantoms/{id}).")
@@ -95,9 +96,10 @@ class ChannelRequest(Strict):
     model_config = ConfigDict(  # Strict's rules are inherited; only the schema extras here
         json_schema_extra={
             # what ChannelSpec requires: a scenario, or a transmitter and receivers of one's own
-            "anyOf": [{"required": ["scenario"], "properties": {"scenario": {"type": "string"}}},
-                      {"required": ["transmitter", "receivers"],
-                       "properties": {"transmitter": {"type": "object"}, "receivers": {"type": "array"}}}],
+            **alternatives([{"required": ["scenario"], "properties": {"scenario": {"type": "string"}}},
+                            {"required": ["transmitter", "receivers"],
+                             "properties": {"transmitter": {"type": "object"}, "receivers": {"type": "array"}}}],
+                           keyword="anyOf"),
             "examples": [
                 {
                     "phantom": "torso",
@@ -180,8 +182,9 @@ class BandGain(Out):
 class PathOut(Out):
     delay_s: float = Field(description="Absolute phase delay at the carrier, sum L Re n / c [s].")
     group_delay_s: float = Field(
-        description="Absolute group delay at the carrier, sum L n_g / c with the tissues' group index [s]: "
-        "when a pulse's envelope arrives (docs/science.md, 'Phase and group delay')."
+        description="Absolute group delay at the carrier, the phase slope -d arg(gain) / d omega of the path's "
+        "own gain (tissue dispersion, lossy Fresnel phases, the near-field term) [s]: when a pulse's envelope "
+        "arrives (docs/science.md, 'Phase and group delay', (S22)); negative in a dipole's reactive near field."
     )
     gain: Complex = Field(
         description="Complex gain a_k of h(t) = sum a_k delta(t - delay_k) at the carrier frequency_hz, "
@@ -229,8 +232,8 @@ class ProfileOut(Out):
     rms_delay_spread_s: float = Field(description="Power-weighted RMS delay spread [s].")
     validity: list[str] = Field(
         default_factory=list,
-        description="Regimes where full-wave (FDTD) comparisons showed geometric optics to be off that this "
-        "receiver is in: near_field, in_air_near_body, grazing_exit, near_critical_angle, no_direct_path "
+        description="Regimes where full-wave (FDTD) comparisons showed the tracer to be off that this receiver "
+        "is in: near_field, in_air_near_body, grazing_exit, near_critical_angle, curved_layers, no_direct_path "
         "(docs/validation.md, 'Validity per receiver').")
     reference_frequency_hz: float = Field(
         description="Frequency at which `paths[].gain` is evaluated (the carrier) [Hz].")

@@ -27,7 +27,7 @@ class _FullwaveBase(Strict):
     per receiver with the tracer (docs/validation.md)."""
 
     model_config = ConfigDict(json_schema_extra={
-        "anyOf": copy.deepcopy(ChannelRequest.model_config["json_schema_extra"]["anyOf"]),
+        "allOf": copy.deepcopy(ChannelRequest.model_config["json_schema_extra"]["allOf"]),
         "examples": [_EXAMPLE, {"scenario": "thesis-fig-5-6", "rays": 20000, "export_only": True}]})
 
 

@@ -9,7 +9,7 @@ from pydantic import ConfigDict, Field, StringConstraints, model_validator
 
 from estimators.link import MICS_EIRP_DBM
 from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
-from service.schemas import Band, FrequencyHz, Int, Out, Strict, Vec3
+from service.schemas import Band, FrequencyHz, Int, Out, Strict, Vec3, alternatives
 from service.schemas.channel import CfrOut, CirOut, Interaction, Segment, TapsOut
 from service.settings import MAX_BAND_POINTS, MAX_PROFILE_PATHS, MAX_TRIALS
 
@@ -31,7 +31,8 @@ class PathGainIn(GainIn):
     """A path's complex gain: not zero (a path of zero gain carries nothing; leave it out)."""
 
     model_config = ConfigDict(
-        json_schema_extra={"anyOf": [{"properties": {"re": _NONZERO}}, {"properties": {"im": _NONZERO}}]}
+        json_schema_extra=alternatives([{"properties": {"re": _NONZERO}}, {"properties": {"im": _NONZERO}}],
+                                       keyword="anyOf")
     )
 
     @model_validator(mode="after")
@@ -51,8 +52,9 @@ class PathIn(Strict):
 
     delay_s: float = Field(ge=0.0, le=1e-3, description="Absolute (phase) delay [s].")
     gain: PathGainIn = Field(description="Complex gain [-], not zero.")
-    group_delay_s: float | None = Field(None, ge=0.0, le=1e-3, description="Absolute group delay [s] (as a channel "
-                                        "profile gives it).")
+    group_delay_s: float | None = Field(None, ge=-1e-3, le=1e-3, description="Absolute group delay [s] (as a channel "
+                                        "profile gives it: the phase slope of the path's gain, negative in a "
+                                        "dipole's reactive near field).")
     gain_db: float | None = None
     length_m: float | None = None
     interactions: list[Interaction] | None = Field(None, max_length=64)
@@ -68,13 +70,11 @@ class ProfileIn(Strict):
     """A channel profile: ``profiles[i]`` of POST /v1/channel as is, or a hand-made ``{"paths": [...]}``."""
 
     model_config = ConfigDict(
-        json_schema_extra={
-            "oneOf": [
-                {"properties": {"gains_include_delay_phase": {"const": False}}},
-                {"required": ["gains_include_delay_phase", "reference_frequency_hz"],
-                 "properties": {"gains_include_delay_phase": {"const": True}}},
-            ],
-        }
+        json_schema_extra=alternatives([
+            {"properties": {"gains_include_delay_phase": {"const": False}}},
+            {"required": ["gains_include_delay_phase", "reference_frequency_hz"],
+             "properties": {"gains_include_delay_phase": {"const": True}}},
+        ])
     )
 
     paths: list[PathIn] = Field(min_length=1, max_length=MAX_PROFILE_PATHS)
@@ -242,10 +242,10 @@ class RssRequest(RangingCommon):
                 {"profile": _EXAMPLE_PROFILE, "model": "cm2_deep_tissue", "trials": 200, "seed": 1,
                  "true_distance_m": 0.076}
             ],
-            "oneOf": [
-                {"required": ["profile"], "properties": {"rss_dbm": False}},
-                {"required": ["rss_dbm", "transmit_power_dbm"], "properties": {"profile": False}},
-            ],
+            **alternatives([
+                {"required": ["profile"], "not": {"required": ["rss_dbm"]}},
+                {"required": ["rss_dbm", "transmit_power_dbm"], "not": {"required": ["profile"]}},
+            ]),
         },
     )
     model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
@@ -310,9 +310,10 @@ class RangingResponse(RangingResult):
 def _snr_or_link(example: dict) -> dict:
     """The schema of a bound request: the SNR, or a link with the channel's gain, not both."""
     return {
-        "anyOf": [{"required": ["snr_db"], "properties": {"snr_db": {"type": "number"}}},
-                  {"required": ["link", "path_gain_db"],
-                   "properties": {"link": {"type": "object"}, "path_gain_db": {"type": "number"}}}],
+        **alternatives([{"required": ["snr_db"], "properties": {"snr_db": {"type": "number"}}},
+                        {"required": ["link", "path_gain_db"],
+                         "properties": {"link": {"type": "object"}, "path_gain_db": {"type": "number"}}}],
+                       keyword="anyOf"),
         "not": {"required": ["snr_db", "link"],
                 "properties": {"snr_db": {"type": "number"}, "link": {"type": "object"}}},
         "examples": [example],

@@ -29,7 +29,8 @@ def _example_blocks() -> tuple[str, str]:
 def test_the_worked_upload_example_runs(live_url, tmp_path):
     python, shell = _example_blocks()
     env = {**os.environ, "CAPSULE_RT_URL": live_url, "BASE_URL": live_url}
-    env.pop("CAPSULE_RT_KEY", None)
+    if not os.environ.get("CAPSULE_RT_URL"):  # the suite's own keyless server; CI's server container needs it
+        env.pop("CAPSULE_RT_KEY", None)
     out = subprocess.run([sys.executable, "-c", python], cwd=tmp_path, env=env, capture_output=True, text=True,
                          timeout=300)
     assert out.returncode == 0, out.stderr

@@ -87,7 +87,31 @@ def test_bench_export_only_writes_both_cell_sizes(tmp_path):
     report = json.loads((tmp_path / "report.json").read_text())
     assert [r["cell_m"] for r in report["runs"]] == [0.002, 0.0015] and not any(r["ran"] for r in report["runs"])
     assert bench_main(["torso", "--export-only", "--out", str(tmp_path / "t")]) == 0
-    assert len(json.loads((tmp_path / "t" / "report.json").read_text())["runs"]) == 1
+    assert [r["cell_m"] for r in json.loads((tmp_path / "t" / "report.json").read_text())["runs"]] == [0.002, 0.0015]
+
+
+def test_every_case_puts_its_layers_on_both_grids_and_the_table_lists_both_cell_sizes(tmp_path):
+    """Every planar case (layered, lateral, wall, deep30, deep100) at 2 and 1.5 mm: the tracer's phantom
+    for each grid (GRID_PHANTOMS) has its interfaces on that grid's cell faces (multiples of the cell from
+    y = 0, where every case's box starts on a 6 mm boundary); the table command's Markdown has one row per
+    case and receiver with both cell sizes' differences."""
+    from bench.fullwave import GRID_PHANTOMS
+    from bench.fullwave.__main__ import table
+
+    for name, grid in GRID_PHANTOMS.items():
+        spec, ph, opts = CASES[name][0]()
+        for h in (0.002, 0.0015):
+            model = build_model(spec, ph, dataclasses.replace(opts, cell_m=h))
+            assert abs((model.origin_m[1] + opts.pml_cells * h) / 0.006 - round((model.origin_m[1] + opts.pml_cells * h)
+                                                                                  / 0.006)) < 1e-6
+            fronts = [float(np.asarray(o.mesh.vertices)[:, 1].min()) for o in grid(h).organs]
+            assert all(abs(f / h - round(f / h)) < 1e-6 for f in fronts), (name, h, fronts)
+    m = {"gain_db": -30.0, "phase_deg": 10.0, "group_delay_s": 1e-9, "envelope_s": 1e-9}
+    row = {"receiver": "a", "validity": [], "fdtd": m, "tracer": m, "gain_error_db": 0.25, "phase_error_deg": -1.0,
+           "group_delay_error_s": 12e-12, "envelope_error_s": -3e-12}
+    runs = [{"cell_m": h, "ran": True, "receivers": [row]} for h in (0.002, 0.0015)]
+    text = table({"wall": {"runs": runs}})
+    assert "| wall (2 / 1.5 mm) | a | -30.00 | +0.25 / +0.25 | -1.0 / -1.0 | +12 / +12 | -3 / -3 | - |" in text
 
 
 def test_layered_phantom_is_the_issue_stack():

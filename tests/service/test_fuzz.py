@@ -63,8 +63,10 @@ APP = _app(_DATA.name)
 # the plot routes are fuzzed in tests/plots/test_plots_fuzz.py with fewer examples: each valid one draws a
 # figure; the sweep routes in tests/sweeps/test_sweeps_fuzz.py, without the coverage phase (its boundary cases
 # of the nested sweep spec take minutes to generate); the vision routes in tests/service/test_vision_fuzz.py
-# (each valid render traces up to a million rays)
-schema = schemathesis.openapi.from_asgi("/openapi.json", APP).exclude(path_regex=r"^/v1/(plots/|sweeps|vision/)")
+# (each valid render traces up to a million rays); the design routes in tests/design/test_http.py (each valid
+# coverage plans thousands of skin candidates against the phantom, and accepted jobs trace for minutes)
+schema = schemathesis.openapi.from_asgi("/openapi.json", APP).exclude(
+    path_regex=r"^/v1/(plots/|sweeps|vision/|design/)")
 
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance,
           response_headers_conformance, positive_data_acceptance, negative_data_rejection]

@@ -37,7 +37,8 @@ export class Scene3D {
     this.sites = new THREE.Group();
     this.paths = new THREE.Group();
     this.fix = new THREE.Group(); // a localization: estimate, error ellipsoid, true position, error vector
-    this.scene.add(this.organs, this.sites, this.paths, this.fix);
+    this.coverage = new THREE.Group(); // a design coverage: the skin's candidates coloured by a metric
+    this.scene.add(this.organs, this.sites, this.paths, this.fix, this.coverage);
     this.frames = 0;
     this.pathOpacity = 1.0;
     this.focused = null; // the receiver whose paths are in front
@@ -225,6 +226,34 @@ export class Scene3D {
     this.fadePaths();
     this.render();
     return axes_m;
+  }
+
+  /** The coverage layer: a disc of radius `size_m` at every candidate [m], coloured on the gain ramp by its
+   *  value between `lo` and `hi`; candidates without a value (null: no path) grey and smaller. */
+  setCoverage(points_m, values, lo, hi, size_m) {
+    clear(this.coverage);
+    const geometry = new THREE.SphereGeometry(size_m, 8, 6);
+    const material = new THREE.MeshBasicMaterial({ color: 0xffffff });
+    const mesh = new THREE.InstancedMesh(geometry, material, points_m.length);
+    const m = new THREE.Matrix4();
+    const colour = new THREE.Color();
+    points_m.forEach((p, i) => {
+      const v = values[i];
+      m.makeScale(v === null ? 0.5 : 1, v === null ? 0.5 : 1, v === null ? 0.5 : 1).setPosition(p[0], p[1], p[2]);
+      mesh.setMatrixAt(i, m);
+      if (v === null) colour.setHex(IDLE);
+      else colour.setRGB(...gainColour(hi > lo ? (v - lo) / (hi - lo) : 1));
+      mesh.setColorAt(i, colour);
+    });
+    mesh.renderOrder = 2;
+    this.coverage.add(mesh);
+    this.render();
+    return mesh.count;
+  }
+
+  clearCoverage() {
+    clear(this.coverage);
+    this.render();
   }
 
   clearFix() {

@@ -15,7 +15,7 @@ const KIND_LETTER = { reflection: 'R', refraction: 'T', total_internal_reflectio
 
 const state = {
   phantom: null, ready: false, organs: 0, sites: 0, tracing: false, traces: 0, paths: 0, transmitter: null,
-  receivers: [], pdp: null, error: null, locating: false, locates: 0, fix: null,
+  receivers: [], pdp: null, error: null, locating: false, locates: 0, fix: null, coverage: 0,
 };
 window.viewerState = state;
 const view = new Scene3D($('scene'));
@@ -333,6 +333,30 @@ async function showProfile(receiver) {
   }
 }
 
+/** The design layer (docs/design.md): a coverage job's candidates on the skin, coloured by the chosen metric
+ *  (its median over the capsule positions; the fraction of positions with a direct path). */
+async function showCoverage() {
+  const id = $('coverage-id').value.trim();
+  const metric = $('coverage-metric').value;
+  try {
+    const map = await api(`/v1/design/coverage/${encodeURIComponent(id)}/map?metric=${metric}`).then((r) => r.json());
+    const scale = metric.endsWith('delay_s') ? 1e9 : 1;
+    const values = map.values.map((v) => (v === null ? null : v * scale));
+    const finite = values.filter((v) => v !== null);
+    const lo = finite.length ? Math.min(...finite) : 0;
+    const hi = finite.length ? Math.max(...finite) : 1;
+    const shown = view.setCoverage(map.candidates_m, values, lo, hi, siteSize * 0.6);
+    state.coverage = shown;
+    $('coverage-label').textContent = $('coverage-metric').selectedOptions[0].textContent;
+    $('coverage-min').textContent = lo.toFixed(metric === 'direct_path' ? 2 : 1);
+    $('coverage-max').textContent = hi.toFixed(metric === 'direct_path' ? 2 : 1);
+    $('coverage-scale').hidden = false;
+    status(`Coverage ${id}: ${shown} candidates coloured by ${metric}, ${values.length - finite.length} without a path.`);
+  } catch (error) {
+    status(`Coverage failed: ${error.message}`, true);
+  }
+}
+
 // pick sites in the scene: a click (not a drag) on a marker
 let down = null;
 view.renderer.domElement.addEventListener('pointerdown', (e) => { down = [e.clientX, e.clientY]; });
@@ -359,5 +383,7 @@ $('trace').addEventListener('click', trace);
 $('locate').addEventListener('click', locate);
 $('locate-confidence').replaceChildren(...Object.entries(CONFIDENCE).map(([key, c]) => new Option(c.label, key)));
 $('pdp-sensor').addEventListener('change', (e) => showProfile(e.target.value));
+$('coverage-show').addEventListener('click', showCoverage);
+$('coverage-clear').addEventListener('click', () => { view.clearCoverage(); $('coverage-scale').hidden = true; });
 
 loadPhantoms().catch((error) => status(`Loading failed: ${error.message}`, true));

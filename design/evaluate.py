@@ -1,0 +1,113 @@
+"""End-to-end check of layouts along the tract: trace, range, model-based fix (docs/design.md,
+"What the numbers mean").
+
+For every capsule position one trace to the sensors of every layout together (a receiver's paths
+do not depend on the other receivers, :mod:`design.coverage`), then per layout the pipeline of
+:func:`evaluation.localization.evaluate_localization` with the model-based method: per usable
+sensor a seeded Monte Carlo TOA (GCC) run at the link's SNR, and per trial the model-based fix on
+travel-time fields of the layout's sensors (:func:`estimators.localization.model_based_fix`,
+soft_l1). A sensor is usable at a position under the layout criterion's rule (a path, a direct one
+when required, the SNR at least ``min_snr_db``); fewer than four usable sensors give no fix there.
+The noise of sensor k at position p is drawn from ``SeedSequence(seed, spawn_key=(p, k))``, k its
+index among all the layouts' sensors, so a sensor two layouts share sees the same noise.
+
+Per position: the RMS 3-D error over the trials, and the bound with the sensors' own fields
+(travel_time_crlb at the true position: what ``crlb_m`` of the evaluation endpoints is).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
+from estimators.errors import EstimatorInputError
+from estimators.link import LinkBudget
+from estimators.localization import TravelTimeFields, model_based_fix, travel_time_crlb
+from estimators.profile import PathProfile
+from estimators.toa import estimate_toa
+from evaluation.fields import sensor_fields
+from raytrace import Antenna, ChannelSpec, trace_channel
+from raytrace.body.phantom import Phantom
+
+#: Estimators' lowest per-sample SNR [dB]: links below cannot be ranged.
+SNR_FLOOR_DB = -50.0
+SIGMA_FLOOR_S = 1e-18
+
+
+def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[str, np.ndarray], *, coverage: dict,
+                     snr_db: float | None, min_snr_db: float | None, require_direct_path: bool, trials: int = 20,
+                     seed: int = 0, rays: int = 100_000, max_interactions: int = 6,
+                     check: Callable[[int], None] | None = None) -> dict[str, dict]:
+    """Per layout name: ``rmse_m`` (P,) (NaN where no fix), ``bound_m`` (P,) (inf where fewer than 4
+    usable sensors), ``usable`` (P,) counts, ``errors_m`` (P, trials). ``coverage`` is the coverage's
+    spec (frequency, waveform, link, channel polarization, cell size)."""
+    from design.coverage import noise_bandwidth_hz, waveform_of
+
+    f = coverage["frequency_hz"]
+    waveform = waveform_of(coverage)
+    link = LinkBudget(**coverage["link"])
+    noise_dbm = link.noise_power_dbm(noise_bandwidth_hz(coverage))
+    names = list(layouts)
+    union, index = [], {}
+    for name in names:
+        for p in np.asarray(layouts[name], float):
+            key = tuple(np.round(p, 12))
+            if key not in index:
+                index[key] = len(union)
+                union.append(p)
+    union = np.asarray(union)
+    members = {name: [index[tuple(np.round(p, 12))] for p in np.asarray(layouts[name], float)] for name in names}
+    fields = {name: sensor_fields(phantom, union[members[name]], f, coverage["cell_size_m"]) for name in names}
+    v = velocity_m_per_s(DEFAULT_RELATIVE_PERMITTIVITY)
+    P = len(positions_m)
+    out = {name: {"rmse_m": np.full(P, np.nan), "bound_m": np.full(P, np.inf), "usable": np.zeros(P, int),
+                  "errors_m": np.full((P, trials), np.nan)} for name in names}
+    pol = coverage["channel"]["capsule_polarization"]
+    for p, x in enumerate(np.asarray(positions_m, float)):
+        if check is not None:
+            check(p)
+        spec = ChannelSpec(Antenna(position_m=x, polarization=pol),
+                           tuple(Antenna(position_m=s, name=f"s{k}") for k, s in enumerate(union)),
+                           phantom=phantom.name, frequency_hz=f, rays=rays, max_interactions=max_interactions,
+                           near_field=coverage["channel"]["near_field"])
+        result = trace_channel(spec, phantom)
+        ranges: dict[int, tuple[np.ndarray, float]] = {}
+        for k, prof in enumerate(result.profiles):
+            if not prof.paths:
+                continue
+            if require_direct_path and not any(all(i.kind == "refraction" for i in q.interactions)
+                                               for q in prof.paths):
+                continue
+            snr = snr_db if snr_db is not None else link.transmit_power_dbm + prof.path_gain_db - noise_dbm
+            if (min_snr_db is not None and snr < min_snr_db) or snr < SNR_FLOOR_DB:
+                continue
+            profile = PathProfile.from_traced(prof.paths, f)
+            rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(p, k)))
+            r = estimate_toa(profile, method="gcc", waveform=waveform, snr_db=snr, trials=trials, seed=rng,
+                             return_estimates=True)[0]
+            ranges[k] = (np.asarray(r.estimates_m, float), max(float(r.crlb_m or 0.0) / v, SIGMA_FLOOR_S))
+        for name in names:
+            rows = [j for j, k in enumerate(members[name]) if k in ranges]
+            out[name]["usable"][p] = len(rows)
+            if len(rows) < 4:
+                continue
+            ff = TravelTimeFields([fields[name].fields[j] for j in rows])
+            delays = np.stack([ranges[members[name][j]][0] for j in rows], axis=1) / v
+            sigma = np.array([ranges[members[name][j]][1] for j in rows])
+            _, grad = ff.evaluate(x)
+            try:
+                out[name]["bound_m"][p] = travel_time_crlb(grad, sigma).rms_m
+            except EstimatorInputError:
+                pass
+            for t in range(trials):
+                try:
+                    fix = model_based_fix(ff, delays[t], sigma)
+                except EstimatorInputError:
+                    continue
+                out[name]["errors_m"][p, t] = float(np.linalg.norm(fix.position_m - x))
+            e = out[name]["errors_m"][p]
+            if np.isfinite(e).any():
+                out[name]["rmse_m"][p] = float(np.sqrt(np.nanmean(e**2)))
+    return out
