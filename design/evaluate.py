@@ -59,7 +59,8 @@ def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[st
                 union.append(p)
     union = np.asarray(union)
     members = {name: [index[tuple(np.round(p, 12))] for p in np.asarray(layouts[name], float)] for name in names}
-    fields = {name: sensor_fields(phantom, union[members[name]], f, coverage["cell_size_m"]) for name in names}
+    fields = {name: sensor_fields(phantom, union[members[name]], f, coverage["cell_size_m"], delay_kind="phase")  # GCC
+              for name in names}
     v = velocity_m_per_s(DEFAULT_RELATIVE_PERMITTIVITY)
     P = len(positions_m)
     out = {name: {"rmse_m": np.full(P, np.nan), "bound_m": np.full(P, np.inf), "usable": np.zeros(P, int),

@@ -226,7 +226,7 @@ def run_layout(layout: dict, record: dict, plan: Plan, table, phantom, *,
     prior = float(np.linalg.norm(hi - lo))
     from evaluation.fields import organ_indices
 
-    n_max = float(np.max(organ_indices(phantom, coverage["frequency_hz"])))
+    n_max = float(np.max(organ_indices(phantom, coverage["frequency_hz"], "phase")))
     grid_error = n_max * coverage["cell_size_m"] / 299_792_458.0  # the fields' stated error (docs/localization.md)
     problem = problem_of(layout, coverage, plan, arrays, prior, grid_error)
     cands = plan.candidates.positions_m

@@ -35,7 +35,7 @@ def annotate(result: ChannelResult, phantom: Phantom, cell_size_m: float = DEFAU
     ``earlier_arrival`` (module docstring). One eikonal field per receiver (cached per phantom,
     receiver, frequency and cell size), evaluated at the transmitter (reciprocity)."""
     rx = np.array([p.position_m for p in result.profiles], float).reshape(-1, 3)
-    fields = sensor_fields(phantom, rx, result.frequency_hz, cell_size_m, kind="phase")
+    fields = sensor_fields(phantom, rx, result.frequency_hz, cell_size_m, delay_kind="phase")
     t_eik, _ = fields.evaluate(np.asarray(result.transmitter_position_m, float))
     error = float(fields.discretisation_error_s)
     profiles = []

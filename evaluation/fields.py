@@ -1,97 +1,70 @@
 """Travel-time fields of a phantom's sensors: voxel grid -> refractive index per cell ->
 eikonal fields (docs/localization.md, "Travel-time fields").
 
-Caches: voxel grids per (phantom, cell size) here (bounded, holding the phantom so its id
-stays valid), fields per (index grid content, sensor) in
-:func:`estimators.localization.cached_travel_time_field`; together a field is computed once
-per (phantom, sensor, frequency, cell size, index kind).
+    sensor_fields(phantom, sensors_m, frequency_hz, cell_size_m, delay_kind="group", *, check, cache_dir, workers)
+
+The phantom's side (voxel grid, index per organ, content hash) is :mod:`raytrace.body.indexgrid`;
+the fields' side (eikonal solves in parallel, memory and disk caches) is
+:mod:`estimators.localization.fieldstore`. A field is computed once per (phantom content,
+frequency, delay kind, cell size, sensor) and, with ``cache_dir``, survives a restart.
+
+Every function building fields takes the ``delay_kind`` of the delays they will be compared
+with (``estimators.localization.delays``): ``group`` (the default, what a TOA receiver timing an
+envelope measures) builds them on the group index, ``phase`` on Re n.
 """
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
 
-from estimators.errors import EstimatorInputError
-from estimators.localization import TravelTimeFields, cached_travel_time_field
-from estimators.localization.traveltime import grid_fingerprint
+from estimators.localization import DEFAULT_DELAY_KIND, TravelTimeFields, check_delay_kind
+from estimators.localization.fieldstore import fields_for_sensors
+from raytrace.body.indexgrid import grid_key, voxel_grid
+from raytrace.body.indexgrid import index_grid as _index_grid
+from raytrace.body.indexgrid import organ_indices as _organ_indices
 from raytrace.body.phantom import Phantom
-from raytrace.body.voxels import VoxelGrid, voxelize
-from raytrace.physics.em import refractive_index
+from raytrace.body.voxels import VoxelGrid
+
+__all__ = ["DEFAULT_CELL_SIZE_M", "eikonal_path", "grid_key", "index_grid", "organ_indices", "path_media",
+           "sensor_fields", "voxel_grid"]
 
 #: Default cell edge of the travel-time grids [m] (docs/localization.md: accuracy and cost).
 DEFAULT_CELL_SIZE_M = 0.004
-INDEX_KINDS = ("phase", "group")
-_VOXEL_CACHE_SIZE = 6
-
-_voxels: OrderedDict = OrderedDict()
-_voxels_lock = threading.Lock()
 
 
-def organ_indices(phantom: Phantom, frequency_hz: float, kind: str = "phase") -> np.ndarray:
-    """Refractive index of every organ at the carrier, ``(n_organs,)``.
-
-    ``kind="phase"``: Re n = Re sqrt(eps_r*) from each organ's material (Gabriel 1996 Cole-Cole
-    or explicit eps_r / sigma), the index the tracer uses for its ray geometry and delays.
-    ``kind="group"``: n_g = Re(n + w dn/dw) (docs/science.md (S22)), the index a pulse's
-    envelope travels with, i.e. of the paths' ``group_delay_s``: the index for delays measured
-    on a band-limited waveform that sees the dispersion. Use the kind whose delay the
-    ranging measures: the travel-time fields must share the delays' definition.
-    """
-    if kind not in INDEX_KINDS:
-        raise EstimatorInputError(f"unknown index kind {kind!r} ({' | '.join(INDEX_KINDS)})", "index_kind")
-    f = float(frequency_hz)
-    if kind == "group":
-        return np.array([float(o.material.group_index(f)) for o in phantom.organs])
-    return np.array([float(np.real(refractive_index(o.material.complex_relative_permittivity(f))))
-                     for o in phantom.organs])
-
-
-def voxel_grid(phantom: Phantom, cell_size_m: float = DEFAULT_CELL_SIZE_M) -> VoxelGrid:
-    """The phantom's voxel grid (phantom bounds plus one cell), cached per (phantom, cell size)."""
-    key = (id(phantom), float(cell_size_m))
-    with _voxels_lock:
-        hit = _voxels.get(key)
-        if hit is not None and hit[0] is phantom:
-            _voxels.move_to_end(key)
-            return hit[1]
-    grid = voxelize(phantom, float(cell_size_m))
-    with _voxels_lock:
-        _voxels[key] = (phantom, grid)
-        while len(_voxels) > _VOXEL_CACHE_SIZE:
-            _voxels.popitem(last=False)
-    return grid
+def organ_indices(phantom: Phantom, frequency_hz: float, delay_kind: str = DEFAULT_DELAY_KIND) -> np.ndarray:
+    """Refractive index of every organ at the carrier for delays of ``delay_kind``, ``(n_organs,)``:
+    ``phase`` Re n (a path's ``delay_s``), ``group`` n_g = c d(Re k)/dw (its ``group_delay_s``;
+    docs/science.md (S22)); :func:`raytrace.body.indexgrid.organ_indices`."""
+    return _organ_indices(phantom, frequency_hz, check_delay_kind(delay_kind))
 
 
 def index_grid(phantom: Phantom, frequency_hz: float, cell_size_m: float = DEFAULT_CELL_SIZE_M,
-               kind: str = "phase") -> tuple[VoxelGrid, np.ndarray]:
-    """(voxel grid, refractive index per cell) with air as NaN: outside the propagation
-    domain. An in-body link never travels through the air around a convex body (a straight
-    segment between two points of it stays inside), and air's index of 1 would let the
-    eikonal front run around the body faster than any tissue path."""
-    grid = voxel_grid(phantom, cell_size_m)
-    return grid, grid.values(organ_indices(phantom, frequency_hz, kind), air=np.nan)
+               delay_kind: str = DEFAULT_DELAY_KIND) -> tuple[VoxelGrid, np.ndarray]:
+    """(voxel grid, refractive index per cell for delays of ``delay_kind``), air NaN
+    (:func:`raytrace.body.indexgrid.index_grid`)."""
+    return _index_grid(phantom, frequency_hz, cell_size_m, check_delay_kind(delay_kind))
 
 
 def sensor_fields(phantom: Phantom, sensors_m: Sequence, frequency_hz: float,
-                  cell_size_m: float = DEFAULT_CELL_SIZE_M, kind: str = "phase",
-                  check: Callable[[], None] | None = None) -> TravelTimeFields:
-    """Travel-time fields of every sensor (cached), stacked for the model-based fix. ``check``
-    (e.g. a request budget's) is called before each field is built and may raise to stop."""
-    grid, n = index_grid(phantom, frequency_hz, cell_size_m, kind)
-    key = grid_fingerprint(n, grid.origin_m, grid.spacing_m)
-    fields = []
-    for i, s in enumerate(np.asarray(sensors_m, float).reshape(-1, 3)):
-        if check is not None:
-            check()
-        try:
-            fields.append(cached_travel_time_field(n, grid.origin_m, grid.spacing_m, s, fingerprint=key))
-        except EstimatorInputError as exc:
-            raise EstimatorInputError(exc.reason, f"sensors[{i}].position_m") from exc
-    return TravelTimeFields(fields)
+                  cell_size_m: float = DEFAULT_CELL_SIZE_M, delay_kind: str = DEFAULT_DELAY_KIND,
+                  check: Callable[[], None] | None = None, *, cache_dir: str | Path | None = None,
+                  workers: int | None = None) -> TravelTimeFields:
+    """Travel-time fields of every sensor for delays of ``delay_kind``, stacked for the
+    model-based fix; cached in memory and, with ``cache_dir``, on disk; misses solved on
+    ``workers`` processes (default: this process's CPUs). ``check`` (e.g. a request budget's) is
+    called before and between the solves and may raise to stop. A sensor outside the grid or the
+    body raises EstimatorInputError naming ``sensors[i].position_m``."""
+    key = grid_key(phantom, frequency_hz, cell_size_m, check_delay_kind(delay_kind))
+
+    def build() -> tuple:
+        grid, n = index_grid(phantom, frequency_hz, cell_size_m, delay_kind)
+        return n, grid.origin_m, grid.spacing_m
+
+    return fields_for_sensors(key, sensors_m, build, cache_dir=cache_dir, workers=workers, check=check)
 
 
 def eikonal_path(fields: TravelTimeFields, sensor: int, start_m: np.ndarray, step_cells: float = 0.25,

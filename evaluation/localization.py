@@ -11,9 +11,12 @@ inversion with shadowing), seeded per sensor from ``seed``; trial t of every sen
 one measurement set, which every requested position method turns into a fix. Delays
 become ranges with the constant velocity c / sqrt(relative_permittivity) for the
 constant-velocity methods; ``joint_velocity`` and ``model_based`` use the delays
-themselves. Errors are 3-D distances |x_hat - x|: mean, RMSE, CEP50 / CEP90 (the 50th / 90th
-percentiles of the 3-D error, i.e. spherical error probable), beside the position CRLB at
-the true position for the same sensors and per-range sigmas.
+themselves, the model-based fix on travel-time fields of the delays' kind (``delay_kind``: by
+default the kind the ranging measures, ``estimators.localization.measured_delay_kind``: group for
+``envelope`` and ``pdoa``, phase for the carrier-phase TOA methods). Errors are 3-D distances
+|x_hat - x|: mean, RMSE, CEP50 / CEP90 (the 50th / 90th percentiles of the 3-D error, i.e.
+spherical error probable), beside the position CRLB at the true position for the same sensors
+and per-range sigmas.
 
 Regenerate the acceptance table of docs/localization.md with
 ``python -m evaluation.localization`` (``--help`` for options).
@@ -25,6 +28,7 @@ import argparse
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,9 +37,11 @@ import raytrace as rt
 from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.localization import (
+    check_delay_kind,
     joint_velocity_crlb,
     joint_velocity_fix,
     linear_fix,
+    measured_delay_kind,
     model_based_fix,
     nonlinear_fix,
     range_crlb,
@@ -100,6 +106,7 @@ class LocalizationEvaluation:
     methods: dict[str, MethodStatistics]
     trace_s: float
     cell_size_m: float | None
+    delay_kind: str | None = None  # of the delays the model-based fix was given (None: no delays)
 
 
 def _position(phantom: Phantom, value: Any, field_name: str) -> tuple[np.ndarray, str]:
@@ -139,9 +146,9 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
                           relative_permittivity: float = DEFAULT_RELATIVE_PERMITTIVITY,
                           cell_size_m: float = DEFAULT_CELL_SIZE_M, rays: int = 100_000, max_interactions: int = 6,
                           waveform: Any = None, pdoa_band: dict | None = None, rss_model: Any = "cm2_deep_tissue",
-                          loss: str = "soft_l1", near_field: bool = True,
-                          budget: Budget | None = None, config: rt.TracerConfig | None = None
-                          ) -> LocalizationEvaluation:
+                          loss: str = "soft_l1", near_field: bool = True, delay_kind: str | None = None,
+                          budget: Budget | None = None, config: rt.TracerConfig | None = None,
+                          field_cache_dir: str | Path | None = None) -> LocalizationEvaluation:
     """Run the pipeline of the module docstring.
 
     capsule: site name or position; sensors: site names and/or positions (>= 4; >= 5 for
@@ -152,13 +159,21 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
     rss_model: CM2 name or a (fitted) model. ``loss``: robust loss of the model-based fix.
     ``near_field``: the tracer's dipole near-field term on direct paths (ChannelSpec.near_field;
     its phase biases carrier-phase TOA at a few wavelengths, a physical effect).
+    ``delay_kind``: ``group`` or ``phase``, the index of the model-based fields (module docstring);
+    None: the kind the ranging measures. Setting the other kind shows what a mismatch costs.
     Raises EstimatorInputError (``capsule``, ``sensors[i]``, ``ranging``, ``methods[i]``,
     ``trials``...) or the tracer's InputError; ``budget`` bounds the trace and is checked
-    between sensors' fields and between trials; ``config`` is the tracer's (threads, batches).
+    between sensors' fields and between trials; ``config`` is the tracer's (threads, batches);
+    ``field_cache_dir`` keeps the travel-time fields on disk (evaluation.fields.sensor_fields).
     """
     if ranging not in RANGING:
         raise EstimatorInputError(f"unknown ranging {ranging!r} ({' | '.join(RANGING)})", "ranging")
     chosen = _methods(methods, ranging)
+    kind = None
+    if ranging == "rss" and delay_kind is not None:
+        raise EstimatorInputError("RSS ranging measures no delay: leave delay_kind out", "delay_kind")
+    if ranging != "rss":
+        kind = measured_delay_kind(ranging) if delay_kind is None else check_delay_kind(delay_kind)
     if isinstance(trials, bool) or not isinstance(trials, (int, np.integer)) or not 1 <= trials <= MAX_TRIALS:
         raise EstimatorInputError(f"must be an integer in [1, {MAX_TRIALS}], got {trials!r}", "trials")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -221,7 +236,8 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
 
     fields = None
     if "model_based" in chosen:
-        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m, check=check)
+        fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m, delay_kind=kind, check=check,
+                               cache_dir=field_cache_dir)
     model = path_loss_model(rss_model) if ranging == "rss" else None
 
     stats = {}
@@ -261,9 +277,10 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
             _, grad = fields.evaluate(x_true)
             bound = travel_time_crlb(grad, sigma_s)
             extra["discretisation_error_s"] = fields.discretisation_error_s
-            # the same fix from the exact first-path delays of the trace: the model's own error
-            # (grid, first arrival vs traced path) without the ranging's multipath and noise
-            first = np.array([prof.first_path_delay_s for prof in result.profiles])
+            # the same fix from the exact first arrivals of the trace (of the fields' kind): the
+            # model's own error (grid, first arrival vs traced path) without the ranging's
+            # multipath and noise
+            first = first_arrivals_s(result.profiles, kind)
             ideal = model_based_fix(fields, first, sigma_s, loss=loss)
             extra["first_path_error_m"] = float(np.linalg.norm(ideal.position_m - x_true))
         else:
@@ -284,7 +301,14 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         frequency_hz=float(frequency_hz), snr_db=snr_db, trials=int(trials), seed=int(seed),
         relative_permittivity=float(relative_permittivity), delays_s=delays, ranges_m=ranges,
         range_sigma_m=sigma, true_distances_m=true_d, methods=stats, trace_s=trace_s,
-        cell_size_m=float(cell_size_m) if fields is not None else None)
+        cell_size_m=float(cell_size_m) if fields is not None else None, delay_kind=kind)
+
+
+def first_arrivals_s(profiles, delay_kind: str) -> np.ndarray:
+    """Per receiver profile the earliest delay of its paths of ``delay_kind`` (``phase``: the
+    paths' ``delay_s``, ``group``: their ``group_delay_s``); NaN where a receiver has no path."""
+    attr = "group_delay_s" if check_delay_kind(delay_kind) == "group" else "delay_s"
+    return np.array([min((getattr(p, attr) for p in prof.paths), default=np.nan) for prof in profiles])
 
 
 # ----------------------------------------------------------------------- acceptance table

@@ -68,7 +68,7 @@ def check_tracer(phantom: Phantom, capsules: Sequence[str], sensors: Sequence[st
     """Eikonal arrival against the fastest traced path for every capsule x sensor site pair
     (module docstring), the index being Re n at ``frequency_hz`` as in the tracer's delays."""
     sens = np.array([phantom.sites[s].position_m for s in sensors])
-    fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m)
+    fields = sensor_fields(phantom, sens, frequency_hz, cell_size_m, delay_kind="phase")  # the paths' delay_s
     grid = voxel_grid(phantom, cell_size_m)
     err = fields.discretisation_error_s
     receivers = [rt.Antenna(p, name=s) for s, p in zip(sensors, sens)]

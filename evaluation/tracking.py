@@ -1,40 +1,55 @@
 """The capsule journey on the default torso, tracked from RF fixes, from video, and from both
 (docs/tracking.md, "Evaluation").
 
-    evaluate_tracking(journey=JourneySpec(...), trackers=("rf", "video", "fused", "fused_pf"), ...)
+    evaluate_tracking(journey=JourneySpec(...), trackers=("rf", "video", "fused", "fused_pf"), runs=1, ...)
         -> TrackingEvaluation
 
 1. **Journey** (:func:`tracking.simulate_journey`) along the torso's ``gi_tract`` centreline.
-2. **RF fixes.** The tract is cut into a grid every ``rf_grid_m`` (5 mm); the grid positions the
-   journey visits are traced by the sweep engine (``sweeps.run_sweep``: every sensor site, TOA GCC
-   at 402 MHz, 30 dB, ``rays`` rays, ``max_interactions``), in one sweep for the positions not yet
-   cached; each position's mean ranges and spreads are kept in memory and, with ``cache_dir``, on
-   disk (one JSON per grid position and settings). At step k, the delays of the nearest grid
-   position, with Gaussian noise of the sweep's spread per sensor, go into the model-based fix
-   (``estimators.localization.model_based_fix`` on the travel-time fields of
-   ``evaluation.fields.sensor_fields``, 4 mm cells) -- the heterogeneity-aware fix of
-   docs/localization.md -- and the fix is moved by the offset from that grid position to the
-   capsule (at most half the grid, against a fix error of ~15 mm). Its covariance is the fix's
-   own plus ``rf_model_sigma_m``^2 per axis: the model-based fix's measured RMS error on this
-   torso (14.3 mm in 3-D over the six capsule sites, docs/localization.md, so 14.3 / sqrt 3 per
-   axis), since the fix's own covariance holds only the receiver noise (hundredths of a mm).
-3. **Visual motion.** ``visual_source="rendered"`` (the CLI's default): the capsule camera's frames
-   rendered along the journey and every consecutive pair through the MI estimator with the
-   fisheye's tilt (:func:`vision.odometry.pair_estimates`, 192 px, cached per pair with
-   ``cache_dir``), declared per mucosa (:data:`RENDERED_DECLARED`) and gated
-   (:data:`RENDERED_GATE`), both measured on the journey of seed 1 (docs/tracking.md).
-   ``visual_source="model"`` (the function's default, what ``/v1/track/evaluate`` runs): the
-   estimator's measured error model (docs/vision.md, Evaluation (b)): advance d (1 + e) with
-   e ~ N(-1 %, 4 %) per pair plus 0.02 mm, roll + N(0, 0.05 deg); declared to the filters as
-   sigma = 5 % |d| + 0.05 mm and 0.1 deg. Either way, pairs straddling a junction of the
-   centreline (where the phantom's separate organs make the position jump: a scene cut for the
-   camera) give no measurement.
-4. **Trackers** (same prior: the journey's start +- 5 mm, at rest +- 3 mm/s): ``rf`` Kalman on RF
-   fixes alone, ``video`` Kalman on visual motion alone (dead reckoning from the prior), ``fused``
-   Kalman on both, ``fused_pf`` the particle filter on both.
+2. **RF fixes.** The tract is cut into a grid every ``rf_grid_m`` (5 mm); the grid positions around
+   the journey's are traced by the sweep engine (every sensor site, TOA GCC at 402 MHz, 30 dB,
+   ``rays`` rays, ``max_interactions`` (6: the first arrivals need 5-7 refractions,
+   docs/localization.md "Delay kinds")), cached per position in memory and with ``cache_dir`` on
+   disk (:func:`evaluation.error_models.rf_links`). At step k the GCC delays are interpolated
+   linearly in s between the two grid positions around the capsule and go through the model-based
+   fix on phase-index fields (GCC measures the carrier-phase delay): the fix's error varies
+   continuously along the tract, as the body's bias does. Each run adds a draw of the delays' noise
+   (linearised: the fix's own receiver-noise covariance). The fix is then **calibrated with the
+   measured RF error model** (:func:`evaluation.error_models.rf_error_model`, measured on the same
+   torso at positions between these grid points): the mean error of the organ it projects into is
+   subtracted, that organ's measured covariance is declared as the fix's correlated bias and the
+   receiver noise as its white part.
+3. **Visual motion.** ``visual_source="rendered"``: the capsule camera's frames rendered along the
+   journey and every consecutive pair through the MI estimator (:func:`vision.odometry.pair_estimates`,
+   192 px, the fisheye's tilt, cached per pair with ``cache_dir``). ``visual_source="model"`` (the
+   default, what ``/v1/track/evaluate`` runs): the **measured visual error model**
+   (:func:`evaluation.error_models.visual_error_model`, frames rendered on this torso along another
+   journey): each pair's advance and roll errors are drawn from the calibration pairs of the same
+   mucosa with the nearest true advances, outliers included. Either way the filters are told the
+   advance corrected for the estimator's measured relative bias and the model's declared sigmas per
+   mucosa, and pairs straddling a junction (a scene cut) give nothing.
+4. **Trackers**, all with the speed range measured on a journey of the same parameters and another
+   seed (:func:`speed_range_m_per_s`: advances outside it are dropped) and the same prior:
+   s ~ N(truth + e0, 5 mm) at rest +- 3 mm/s, where e0 is drawn from that same N(0, 5 mm) (the prior
+   is as good as it says, no better); the video's 0.9999 gate (fold-aliased pairs), gates that
+   cannot starve (tracking.TrackerConfig). The RF fixes' error is mostly the body's bias, correlated
+   along the tract, and each tracker takes it in the way that suits it: ``rf`` alone must follow the
+   capsule with every fix and carries the bias as a smooth Gauss-Markov state with the measured
+   correlation length (``rf_correlation_length_m``, 3.2 mm); the fused trackers know the motion from
+   the video and use a fix only once per measured decorrelation length (``rf_min_spacing_m``, 15 mm),
+   declared white with the organ's measured covariance (fixes closer than that carry little new
+   information, and the bias's shape between them no longer matters).
+   ``rf``: Kalman on RF fixes alone; ``video``: Kalman on visual motion alone (dead reckoning from
+   the prior); ``fused``: Kalman on both; ``fused_pf``: the particle filter on both.
+5. **Runs**: ``runs`` Monte Carlo runs of the same journey, each with its own prior draw, RF noise
+   and (model source) visual errors; the RF traces are shared.
 
-RMSE along the tract (arc length) and in 3-D (the reported point against the capsule) per tracker,
-plus the raw RF fixes' 3-D error and their projections' error along the tract.
+Per tracker: RMSE along the tract (arc length) and in 3-D (the reported point against the capsule),
+pooled over runs and steps; and its consistency (tracking.average_band): the averaged NEES of s
+(chi-square(1)), each run counted as one independent value (a run's error is its prior draw and the
+body's bias along its path, which neither the runs nor the steps average away: the widest band),
+the averaged NIS of the used RF fixes (chi-square(1) for the Kalman filter's projected fix, (3) for
+the particle filter's 3-D fix) and of the used advances (chi-square(1)), each against its two-sided
+95 % band. Plus the raw RF fixes' 3-D error.
 
 ``python -m evaluation.tracking`` prints the table of docs/tracking.md.
 """
@@ -42,9 +57,7 @@ plus the raw RF fixes' 3-D error and their projections' error along the tract.
 from __future__ import annotations
 
 import argparse
-import hashlib
-import json
-import tempfile
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,12 +65,18 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
-from estimators.errors import EstimatorInputError
-from estimators.localization import model_based_fix
-from estimators.localization.traveltime import TravelTimeFields
-from evaluation.fields import DEFAULT_CELL_SIZE_M, sensor_fields
+from evaluation.error_models import (
+    RF_SETTINGS,
+    RfErrorModel,
+    RfFixer,
+    VisualErrorModel,
+    rf_error_model,
+    rf_links,
+    visual_error_model,
+)
+from evaluation.fields import DEFAULT_CELL_SIZE_M
 from tracking import (
+    ConsistencyBand,
     Journey,
     JourneySpec,
     Observation,
@@ -66,106 +85,133 @@ from tracking import (
     TrackerConfig,
     TrackingInputError,
     VisualMotion,
+    average_band,
     kalman_track,
     particle_track,
-    rmse_3d_m,
-    rmse_along_m,
     simulate_journey,
 )
 
 TRACKERS = ("rf", "video", "fused", "fused_pf")
-#: The model-based fix's RMS 3-D error on the default torso (docs/localization.md), per axis [m].
-RF_MODEL_SIGMA_M = 14.3e-3 / np.sqrt(3.0)
-#: The MI estimator's measured advance error on rendered sequences (docs/vision.md (b)).
-VISUAL_BIAS, VISUAL_REL_SIGMA, VISUAL_ABS_SIGMA_M, VISUAL_ROLL_SIGMA_DEG = -0.01, 0.04, 2e-5, 0.05
-#: What the filters are told about the visual measurements.
-DECLARED_REL, DECLARED_ABS_M, DECLARED_ROLL_DEG = 0.05, 5e-5, 0.1
 #: Visual measurements: "rendered" (frames rendered along the journey, MI estimates) or "model"
-#: (the measured error model above).
+#: (the measured error model of rendered frames on this phantom).
 VISUAL_SOURCES = ("rendered", "model")
-#: Rendered frames: what the filters are told, per kind of mucosa (relative, absolute [m], roll
-#: [deg]), measured on rendered journeys of other seeds (docs/tracking.md, "Measurements").
-RENDERED_DECLARED = {"small_intestine": (0.15, 1e-4, 0.5), "colon": (0.06, 3e-5, 0.08),
-                     "stomach": (0.15, 1e-4, 0.5)}
-#: Rendered frames: a pair whose advance is beyond this chi-square(1) quantile of the filter's
-#: prediction is ignored (an outlier: the small bowel's periodic folds aliased, docs/tracking.md).
-RENDERED_GATE = 0.9999
-FREQUENCY_HZ = 402e6
+#: A pair whose advance is beyond this chi-square(1) quantile of the filter's prediction is ignored
+#: (an outlier: the small bowel's periodic folds aliased, docs/tracking.md).
+VISUAL_GATE = 0.9999
+#: The prior of every tracker: its standard deviation in s [m] (and the spread its mean is drawn with).
+PRIOR_SIGMA_M = 5e-3
 #: Most grid positions traced by one evaluation (work bound).
 MAX_RF_POSITIONS = 200
-
-_MEMORY: dict[str, dict] = {}
+#: Most Monte Carlo runs of one evaluation.
+MAX_RUNS = 100
+#: Particles of the fused particle filter in the evaluation.
+PARTICLES = 2000
 
 
 @dataclass(frozen=True)
 class TrackingEvaluation:
     journey: Journey
-    tracks: dict[str, Track]
+    tracks: dict[str, Track]  # the first run's
     rmse_along_m: dict[str, float]
     rmse_3d_m: dict[str, float]
     rf_fix_rmse_3d_m: float
     rf_projection_rmse_along_m: float
     visual_pairs: int
     rf_positions_traced: int
+    consistency: dict[str, dict[str, ConsistencyBand]] = field(default_factory=dict)
+    cep90_3d_m: dict[str, float] = field(default_factory=dict)  # 90th percentile of the 3-D error, pooled
+    runs: int = 1
     settings: dict = field(default_factory=dict)
     elapsed_s: float = 0.0
 
 
-def _settings_key(settings: dict) -> str:
-    return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:16]
+def _rf_fixes(line, truth: Journey, rf_grid_m: float, links: dict, fixer: RfFixer, model: RfErrorModel
+              ) -> list[tuple | None]:
+    """Per step (calibrated position, bias covariance, noise covariance) of the RF fix, or None
+    (module docstring, 2). The delays at the capsule are interpolated linearly in s between the two
+    grid positions around it, so the fix's error varies continuously along the tract, as the body's
+    bias does."""
+    out: list[tuple | None] = [None] * len(truth.s_m)
+    for k, s in enumerate(truth.s_m):
+        lo = min(np.floor(s / rf_grid_m) * rf_grid_m, line.length_m)
+        hi = min(lo + rf_grid_m, line.length_m)
+        a, b = links[round(float(lo), 9)], links[round(float(hi), 9)]
+        f = 0.0 if hi <= lo else float((s - lo) / (hi - lo))
+        rec = {"distance_m": (1 - f) * np.asarray(a["distance_m"], float) + f * np.asarray(b["distance_m"], float),
+               "std_m": (1 - f) * np.asarray(a["std_m"], float) + f * np.asarray(b["std_m"], float)}
+        got = fixer.fix(rec)
+        if got is None:
+            continue
+        organ = line.organ_at(float(line.project(got[0])))
+        p, bias = model.calibrated(organ, got[0])
+        out[k] = (p, bias, got[1])
+    return out
 
 
-def rf_links(phantom, s_grid_m: Sequence[float], *, rays: int, max_interactions: int, trials: int, seed: int,
-             cache_dir: str | Path | None = None, check: Callable[[], None] | None = None) -> list[dict]:
-    """Per grid arc length: ``{"receivers": [...], "distance_m": [...], "std_m": [...]}`` (TOA GCC at
-    eps_r 27.9; NaN where a receiver has no path), from the sweep engine, cached per position.
-    ``check`` is called after every traced position (a budget's deadline, a disconnected client)."""
-    from sweeps import load_spec, run_sweep
+def _noisy(fixes: list[tuple | None], rng: np.random.Generator) -> list[RfFix | None]:
+    """The run's RF fixes: each step's fix plus a draw of its receiver noise (its covariance's
+    Cholesky factor times a standard normal: the linearised effect of the delays' noise)."""
+    out: list[RfFix | None] = []
+    for f in fixes:
+        if f is None:
+            out.append(None)
+            continue
+        p, bias, noise = f
+        noise = 0.5 * (noise + noise.T) + 1e-18 * np.eye(3)
+        out.append(RfFix(p + np.linalg.cholesky(noise) @ rng.standard_normal(3), noise, bias))
+    return out
 
-    settings = {"phantom": phantom.name, "rays": rays, "max_interactions": max_interactions, "trials": trials,
-                "seed": seed, "frequency_hz": FREQUENCY_HZ}
-    key = _settings_key(settings)
-    disk = None if cache_dir is None else Path(cache_dir) / "rf" / key
-    out: dict[float, dict] = {}
-    missing = []
-    for s in s_grid_m:
-        name = f"{key}:{s:.6f}"
-        if name in _MEMORY:
-            out[s] = _MEMORY[name]
-        elif disk is not None and (disk / f"s-{s:.6f}.json").exists():
-            out[s] = _MEMORY[name] = json.loads((disk / f"s-{s:.6f}.json").read_text())
+
+#: Margin on the speeds a journey of another seed reaches, for the trackers' speed range.
+SPEED_MARGIN = 1.5
+
+
+def speed_range_m_per_s(line, spec: JourneySpec) -> tuple[float, float]:
+    """The speeds along the tract the capsule can have, measured on the journey model itself: the
+    lowest and highest per-step speed of a journey with the same parameters and another seed
+    (seed + 1), widened by :data:`SPEED_MARGIN` (for the defaults about -1.3 and 4 mm/s: peristalsis
+    pulls the capsule back at up to 1.2 mm/s). A frame pair matched one fold period off reports
+    -2 to -3 mm in half a second, a speed no journey has."""
+    other = simulate_journey(line, JourneySpec(**{**spec.__dict__, "seed": spec.seed + 1}))
+    v = np.diff(other.s_m) / spec.dt_s
+    return (SPEED_MARGIN * min(float(v.min()), 0.0), SPEED_MARGIN * max(float(v.max()), 0.0))
+
+
+def _visual(truth: Journey, junctions: np.ndarray, model: VisualErrorModel, rng: np.random.Generator,
+            rendered: list | None) -> list[VisualMotion | None]:
+    """Per step the visual motion from the previous one (module docstring, 3), declared by the model."""
+    out: list[VisualMotion | None] = [None] * len(truth.s_m)
+    for k in range(1, len(truth.s_m)):
+        lo, hi = sorted((truth.s_m[k - 1], truth.s_m[k]))
+        if np.any((junctions > lo) & (junctions <= hi)):
+            continue  # a scene cut
+        organ = truth.organ[k]
+        if rendered is not None:
+            p = rendered[k]
+            if p is None or not np.isfinite(p.advance_m):
+                continue
+            d_hat, r_hat = float(p.advance_m), float(p.rotation_deg)
         else:
-            missing.append(s)
-    if missing:
-        spec = load_spec({"phantom": phantom.name, "capsule_positions": [{"s_m": float(s)} for s in missing],
-                          "frequencies_hz": [FREQUENCY_HZ],
-                          "channel": {"rays": rays, "max_interactions": max_interactions},
-                          "ranging": {"toa": {"methods": ["gcc"], "snr_db": 30.0}}, "trials": trials, "seed": seed,
-                          "chunk_positions": 1})  # one position per task (the chunking never changes a number)
-        progress = None if check is None else (lambda _state: check())
-        with tempfile.TemporaryDirectory() as tmp:
-            rows = run_sweep(spec, Path(tmp) / "sweep", phantom=phantom, workers=0,
-                             on_progress=progress).results.to_pylist()
-        for i, s in enumerate(missing):
-            mine = sorted((r for r in rows if r["position_index"] == i), key=lambda r: r["receiver_index"])
-            rec = {"receivers": [r["receiver"] for r in mine],
-                   "distance_m": [np.nan if r["toa_gcc_distance_m"] is None else r["toa_gcc_distance_m"] for r in mine],
-                   "std_m": [np.nan if r["toa_gcc_std_m"] is None else r["toa_gcc_std_m"] for r in mine]}
-            out[s] = _MEMORY[f"{key}:{s:.6f}"] = rec
-            if disk is not None:
-                disk.mkdir(parents=True, exist_ok=True)
-                (disk / f"s-{s:.6f}.json").write_text(json.dumps(rec, allow_nan=True))
-    return [out[s] for s in s_grid_m]
+            d = float(truth.s_m[k] - truth.s_m[k - 1])
+            e, re = model.draw(organ, d, rng)
+            d_hat, r_hat = d + e, float(truth.roll_deg[k] - truth.roll_deg[k - 1]) + re
+        corrected, sigma, roll_sigma = model.declared(organ, d_hat)
+        out[k] = VisualMotion(corrected, sigma, r_hat, roll_sigma)
+    return out
 
 
 def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str] = TRACKERS, *, phantom=None,
-                      rf_grid_m: float = 5e-3, rays: int = 20_000, max_interactions: int = 4, trials: int = 10,
-                      cell_size_m: float = DEFAULT_CELL_SIZE_M, rf_model_sigma_m: float = RF_MODEL_SIGMA_M,
-                      config: TrackerConfig | None = None, cache_dir: str | Path | None = None,
-                      check: Callable[[], None] | None = None, visual_source: str = "model",
-                      odometry=None) -> TrackingEvaluation:
+                      rf_grid_m: float = 5e-3, rays: int = RF_SETTINGS["rays"],
+                      max_interactions: int = RF_SETTINGS["max_interactions"], trials: int = RF_SETTINGS["trials"],
+                      cell_size_m: float = DEFAULT_CELL_SIZE_M, runs: int = 1, config: TrackerConfig | None = None,
+                      cache_dir: str | Path | None = None, check: Callable[[], None] | None = None,
+                      visual_source: str = "model", odometry=None, rf_model: RfErrorModel | None = None,
+                      visual_model: VisualErrorModel | None = None,
+                      field_cache_dir: str | Path | None = None) -> TrackingEvaluation:
     """The pipeline of the module docstring. ``check`` is called between stages (a budget's
-    deadline or cancellation may raise there). Raises TrackingInputError naming the field."""
+    deadline or cancellation may raise there). ``rf_model`` / ``visual_model``: the measured models
+    (default: the phantom's committed ones); a test may hand mis-set ones to see the consistency
+    checks fail. Raises TrackingInputError naming the field."""
     from raytrace.body.torso import default_torso
 
     t0 = time.perf_counter()
@@ -179,135 +225,136 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
     if visual_source not in VISUAL_SOURCES:
         raise TrackingInputError(f"must be one of {', '.join(VISUAL_SOURCES)}, got {visual_source!r}",
                                  "visual_source")
+    if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or not 1 <= runs <= MAX_RUNS:
+        raise TrackingInputError(f"must be an integer in [1, {MAX_RUNS}], got {runs!r}", "runs")
     phantom = phantom or default_torso()
     line = phantom.centrelines["gi_tract"]
     spec = journey or JourneySpec()
     truth = simulate_journey(line, spec)
-    rng = np.random.default_rng(np.random.SeedSequence([spec.seed, 24]))
-
     need_rf = any(t != "video" for t in trackers)
-    fixes: list[RfFix | None] = [None] * spec.steps
-    grid_idx = np.rint(truth.s_m / rf_grid_m).astype(int)
-    grid_s = np.minimum(grid_idx * rf_grid_m, line.length_m)
-    traced = 0
+    need_video = any(t != "rf" for t in trackers)
+    rf_model = rf_model or rf_error_model(phantom.name)
+    if need_video:
+        visual_model = visual_model or visual_error_model(phantom.name)
+    links: dict = {}
+    fixer = None
+    base = None
     if need_rf:
-        unique = sorted(set(grid_s.tolist()))
+        lo = np.minimum(np.floor(truth.s_m / rf_grid_m) * rf_grid_m, line.length_m)
+        hi = np.minimum(lo + rf_grid_m, line.length_m)
+        unique = sorted({round(float(g), 9) for g in np.concatenate([lo, hi])})
         if len(unique) > MAX_RF_POSITIONS:
             raise TrackingInputError(f"the journey visits {len(unique)} RF grid positions, at most "
                                      f"{MAX_RF_POSITIONS}; shorten it or widen rf_grid_m", "journey.steps")
         links = dict(zip(unique, rf_links(phantom, unique, rays=rays, max_interactions=max_interactions,
-                                          trials=trials, seed=spec.seed, cache_dir=cache_dir, check=check)))
-        traced = len(unique)
+                                          trials=trials, seed=RF_SETTINGS["seed"], cache_dir=cache_dir,
+                                          check=check)))
         check()
-        names = links[unique[0]]["receivers"]
-        sensors = np.array([phantom.sites[n].position_m for n in names])
-        all_fields = sensor_fields(phantom, sensors, FREQUENCY_HZ, cell_size_m)
-        subsets: dict[tuple, TravelTimeFields] = {}
-        v = velocity_m_per_s(DEFAULT_RELATIVE_PERMITTIVITY)
-        for k in range(spec.steps):
-            if k % 50 == 0:
-                check()
-            rec = links[float(grid_s[k])]
-            d = np.asarray(rec["distance_m"], float)
-            sd = np.asarray(rec["std_m"], float)
-            ok = np.isfinite(d) & np.isfinite(sd)
-            if ok.sum() < 4:
-                continue
-            key = tuple(np.flatnonzero(ok))
-            if key not in subsets:
-                subsets[key] = TravelTimeFields([all_fields.fields[i] for i in key])
-            noisy = d[ok] + rng.standard_normal(ok.sum()) * sd[ok]
-            try:
-                fix = model_based_fix(subsets[key], noisy / v, np.maximum(sd[ok], 1e-6) / v)
-            except EstimatorInputError:
-                continue
-            offset = truth.position_m[k] - line.point_m(float(grid_s[k]))
-            fixes[k] = RfFix(fix.position_m + offset,
-                             fix.covariance_m2 + rf_model_sigma_m ** 2 * np.eye(3))
+        fixer = RfFixer(phantom, links[unique[0]]["receivers"], cell_size_m, field_cache_dir)
+        base = _rf_fixes(line, truth, rf_grid_m, links, fixer, rf_model)
+    rendered = None
+    if need_video:
+        if visual_source == "rendered":
+            from vision.odometry import OdometrySettings, pair_estimates
 
-    if visual_source == "rendered":
-        visual = rendered_visual(phantom, truth, odometry, cache_dir, check)
-    else:
-        visual = model_visual(truth, np.asarray(line.junctions_s_m), rng)
+            rendered = pair_estimates(phantom, truth.s_m, truth.roll_deg, odometry or OdometrySettings(),
+                                      cache_dir=cache_dir, check=check)
     check()
 
-    cfg = config or TrackerConfig(initial_s_m=float(truth.s_m[0]), initial_s_sigma_m=5e-3,
-                                  visual_gate_probability=RENDERED_GATE if visual_source == "rendered" else None)
+    junctions = np.asarray(line.junctions_s_m)
+    speeds = speed_range_m_per_s(line, spec)
     uses = {"rf": (True, False), "video": (False, True), "fused": (True, True), "fused_pf": (True, True)}
+    errors = {n: {"along": [], "3d": []} for n in trackers}
+    series = {n: {"nees": [], "nis_rf": [], "nis_visual": []} for n in trackers}
+    dof_rf = {}
     tracks: dict[str, Track] = {}
+    fix_err, proj_err, pairs = [], [], 0
+    for run in range(runs):
+        rng = np.random.default_rng(np.random.SeedSequence([spec.seed, 24, run]))
+        fixes = _noisy(base, rng) if need_rf else [None] * spec.steps
+        visual = (_visual(truth, junctions, visual_model, rng, rendered) if need_video
+                  else [None] * spec.steps)
+        s0 = float(np.clip(truth.s_m[0] + PRIOR_SIGMA_M * rng.standard_normal(), 0.0, line.length_m))
+        cfg = config or TrackerConfig(initial_s_m=s0, initial_s_sigma_m=PRIOR_SIGMA_M, speed_range_m_per_s=speeds,
+                                      visual_gate_probability=VISUAL_GATE, particles=PARTICLES,
+                                      seed=int(rng.integers(2**31)))
+        for name in trackers:
+            use_rf, use_vis = uses[name]
+            if config is None and use_rf:  # how each tracker takes the RF bias (module docstring, 4)
+                cfg = (dataclasses.replace(cfg, rf_correlation_length_m=rf_model.correlation_length_m,
+                                           rf_min_spacing_m=0.0) if name == "rf" else
+                       dataclasses.replace(cfg, rf_correlation_length_m=None,
+                                           rf_min_spacing_m=rf_model.decorrelation_m))
+            obs = [Observation(float(truth.t_s[k]), fixes[k] if use_rf else None, visual[k] if use_vis else None)
+                   for k in range(spec.steps)]
+            track = (particle_track if name == "fused_pf" else kalman_track)(line, obs, cfg, name=name)
+            if run == 0:
+                tracks[name] = track
+            errors[name]["along"].append(track.s_m - truth.s_m)
+            errors[name]["3d"].append(np.linalg.norm(track.position_m - truth.position_m, axis=1))
+            var = track.extra["state_covariance"][:, 0, 0]
+            series[name]["nees"].append((track.s_m - truth.s_m) ** 2 / np.maximum(var, 1e-30))
+            series[name]["nis_rf"].append(track.extra["nis_rf"])
+            series[name]["nis_visual"].append(track.extra["nis_visual"])
+            dof_rf[name] = track.extra["nis_rf_dof"]
+            check()
+        have = [f is not None for f in fixes]
+        if any(have):
+            p = np.array([f.position_m for f in fixes if f is not None])
+            fix_err.append(np.linalg.norm(p - truth.position_m[have], axis=1))
+            proj_err.append(np.asarray(line.project(p)) - truth.s_m[have])
+        pairs = sum(v is not None for v in visual)
+
+    def rms(chunks) -> float:
+        return float(np.sqrt(np.mean(np.concatenate(chunks) ** 2))) if chunks else float("nan")
+
+    consistency = {}
     for name in trackers:
         use_rf, use_vis = uses[name]
-        obs = [Observation(float(truth.t_s[k]), fixes[k] if use_rf else None, visual[k] if use_vis else None)
-               for k in range(spec.steps)]
-        tracker = particle_track if name == "fused_pf" else kalman_track
-        tracks[name] = tracker(line, obs, cfg, name=name)
-        check()
-    have = np.array([f is not None for f in fixes])
-    if have.any():
-        p = np.array([f.position_m for f in fixes if f is not None])
-        fix_rmse = float(np.sqrt(np.mean(np.sum((p - truth.position_m[have]) ** 2, axis=1))))
-        proj_rmse = float(np.sqrt(np.mean((np.asarray(line.project(p)) - truth.s_m[have]) ** 2)))
-    else:
-        fix_rmse = proj_rmse = float("nan")
+        entry = {"nees": average_band(series[name]["nees"], 1, correlated="runs")}
+        if use_rf:
+            entry["nis_rf"] = average_band(series[name]["nis_rf"], dof_rf[name], correlated=False)
+        if use_vis:
+            entry["nis_visual"] = average_band(series[name]["nis_visual"], 1, correlated=False)
+        consistency[name] = entry
     return TrackingEvaluation(
         journey=truth, tracks=tracks,
-        rmse_along_m={n: rmse_along_m(t, truth.s_m) for n, t in tracks.items()},
-        rmse_3d_m={n: rmse_3d_m(t, truth.position_m) for n, t in tracks.items()},
-        rf_fix_rmse_3d_m=fix_rmse, rf_projection_rmse_along_m=proj_rmse,
-        visual_pairs=sum(v is not None for v in visual), rf_positions_traced=traced,
+        rmse_along_m={n: rms(errors[n]["along"]) for n in trackers},
+        rmse_3d_m={n: rms(errors[n]["3d"]) for n in trackers},
+        cep90_3d_m={n: float(np.percentile(np.concatenate(errors[n]["3d"]), 90)) for n in trackers},
+        rf_fix_rmse_3d_m=rms(fix_err), rf_projection_rmse_along_m=rms(proj_err),
+        visual_pairs=pairs, rf_positions_traced=len(links), consistency=consistency, runs=int(runs),
         settings={"rf_grid_m": rf_grid_m, "rays": rays, "max_interactions": max_interactions, "trials": trials,
-                  "cell_size_m": cell_size_m, "rf_model_sigma_m": rf_model_sigma_m, "rf_fixes": int(have.sum()),
-                  "visual": "measured error model (docs/vision.md)" if visual_source == "model" else
-                  "rendered frames, MI estimates"},
+                  "cell_size_m": cell_size_m, "rf_correlation_length_m": rf_model.correlation_length_m,
+                  "rf_min_spacing_m": rf_model.decorrelation_m,
+                  "speed_range_m_per_s": speeds,
+                  "rf_fixes_per_run": int(sum(len(e) for e in fix_err) / max(len(fix_err), 1)),
+                  "visual": "measured error model of rendered frames (evaluation.error_models)"
+                  if visual_source == "model" else "rendered frames, MI estimates"},
         elapsed_s=time.perf_counter() - t0)
 
 
-def model_visual(truth: Journey, junctions: np.ndarray, rng: np.random.Generator) -> list[VisualMotion | None]:
-    """Visual motion drawn from the MI estimator's measured error model (module doc, 3)."""
-    visual: list[VisualMotion | None] = [None] * len(truth.s_m)
-    for k in range(1, len(truth.s_m)):
-        lo, hi = sorted((truth.s_m[k - 1], truth.s_m[k]))
-        if np.any((junctions > lo) & (junctions <= hi)):
-            continue  # a scene cut
-        d = truth.s_m[k] - truth.s_m[k - 1]
-        d_hat = d * (1.0 + VISUAL_BIAS + VISUAL_REL_SIGMA * rng.standard_normal()) \
-            + VISUAL_ABS_SIGMA_M * rng.standard_normal()
-        r_hat = truth.roll_deg[k] - truth.roll_deg[k - 1] + VISUAL_ROLL_SIGMA_DEG * rng.standard_normal()
-        visual[k] = VisualMotion(float(d_hat), DECLARED_REL * abs(float(d_hat)) + DECLARED_ABS_M,
-                                 float(r_hat), DECLARED_ROLL_DEG)
-    return visual
-
-
-def rendered_visual(phantom, truth: Journey, odometry=None, cache_dir: str | Path | None = None,
-                    check: Callable[[], None] | None = None) -> list[VisualMotion | None]:
-    """Visual motion from frames rendered along the journey and the MI estimator
-    (:func:`vision.odometry.pair_estimates`); declared sigmas per kind of mucosa
-    (:data:`RENDERED_DECLARED`); a pair without an advance (scale outside what advances give) or at
-    a scene cut gives none."""
-    from vision.odometry import OdometrySettings, pair_estimates
-
-    pairs = pair_estimates(phantom, truth.s_m, truth.roll_deg, odometry or OdometrySettings(),
-                           cache_dir=cache_dir, check=check)
-    out: list[VisualMotion | None] = [None] * len(pairs)
-    for k, p in enumerate(pairs):
-        if p is None or not np.isfinite(p.advance_m):
-            continue
-        kind = "colon" if "colon" in p.organ else p.organ
-        rel, abs_m, roll_sd = RENDERED_DECLARED.get(kind, RENDERED_DECLARED["small_intestine"])
-        out[k] = VisualMotion(float(p.advance_m), rel * abs(float(p.advance_m)) + abs_m, float(p.rotation_deg),
-                              roll_sd)
-    return out
+LABELS = {"rf": "RF only (Kalman)", "video": "video only (Kalman)", "fused": "RF + video (Kalman)",
+          "fused_pf": "RF + video (particle filter)"}
 
 
 def markdown_table(ev: TrackingEvaluation) -> str:
+    """RMSE along the tract and in 3-D per tracker, and its averaged NEES / NIS against their 95 % bands."""
     mm = 1e3
-    labels = {"rf": "RF only (Kalman)", "video": "video only (Kalman)", "fused": "RF + video (Kalman)",
-              "fused_pf": "RF + video (particle filter)"}
-    out = ["| tracker | RMSE along the tract [mm] | RMSE in 3-D [mm] |", "|---|---|---|"]
-    for name in ev.tracks:
-        out.append(f"| {labels[name]} | {ev.rmse_along_m[name] * mm:.1f} | {ev.rmse_3d_m[name] * mm:.1f} |")
-    out.append(f"| raw RF fixes (model-based), projected | {ev.rf_projection_rmse_along_m * mm:.1f} | "
-               f"{ev.rf_fix_rmse_3d_m * mm:.1f} |")
+
+    def band(b: ConsistencyBand | None) -> str:
+        if b is None or not b.samples:
+            return ""
+        return f"{b.average:.2f} [{b.lower:.2f}, {b.upper:.2f}]{'' if b.inside else ' **out**'}"
+
+    out = ["| tracker | RMSE along the tract [mm] | RMSE in 3-D [mm] | NEES of s [95 % band] | NIS of RF fixes "
+           "[band] | NIS of advances [band] |", "|---|---|---|---|---|---|"]
+    for name in ev.rmse_3d_m:
+        c = ev.consistency.get(name, {})
+        out.append(f"| {LABELS[name]} | {ev.rmse_along_m[name] * mm:.1f} | {ev.rmse_3d_m[name] * mm:.1f} | "
+                   f"{band(c.get('nees'))} | {band(c.get('nis_rf'))} | {band(c.get('nis_visual'))} |")
+    out.append(f"| raw RF fixes (model-based, calibrated), projected | {ev.rf_projection_rmse_along_m * mm:.1f} | "
+               f"{ev.rf_fix_rmse_3d_m * mm:.1f} | | | |")
     return "\n".join(out)
 
 
@@ -316,19 +363,21 @@ def main(argv: Sequence[str] | None = None) -> None:
                                              "video and both.")
     ap.add_argument("--steps", type=int, default=400)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--rays", type=int, default=20_000)
+    ap.add_argument("--runs", type=int, default=20, help="Monte Carlo runs (prior draw, RF noise, visual errors)")
+    ap.add_argument("--rays", type=int, default=RF_SETTINGS["rays"])
     ap.add_argument("--cache-dir", default=None, help="keep the traced RF positions (and the rendered frame pairs' "
                                                       "estimates) here between runs")
     ap.add_argument("--visual", choices=VISUAL_SOURCES, default="rendered",
-                    help="visual motion from frames rendered along the journey (default) or the error model")
+                    help="visual motion from frames rendered along the journey (default) or the measured error model")
     args = ap.parse_args(argv)
     ev = evaluate_tracking(JourneySpec(steps=args.steps, seed=args.seed), rays=args.rays, cache_dir=args.cache_dir,
-                           visual_source=args.visual)
+                           visual_source=args.visual, runs=args.runs)
     print(markdown_table(ev))
     j = ev.journey
-    print(f"\njourney: {args.steps} steps of {j.spec.dt_s} s, s {j.s_m.min():.3f}..{j.s_m.max():.3f} m through "
-          f"{', '.join(dict.fromkeys(j.organ))}; {ev.rf_positions_traced} RF grid positions traced, "
-          f"{ev.settings['rf_fixes']} fixes, {ev.visual_pairs} visual pairs; {ev.elapsed_s:.0f} s")
+    print(f"\njourney: {args.steps} steps of {j.spec.dt_s} s, seed {args.seed}, s {j.s_m.min():.3f}..{j.s_m.max():.3f} "
+          f"m through {', '.join(dict.fromkeys(j.organ))}; {ev.rf_positions_traced} RF grid positions, "
+          f"{ev.settings['rf_fixes_per_run']} fixes and {ev.visual_pairs} visual pairs per run, {ev.runs} runs, "
+          f"visual: {args.visual}; {ev.elapsed_s:.0f} s")
 
 
 if __name__ == "__main__":

@@ -44,7 +44,8 @@ class LocalizationInputs:
     ``ranges_m`` is the ranging method's mean distance per receiver (NaN where it has none),
     ``path_loss_db`` the traced path loss, ``sigma_m`` the method's spread over trials;
     ``receivers_m`` the receiver positions. ``centreline`` (or None) lets a localizer
-    constrain its estimate to the tract."""
+    constrain its estimate to the tract; ``phantom`` (or None) is the traced phantom (the
+    model-based localizer builds its travel-time fields through it)."""
 
     frequency_hz: float
     receivers_m: np.ndarray
@@ -54,6 +55,7 @@ class LocalizationInputs:
     relative_permittivity: float
     centreline: Any = None
     extra: dict = field(default_factory=dict)
+    phantom: Any = None
 
 
 @dataclass(frozen=True)

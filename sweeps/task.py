@@ -239,14 +239,32 @@ def _run_task(job: TaskInput) -> TaskOutput:
                 n_rows += 1
                 per_link.append(row)
             if spec["localization"]:
-                for lrow in localize(spec, per_link, rx_m, pos, s_m, f, line):
+                traced = phantom if channel.homogeneous is None else _homogeneous(phantom, channel.homogeneous)
+                for lrow in localize(spec, per_link, rx_m, pos, s_m, f, line, traced):
                     _append(loc_rows, {"position_index": pi, "capsule": plan["labels"][k], **lrow}, n_loc)
                     n_loc += 1
     return TaskOutput(job.task, rows, loc_rows, failures, time.monotonic() - started, f"pid {os.getpid()}")
 
 
+def _homogeneous(phantom: Phantom, material) -> Phantom:
+    """The phantom as the tracer saw it under a ``homogeneous`` override: every organ of ``material``
+    (the model-based localizer builds its travel-time fields through it)."""
+    import dataclasses
+
+    key = (id(phantom), material)
+    hit = _HOMOGENEOUS.get("last")
+    if hit is None or hit[0] != key or hit[1] is not phantom:
+        organs = tuple(dataclasses.replace(o, material=material) for o in phantom.organs)
+        hit = (key, phantom, dataclasses.replace(phantom, organs=organs))
+        _HOMOGENEOUS["last"] = hit
+    return hit[2]
+
+
+_HOMOGENEOUS: dict = {}
+
+
 def localize(spec: SweepSpec, links: list[dict], receivers_m: np.ndarray, truth_m: np.ndarray, s_m,
-             frequency_hz: float, line) -> list[dict]:
+             frequency_hz: float, line, phantom: Phantom | None = None) -> list[dict]:
     """One row per localization method of ``spec`` for one (position, frequency) (:mod:`sweeps.localization`)."""
     out = []
     for entry in spec["localization"]["methods"]:
@@ -259,7 +277,7 @@ def localize(spec: SweepSpec, links: list[dict], receivers_m: np.ndarray, truth_
                           else r[f"{source}_std_m"] for r in links], float)
         pl = np.array([np.nan if r["path_gain_db"] is None else -r["path_gain_db"] for r in links], float)
         inputs = loc.LocalizationInputs(frequency_hz, receivers_m, ranges, sigma, pl,
-                                        spec["ranging"]["relative_permittivity"], line)
+                                        spec["ranging"]["relative_permittivity"], line, phantom=phantom)
         row: dict[str, Any] = {"frequency_hz": frequency_hz, "method": name, "true_x_m": float(truth_m[0]),
                                "true_y_m": float(truth_m[1]), "true_z_m": float(truth_m[2]), "s_m": s_m,
                                "receivers_used": int(np.isfinite(ranges).sum() if source else np.isfinite(pl).sum())}

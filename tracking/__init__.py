@@ -8,9 +8,9 @@ from .errors import TrackingInputError
 from .journey import Journey, JourneySpec, simulate_journey
 from .kalman import kalman_track
 from .measurements import Observation, RfFix, Track, TrackerConfig, VisualMotion
-from .metrics import nees, rmse_3d_m, rmse_along_m
+from .metrics import ConsistencyBand, average_band, integrated_autocorrelation, nees, rmse_3d_m, rmse_along_m
 from .particle import particle_track
 
-__all__ = ["Journey", "JourneySpec", "Observation", "RfFix", "Track", "TrackerConfig", "TrackingInputError",
-           "VisualMotion", "kalman_track", "nees", "particle_track", "rmse_3d_m", "rmse_along_m",
-           "simulate_journey"]
+__all__ = ["ConsistencyBand", "Journey", "JourneySpec", "Observation", "RfFix", "Track", "TrackerConfig",
+           "TrackingInputError", "VisualMotion", "average_band", "integrated_autocorrelation", "kalman_track", "nees",
+           "particle_track", "rmse_3d_m", "rmse_along_m", "simulate_journey"]

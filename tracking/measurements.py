@@ -34,27 +34,41 @@ def _finite(value: Any, where: str, *, positive: bool = False) -> float:
     return float(value)
 
 
+def _covariance(value, where: str, *, definite: bool) -> np.ndarray:
+    c = np.asarray(value, dtype=float)
+    if c.shape != (3, 3) or not np.isfinite(c).all():
+        raise TrackingInputError("must be a 3 x 3 matrix of finite numbers [m^2]", where)
+    if not np.allclose(c, c.T, rtol=1e-9, atol=1e-18):
+        raise TrackingInputError("must be symmetric", where)
+    sym = 0.5 * c + 0.5 * c.T  # halves first: c + c.T overflows for entries near 1e308
+    eig = np.linalg.eigvalsh(sym)
+    low = eig.min() if np.isfinite(eig).all() else -1.0  # NaN eigenvalues (entries near 1e308) fail too
+    if (low <= 0) if definite else (low < -1e-12 * max(float(np.abs(eig).max()), 1e-300)):
+        raise TrackingInputError("must be positive definite" if definite else "must be positive semi-definite",
+                                 where)
+    return sym
+
+
 @dataclass(frozen=True)
 class RfFix:
-    """A 3-D position fix [m] and its 3 x 3 covariance [m^2] (symmetric positive definite)."""
+    """A 3-D position fix [m] and its 3 x 3 covariance [m^2] (symmetric positive definite): the
+    fix's white error. Optionally ``bias_covariance_m2``: the stationary covariance of the part of
+    its error that the fixes nearby share (the body's bias where the capsule is; measured per organ by
+    evaluation.error_models), which the filters model as correlated along the tract when
+    ``TrackerConfig.rf_correlation_length_m`` is set, and add to the white part when it is not."""
 
     position_m: np.ndarray
     covariance_m2: np.ndarray
+    bias_covariance_m2: np.ndarray | None = None
 
     def checked(self, where: str) -> "RfFix":
         p = np.asarray(self.position_m, dtype=float)
-        c = np.asarray(self.covariance_m2, dtype=float)
         if p.shape != (3,) or not np.isfinite(p).all():
             raise TrackingInputError("must be three finite coordinates [m]", f"{where}.position_m")
-        if c.shape != (3, 3) or not np.isfinite(c).all():
-            raise TrackingInputError("must be a 3 x 3 matrix of finite numbers [m^2]", f"{where}.covariance_m2")
-        if not np.allclose(c, c.T, rtol=1e-9, atol=1e-18):
-            raise TrackingInputError("must be symmetric", f"{where}.covariance_m2")
-        sym = 0.5 * c + 0.5 * c.T  # halves first: c + c.T overflows for entries near 1e308
-        eig = np.linalg.eigvalsh(sym)
-        if not (np.isfinite(eig).all() and eig.min() > 0):  # NaN eigenvalues (entries near 1e308) fail too
-            raise TrackingInputError("must be positive definite", f"{where}.covariance_m2")
-        return RfFix(p, sym)
+        c = _covariance(self.covariance_m2, f"{where}.covariance_m2", definite=True)
+        b = None if self.bias_covariance_m2 is None else _covariance(
+            self.bias_covariance_m2, f"{where}.bias_covariance_m2", definite=False)
+        return RfFix(p, c, b)
 
 
 @dataclass(frozen=True)
@@ -128,7 +142,24 @@ class TrackerConfig:
     never; a frame pair can be an outlier, e.g. a periodic fold texture aliased by one period,
     docs/tracking.md). ``lateral_sigma_m``: added isotropically
     to every fix's covariance in the particle filter's 3-D likelihood (the capsule's offset from the
-    centreline inside the lumen)."""
+    centreline inside the lumen).
+
+    ``rf_correlation_length_m``: the length along the tract over which the fixes' bias decorrelates
+    (the bias part of :class:`RfFix`): the filters carry it as a state, a Gauss-Markov process in
+    the distance travelled (tracking.kalman, tracking.particle). None: every fix's error is white.
+    A fix's error is mostly the body's bias at that position (heterogeneity, multipath), which the
+    fixes of the next millimetres share; as independent measurements they would be counted many
+    times over (a stopped capsule's repeated fixes would pull the filter to the bias).
+    ``rf_min_spacing_m``: a fix is used only once the estimate, or the fix's own projection onto the
+    line, has moved at least this far along the tract from the last used one (0: every fix). The
+    bias model is first-order; the body's bias is smoother than that between positions a few
+    millimetres apart, and fixes that close carry little new information anyway.
+    ``speed_range_m_per_s``: (lowest, highest) speed along the tract the capsule can have; a visual
+    advance outside [lowest dt, highest dt] is not a motion the capsule can make (a frame pair matched
+    a fold period off, docs/tracking.md) and both filters drop it, whatever their prediction says.
+    None: no such bound. ``max_consecutive_gated``: after this many consecutive fixes (or visual
+    advances) refused by a gate, the next one is used with the state's variance widened to explain its innovation (the
+    gate cannot starve a filter that has lost the capsule)."""
 
     accel_psd_m2_per_s3: float = 4e-6
     roll_psd_deg2_per_s: float = 20.0
@@ -140,6 +171,10 @@ class TrackerConfig:
     gate_probability: float | None = 0.9999
     visual_gate_probability: float | None = None
     lateral_sigma_m: float = 0.0
+    rf_correlation_length_m: float | None = None
+    rf_min_spacing_m: float = 0.0
+    speed_range_m_per_s: tuple[float, float] | None = None
+    max_consecutive_gated: int = 5
     particles: int = 2000
     resample_fraction: float = 0.5
     seed: int = 0
@@ -158,6 +193,25 @@ class TrackerConfig:
                     raise TrackingInputError(f"must be in (0.5, 1), got {g!r}", f"config.{name}")
         if _finite(self.lateral_sigma_m, "config.lateral_sigma_m") < 0:
             raise TrackingInputError("must be >= 0", "config.lateral_sigma_m")
+        if self.rf_correlation_length_m is not None \
+                and not 1e-4 <= _finite(self.rf_correlation_length_m, "config.rf_correlation_length_m") <= 10.0:
+            raise TrackingInputError("must be in [1e-4, 10] m", "config.rf_correlation_length_m")
+        if not 0.0 <= _finite(self.rf_min_spacing_m, "config.rf_min_spacing_m") <= 1.0:
+            raise TrackingInputError("must be in [0, 1] m", "config.rf_min_spacing_m")
+        if self.speed_range_m_per_s is not None:
+            try:
+                lo, hi = (float(v) for v in self.speed_range_m_per_s)
+            except (TypeError, ValueError):
+                raise TrackingInputError("must be two numbers [m/s]", "config.speed_range_m_per_s") from None
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi and lo <= 0.0 <= hi <= 1.0 and lo >= -1.0):
+                raise TrackingInputError("must be [lowest <= 0, highest >= 0] within [-1, 1] m/s",
+                                         "config.speed_range_m_per_s")
+            object.__setattr__(self, "speed_range_m_per_s", (lo, hi))
+        if isinstance(self.max_consecutive_gated, bool) or not isinstance(self.max_consecutive_gated,
+                                                                          (int, np.integer)) \
+                or not 1 <= self.max_consecutive_gated <= 10_000:
+            raise TrackingInputError(f"must be an integer in [1, 10000], got {self.max_consecutive_gated!r}",
+                                     "config.max_consecutive_gated")
         if isinstance(self.particles, bool) or not isinstance(self.particles, (int, np.integer)) \
                 or not 10 <= self.particles <= 200_000:
             raise TrackingInputError(f"must be an integer in [10, 200000], got {self.particles!r}", "config.particles")
@@ -176,7 +230,10 @@ class Track:
     (n, 3, 3): the 3-D point and its covariance (Kalman: the centreline point at s with
     var(s) t t^T, t the tangent; particle: the particles' points' weighted mean and covariance);
     ``rf_used``: whether the step's RF fix was used (False when absent or gated out);
-    ``extra``: tracker-specific arrays (the particle filter's ``ess`` per step)."""
+    ``extra``: per step ``state_covariance`` (n, 3, 3) of (s, v, roll), ``nis_rf`` and
+    ``nis_visual`` (the normalised innovation squared of the RF fix and of the visual advance used
+    at that step, NaN where none; chi-square with ``nis_rf_dof`` and 1 degrees of freedom for a
+    consistent filter), and tracker-specific arrays (the particle filter's ``ess``)."""
 
     tracker: str
     t_s: np.ndarray

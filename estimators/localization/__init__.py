@@ -7,6 +7,7 @@ no service.
     joint_velocity_fix(sensors_m, delays_s, sigma_s=None)            position + effective velocity (>= 5)
     rss_fix(sensors_m, path_loss_db, model="cm2_deep_tissue")        path-loss inversion + multilateration
     model_based_fix(fields, delays_s, sigma_s=None)                  travel-time fields (heterogeneity-aware)
+        (fields built with the index of the delays' kind: DELAY_KINDS, measured_delay_kind(ranging))
         -> PositionResult(position_m, covariance_m2, residuals_m, iterations, converged, bound, ...)
 
     travel_time_field / cached_travel_time_field(index, origin_m, spacing_m, sensor_position_m)
@@ -18,6 +19,7 @@ Errors: EstimatorInputError naming the field (``sensors``, ``ranges_m``, ``sigma
 """
 
 from .bounds import joint_velocity_crlb, range_crlb, rss_position_crlb, travel_time_crlb
+from .delays import DEFAULT_DELAY_KIND, DELAY_KINDS, check_delay_kind, measured_delay_kind
 from .model_based import model_based_fix
 from .multilateration import joint_velocity_fix, linear_fix, nonlinear_fix
 from .pathloss import fit_path_loss_model, path_loss_model, rss_fix
@@ -31,8 +33,8 @@ from .traveltime import (
 )
 
 __all__ = [
-    "PositionBound", "PositionResult", "TravelTimeField", "TravelTimeFields", "cached_travel_time_field",
-    "clear_cache", "fit_path_loss_model", "joint_velocity_crlb", "joint_velocity_fix", "linear_fix",
-    "model_based_fix", "nonlinear_fix", "path_loss_model", "range_crlb", "rss_fix", "rss_position_crlb",
-    "travel_time_crlb", "travel_time_field",
+    "DEFAULT_DELAY_KIND", "DELAY_KINDS", "PositionBound", "PositionResult", "TravelTimeField", "TravelTimeFields",
+    "cached_travel_time_field", "check_delay_kind", "clear_cache", "fit_path_loss_model", "joint_velocity_crlb",
+    "joint_velocity_fix", "linear_fix", "measured_delay_kind", "model_based_fix", "nonlinear_fix", "path_loss_model",
+    "range_crlb", "rss_fix", "rss_position_crlb", "travel_time_crlb", "travel_time_field",
 ]

@@ -55,6 +55,8 @@ MAX_CELLS = 64_000_000
 SOURCE_RADIUS_CELLS = 1.5
 #: In-process cache of fields: bytes of time arrays kept at most (least recently used evicted).
 CACHE_MAX_BYTES = 768 * 2**20
+#: Stacked fields of recent sensor sets kept for repeated fixes (besides the fields themselves) [bytes].
+STACKS_MAX_BYTES = 256 * 2**20
 
 _DIRECTIONS = 256
 _LINE_SAMPLES = 64
@@ -129,10 +131,11 @@ def travel_time_field(index: Any, origin_m: Any, spacing_m: float, sensor_positi
     (:func:`cached_travel_time_field` caches). Raises EstimatorInputError for a bad grid,
     a sensor outside it or outside the propagation domain, ``order`` not 1 or 2."""
     n, origin, h = check_index_grid(index, origin_m, spacing_m)
-    return _solve(n, origin, h, _sensor(sensor_position_m, origin, h, n.shape), order, source_radius_cells)
+    return solve(n, origin, h, check_sensor(sensor_position_m, origin, h, n.shape), order, source_radius_cells)
 
 
-def _sensor(value, origin, h, shape, field: str = "sensor_position_m") -> np.ndarray:
+def check_sensor(value, origin, h, shape, field: str = "sensor_position_m") -> np.ndarray:
+    """A sensor position (3,) inside the grid of ``origin``, ``h``, ``shape``; else EstimatorInputError."""
     try:
         s = np.asarray(value, dtype=float).reshape(3)
     except (TypeError, ValueError):
@@ -146,8 +149,9 @@ def _sensor(value, origin, h, shape, field: str = "sensor_position_m") -> np.nda
     return s
 
 
-def _solve(n: np.ndarray, origin: np.ndarray, h: float, s: np.ndarray, order: int,
-           source_radius_cells: float) -> TravelTimeField:
+def solve(n: np.ndarray, origin: np.ndarray, h: float, s: np.ndarray, order: int,
+          source_radius_cells: float) -> TravelTimeField:
+    """The field of sensor ``s`` on a checked grid (:func:`check_index_grid`, :func:`check_sensor`)."""
     if order not in (1, 2):
         raise EstimatorInputError(f"must be 1 or 2, got {order!r}", "order")
     radius_cells = finite_float(source_radius_cells, "source_radius_cells", positive=True)
@@ -241,36 +245,72 @@ def grid_fingerprint(index: np.ndarray, origin: np.ndarray, spacing_m: float) ->
 def cached_travel_time_field(index: Any, origin_m: Any, spacing_m: float, sensor_position_m: Any, *,
                              order: int = 2, source_radius_cells: float = SOURCE_RADIUS_CELLS,
                              fingerprint: str | None = None) -> TravelTimeField:
-    """:func:`travel_time_field` through an in-process LRU cache keyed by the grid's content
+    """:func:`travel_time_field` through the in-process LRU cache keyed by the grid's content
     (``fingerprint``, computed when not given: a caller that already knows what the grid is --
     phantom, frequency, cell size -- can pass its own key), the sensor position, the order and
-    the source radius. Bounded by :data:`CACHE_MAX_BYTES`; thread-safe."""
-    global _cache_bytes
+    the source radius. Bounded by :data:`CACHE_MAX_BYTES`; thread-safe. Many sensors, in
+    parallel and with a disk cache: :func:`estimators.localization.fieldstore.fields_for_sensors`."""
     n, origin, h = check_index_grid(index, origin_m, spacing_m)
-    s = _sensor(sensor_position_m, origin, h, n.shape)
-    key = (fingerprint or grid_fingerprint(n, origin, h), tuple(np.round(s, 12)), int(order),
-           float(source_radius_cells))
+    s = check_sensor(sensor_position_m, origin, h, n.shape)
+    key = repr((fingerprint or grid_fingerprint(n, origin, h), tuple(np.round(s, 12)), int(order),
+                float(source_radius_cells)))
+    hit = memory_get(key)
+    if hit is None:
+        hit = solve(n, origin, h, s, order, source_radius_cells)
+        memory_put(key, hit)
+    return hit
+
+
+def memory_get(key: str) -> TravelTimeField | None:
+    """The in-process cache's field under ``key`` (refreshed as most recently used), or None."""
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None:
             _cache.move_to_end(key)
-            return hit
-    field = _solve(n, origin, h, s, order, source_radius_cells)
+        return hit
+
+
+def memory_put(key: str, field: TravelTimeField) -> None:
+    """Keep ``field`` under ``key``; the least recently used go beyond :data:`CACHE_MAX_BYTES`."""
+    global _cache_bytes
     size = field.time_s.nbytes + field.domain.nbytes
     with _cache_lock:
-        if key not in _cache:
-            _cache[key] = field
-            _cache_bytes += size
-            while _cache_bytes > CACHE_MAX_BYTES and len(_cache) > 1:
-                _, old = _cache.popitem(last=False)
-                _cache_bytes -= old.time_s.nbytes + old.domain.nbytes
-    return field
+        if key in _cache:
+            return
+        _cache[key] = field
+        _cache_bytes += size
+        while _cache_bytes > CACHE_MAX_BYTES and len(_cache) > 1:
+            _, old = _cache.popitem(last=False)
+            _cache_bytes -= old.time_s.nbytes + old.domain.nbytes
+
+
+_stacks: OrderedDict = OrderedDict()
+
+
+def stack_get(keys: tuple) -> TravelTimeFields | None:
+    """The stacked fields of these field keys from an earlier call (with their lattice of starts
+    already computed): a repeated fix with the same sensors costs the fit alone."""
+    with _cache_lock:
+        hit = _stacks.get(keys)
+        if hit is not None:
+            _stacks.move_to_end(keys)
+        return hit
+
+
+def stack_put(keys: tuple, stacked: TravelTimeFields) -> None:
+    """Keep a stack for :func:`stack_get`, within :data:`STACKS_MAX_BYTES` (least recently used go)."""
+    with _cache_lock:
+        _stacks[keys] = stacked
+        while len(_stacks) > 1 and sum(v.time_s.nbytes for v in _stacks.values()) > STACKS_MAX_BYTES:
+            _stacks.popitem(last=False)
 
 
 def clear_cache() -> None:
+    """Forget every field and stack kept in memory."""
     global _cache_bytes
     with _cache_lock:
         _cache.clear()
+        _stacks.clear()
         _cache_bytes = 0
 
 

@@ -22,6 +22,7 @@ and measurement checks and the mapping of estimator errors to 422s, which servic
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -32,6 +33,8 @@ from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.link import MICS_EIRP_DBM
 from estimators.localization import (
+    DEFAULT_DELAY_KIND,
+    DELAY_KINDS,
     PositionResult,
     joint_velocity_fix,
     linear_fix,
@@ -67,6 +70,7 @@ DEFAULT_PHANTOM = "torso"
 Method = Literal["linear", "nonlinear", "joint_velocity", "model_based", "rss"]
 Loss = Literal["linear", "soft_l1", "huber", "cauchy", "arctan"]
 Ranging = Literal[(*TOA_METHODS, "pdoa", "rss")]  # type: ignore[valid-type]
+DelayKind = Literal[DELAY_KINDS]  # type: ignore[valid-type]
 
 _POINT_ONE_OF = [{"required": ["position_m"], "properties": {"position_m": {"type": "array"}}},
                  {"required": ["site"], "properties": {"site": {"type": "string"}}}]
@@ -101,7 +105,8 @@ class LocalizeSensor(PositionOrSite):
     range_m: float | None = Field(None, ge=0.0, le=100.0, description="Measured range [m] (constant-velocity "
                                   "methods: linear, nonlinear).")
     delay_s: float | None = Field(None, gt=0.0, le=1e-6, description="Measured delay [s] (every delay method; "
-                                  "linear / nonlinear turn it into a range with relative_permittivity).")
+                                  "linear / nonlinear turn it into a range with relative_permittivity), of the "
+                                  "request's delay_kind (default group).")
     rss_dbm: float | None = Field(None, ge=-300.0, le=100.0, description="Received power [dBm] (method rss).")
     sigma_m: float | None = Field(None, gt=0.0, le=100.0, description="Standard deviation of the measurement as a "
                                   "range [m] (a delay's is sigma_m / v at relative_permittivity). Give it for every "
@@ -144,8 +149,12 @@ class LocalizeRequest(Strict):
     relative_permittivity: float = Field(DEFAULT_RELATIVE_PERMITTIVITY, ge=1.0, le=1000.0, description="Assumed "
                                          "relative permittivity [-]: delays <-> ranges for the constant-velocity "
                                          "methods and the sigmas of delays.")
-    index: Literal["phase", "group"] = Field("phase", description="Model-based: the refractive index of the fields, "
-                                             "phase (Re n, the paths' delay_s) or group (their group_delay_s).")
+    delay_kind: DelayKind = Field(DEFAULT_DELAY_KIND, description="What the delays are: `group` (the default: "
+                                  "what a TOA receiver timing an envelope or a correlation peak measures, and PDOA; "
+                                  "a traced path's group_delay_s) or `phase` (the carrier phase's delay, what the "
+                                  "carrier-phase TOA methods gcc / all_peaks / first_peak measure; a traced path's "
+                                  "delay_s). model_based builds its travel-time fields with the matching index "
+                                  "(group index or Re n); the other methods ignore it.")
     loss: Loss | None = Field(None, description="Robust loss of the least-squares methods (default linear; "
                               "model_based soft_l1).")
     transmit_power_dbm: float = Field(MICS_EIRP_DBM, ge=-100.0, le=100.0, description="rss: transmit power [dBm] "
@@ -173,6 +182,7 @@ class LocalizeResponse(Out):
     velocity_sigma_m_per_s: float | None = Field(None, description="joint_velocity: its bound [m/s].")
     relative_permittivity: float | None = Field(None, description="joint_velocity: (c / v)^2 [-].")
     inside_domain: bool | None = Field(None, description="model_based: the estimate lies in the phantom's body.")
+    delay_kind: str | None = Field(None, description="model_based: the kind of delay its fields were built for.")
 
 
 class LocalizeEvaluateRequest(Strict):
@@ -208,6 +218,11 @@ class LocalizeEvaluateRequest(Strict):
     max_interactions: int_range(1, MAX_INTERACTIONS) | None = Field(None, description="Max interactions per path "
                                                                       "(default 6, or this server's limit).")
     near_field: bool = Field(True, description="The dipole near-field term on direct paths (ChannelSpec.near_field).")
+    delay_kind: DelayKind | None = Field(None, description="The kind of delay the model-based fix's travel-time "
+                                         "fields are built for; default (null): the kind the ranging measures "
+                                         "(`group` for envelope and pdoa, `phase` for gcc, all_peaks, first_peak; "
+                                         "docs/localization.md, \"Delay kinds\"). The other kind shows what the "
+                                         "mismatch costs.")
 
     @field_validator("methods")
     @classmethod
@@ -246,6 +261,7 @@ class LocalizeEvaluateResponse(Out):
     trials: int
     seed: int
     relative_permittivity: float
+    delay_kind: str | None = Field(description="The kind of delay of the model-based fields (null: rss ranging).")
     true_distances_m: list[float] = Field(description="Capsule-sensor distances [m].")
     range_sigma_m: list[float] = Field(description="Per-sensor range sigma used as weight (bound or spread) [m].")
     methods: list[LocalizationMethodStatistics]
@@ -292,6 +308,12 @@ def _place(phantom: Phantom | None, point: PositionOrSite, where: str, *, in_bod
 def _loc(where: str) -> list:
     name, _, index = where.partition("[")
     return [name, int(index.rstrip("]"))] if index else [name]
+
+
+def field_cache_dir(settings: Settings) -> Path:
+    """Where the model-based travel-time fields are kept between restarts (docs/localization.md,
+    "Speed"): ``<data_dir>/cache/traveltime``, bounded (estimators.localization.fieldstore)."""
+    return Path(settings.data_dir) / "cache" / "traveltime"
 
 
 def _grid_cells(phantom: Phantom) -> int:
@@ -373,13 +395,15 @@ def localize(req: LocalizeRequest, registry: Registry, settings: Settings, budge
 
             sensor_positions(sensors)  # duplicates / coplanar refused before any grid is built
             _check_grid(phantom)
-            fields = sensor_fields(phantom, sensors, req.frequency_hz, CELL_SIZE_M, req.index,
-                                   check=lambda: _stop(budget))
+            fields = sensor_fields(phantom, sensors, req.frequency_hz, CELL_SIZE_M, delay_kind=req.delay_kind,
+                                   check=lambda: _stop(budget), cache_dir=field_cache_dir(settings))
             _stop(budget)
             fix = model_based_fix(fields, values, None if sigma_m is None else sigma_m / v, **loss)
     except EstimatorInputError as exc:
         raise _with_sensor_loc(exc, kind) from exc
-    return _fix_dict(fix, sensors, bounded=sigma_m is not None or req.method == "rss")
+    out = _fix_dict(fix, sensors, bounded=sigma_m is not None or req.method == "rss")
+    out["delay_kind"] = req.delay_kind if req.method == "model_based" else None
+    return out
 
 
 def _fix_dict(fix: PositionResult, sensors: np.ndarray, *, bounded: bool) -> dict:
@@ -437,7 +461,8 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
             phantom, capsule, list(sensors), ranging=req.ranging, methods=methods, frequency_hz=req.frequency_hz,
             snr_db=req.snr_db, trials=req.trials, seed=req.seed, relative_permittivity=req.relative_permittivity,
             cell_size_m=CELL_SIZE_M, rays=rays, max_interactions=interactions, pdoa_band=band,
-            near_field=req.near_field, budget=budget, config=settings.tracer_config())
+            near_field=req.near_field, delay_kind=req.delay_kind, budget=budget, config=settings.tracer_config(),
+            field_cache_dir=field_cache_dir(settings))
     except InputError as exc:  # the tracer names its antennas transmitter / receivers[i]
         field = field_text(exc.field).replace("transmitter", "capsule").replace("receivers", "sensors")
         raise type(exc)(exc.reason, field=field) from exc
@@ -461,7 +486,7 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
         "sensor_positions_m": [list(map(float, s)) for s in result.sensor_positions_m],
         "sensor_names": names, "ranging": result.ranging, "frequency_hz": result.frequency_hz,
         "snr_db": result.snr_db, "trials": result.trials, "seed": result.seed,
-        "relative_permittivity": result.relative_permittivity,
+        "relative_permittivity": result.relative_permittivity, "delay_kind": result.delay_kind,
         "true_distances_m": _finite_list(result.true_distances_m),
         "range_sigma_m": _finite_list(result.range_sigma_m), "methods": stats,
     }

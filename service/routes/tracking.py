@@ -26,6 +26,9 @@ MAX_PARTICLE_STEPS = 20_000_000
 MAX_EVALUATE_STEPS = 1000
 MAX_EVALUATE_RAYS = 50_000
 DEFAULT_EVALUATE_RAYS = 20_000
+#: Monte Carlo runs of one evaluation, and runs x steps (each step a Kalman and a particle-filter update).
+MAX_EVALUATE_RUNS = 20
+MAX_EVALUATE_RUN_STEPS = 5000
 
 Vec3 = Annotated[list[Annotated[float, Field(ge=-10.0, le=10.0)]], Field(min_length=3, max_length=3)]
 Row3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -35,10 +38,17 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
+Cov3 = Annotated[list[Row3], Field(min_length=3, max_length=3)]
+
+
 class RfFixIn(_Strict):
     position_m: Vec3 = Field(description="The RF position fix [m], phantom frame.")
-    covariance_m2: Annotated[list[Row3], Field(min_length=3, max_length=3)] = Field(
-        description="Its 3 x 3 covariance [m^2], symmetric positive definite (include the fix's bias).")
+    covariance_m2: Cov3 = Field(description="Its 3 x 3 covariance [m^2], symmetric positive definite: its white "
+                                "error (with no bias_covariance_m2, include the fix's bias here).")
+    bias_covariance_m2: Cov3 | None = Field(None, description="Optional: the stationary 3 x 3 covariance [m^2] of "
+                                            "the part of its error the fixes nearby share (the body's bias at that "
+                                            "spot; positive semi-definite). Correlated along the tract when "
+                                            "config.rf_correlation_length_m is set, else added to covariance_m2.")
 
 
 class VisualIn(_Strict):
@@ -63,7 +73,20 @@ class TrackerConfigIn(_Strict):
     initial_v_m_per_s: float = Field(0.0, ge=-1.0, le=1.0)
     initial_v_sigma_m_per_s: float = Field(3e-3, gt=0.0, le=1.0)
     gate_probability: float | None = Field(0.9999, gt=0.5, lt=1.0)
+    visual_gate_probability: float | None = Field(None, gt=0.5, lt=1.0, description="Both filters ignore an advance "
+                                                  "beyond this chi-square(1) quantile of their prediction.")
     lateral_sigma_m: float = Field(0.0, ge=0.0, le=1.0)
+    rf_correlation_length_m: float | None = Field(None, ge=1e-4, le=10.0, description="Length along the tract over "
+                                                  "which the fixes' bias decorrelates (a smooth Gauss-Markov state; "
+                                                  "docs/tracking.md); null: their errors are white.")
+    rf_min_spacing_m: float = Field(0.0, ge=0.0, le=1.0, description="Use a fix only once the estimate or the fix "
+                                    "has moved this far along the tract from the last used one.")
+    speed_range_m_per_s: Annotated[list[Annotated[float, Field(ge=-1.0, le=1.0)]],
+                                   Field(min_length=2, max_length=2)] | None = Field(
+        None, description="[lowest <= 0, highest >= 0] speed along the tract [m/s]: an advance outside it times "
+                          "dt is dropped.")
+    max_consecutive_gated: Int = Field(5, ge=1, le=10_000, description="After this many refusals in a row a gate "
+                                       "lets the next measurement in (it cannot starve the filter).")
     particles: Int = Field(2000, ge=10, le=100_000)
     seed: Int = Field(0, ge=0, le=2**53 - 1)  # a JSON number holds integers exactly to 2^53
 
@@ -121,12 +144,30 @@ class EvaluateRequest(_Strict):
         None, description="Interactions per trace (default 4, or this server's max_interactions if lower); at most "
                           "the server's.")
     rf_grid_m: float = Field(5e-3, ge=1e-3, le=0.05)
-    include_trajectory: bool = Field(True, description="Return every tracker's trajectory, and the truth.")
+    runs: Int = Field(1, ge=1, le=MAX_EVALUATE_RUNS, description="Monte Carlo runs of the journey (each its own "
+                      "prior draw, RF noise and visual errors); runs x steps at most "
+                      f"{MAX_EVALUATE_RUN_STEPS}.")
+    include_trajectory: bool = Field(True, description="Return every tracker's trajectory (of the first run), and "
+                                     "the truth.")
+
+
+class Consistency(BaseModel):
+    average: float | None = Field(description="Averaged NEES / NIS (null: no value).")
+    lower: float | None = Field(description="Lower end of its two-sided 95 % chi-square band.")
+    upper: float | None = Field(description="Upper end of the band.")
+    dof: int = Field(description="Degrees of freedom of one value.")
+    samples: int = Field(description="Values averaged.")
+    effective: float = Field(description="Independent values the band counts.")
+    inside: bool = Field(description="The average lies inside its band.")
 
 
 class EvaluateResponse(BaseModel):
-    rmse_m: dict[str, float] = Field(description="RMSE along the tract per tracker [m].")
-    rmse_3d_m: dict[str, float] = Field(description="RMSE of the 3-D point per tracker [m].")
+    rmse_m: dict[str, float] = Field(description="RMSE along the tract per tracker [m] (pooled over runs).")
+    rmse_3d_m: dict[str, float] = Field(description="RMSE of the 3-D point per tracker [m] (pooled over runs).")
+    consistency: dict[str, dict[str, Consistency]] = Field(description="Per tracker its averaged NEES of s "
+                                                           "(`nees`) and NIS of the used RF fixes (`nis_rf`) and "
+                                                           "advances (`nis_visual`) against their 95 % bands.")
+    runs: int
     rf_fix_rmse_3d_m: float | None = Field(description="3-D RMSE of the RF fixes themselves [m] (null: no RF "
                                                        "tracker was asked for, so no fix was made).")
     rf_positions_traced: int
@@ -151,10 +192,14 @@ def run_track(req: TrackRequest, registry, budget: Budget) -> dict:
     line = phantom.centrelines.get(req.centreline)
     if line is None:
         raise TrackingInputError(f"phantom {req.phantom!r} has no centreline {req.centreline!r}", "centreline")
-    obs = [Observation(o.t_s, None if o.rf is None else RfFix(o.rf.position_m, o.rf.covariance_m2),
+    obs = [Observation(o.t_s, None if o.rf is None else RfFix(o.rf.position_m, o.rf.covariance_m2,
+                                                              o.rf.bias_covariance_m2),
                        None if o.visual is None else VisualMotion(**o.visual.model_dump()))
            for o in req.observations]
-    cfg = TrackerConfig(**req.config.model_dump())
+    conf = req.config.model_dump()
+    if conf["speed_range_m_per_s"] is not None:
+        conf["speed_range_m_per_s"] = tuple(conf["speed_range_m_per_s"])
+    cfg = TrackerConfig(**conf)
     budget.charge()
     out = (particle_track if req.tracker == "particle" else kalman_track)(line, obs, cfg, name=req.tracker)
     budget.charge()
@@ -168,18 +213,24 @@ def _finite_or_none(x: float | None) -> float | None:
 
 def _evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
     from evaluation.tracking import evaluate_tracking
-    from tracking import JourneySpec
+    from service.routes.localize import field_cache_dir
+    from tracking import JourneySpec, TrackingInputError
 
+    if req.runs * req.journey.steps > MAX_EVALUATE_RUN_STEPS:
+        raise TrackingInputError(f"runs x steps must be <= {MAX_EVALUATE_RUN_STEPS}", "runs")
     rays, interactions = settings.trace_knobs(req.rays, req.max_interactions, default_rays=DEFAULT_EVALUATE_RAYS,
-                                              default_interactions=4)
+                                              default_interactions=6)
     phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
     ev = evaluate_tracking(JourneySpec(**req.journey.model_dump()), req.trackers, phantom=phantom,
-                           rf_grid_m=req.rf_grid_m, rays=rays, max_interactions=interactions,
-                           check=budget.charge)
+                           rf_grid_m=req.rf_grid_m, rays=rays, max_interactions=interactions, runs=req.runs,
+                           check=budget.charge, field_cache_dir=field_cache_dir(settings))
     j = ev.journey
     truth = [{"t_s": float(j.t_s[k]), "s_m": float(j.s_m[k]), "position_m": j.position_m[k].tolist(),
               "roll_deg": float(j.roll_deg[k]), "organ": j.organ[k]} for k in range(len(j.t_s))]
-    return {"rmse_m": ev.rmse_along_m, "rmse_3d_m": ev.rmse_3d_m,
+    consistency = {n: {k: {key: (_finite_or_none(val) if isinstance(val, float) else val)
+                           for key, val in band.to_dict().items()} for k, band in c.items()}
+                   for n, c in ev.consistency.items()}
+    return {"rmse_m": ev.rmse_along_m, "rmse_3d_m": ev.rmse_3d_m, "consistency": consistency, "runs": ev.runs,
             "rf_fix_rmse_3d_m": _finite_or_none(ev.rf_fix_rmse_3d_m),
             "rf_positions_traced": ev.rf_positions_traced, "truth": truth if req.include_trajectory else [],
             "trajectory": {n: t.to_dict()["steps"] for n, t in ev.tracks.items()} if req.include_trajectory else {}}
@@ -203,9 +254,11 @@ async def track(req: TrackRequest, request: Request) -> TrackResponse:
              summary="The journey experiment: RMSE per tracker", responses=_ERRORS)
 async def track_evaluate(req: EvaluateRequest, request: Request) -> EvaluateResponse:
     """A seeded journey along the default torso's GI tract; RF fixes from the sweep engine and the
-    model-based fix (positions traced once per grid position and kept in memory), visual motion from
-    the MI estimator's measured error model; RMSE along the tract and in 3-D per tracker. Bounded:
-    at most 1000 steps and 200 traced grid positions, under the server's deadline (504 past it)."""
+    model-based fix (positions traced once per grid position and kept in memory), calibrated and declared
+    with the RF error model measured on the torso; visual motion from the MI estimator's error model
+    measured on rendered frames of the torso; RMSE along the tract and in 3-D per tracker, and its NEES /
+    NIS against their 95 % bands (docs/tracking.md). Bounded: at most 1000 steps, 20 runs (runs x steps
+    <= 5000) and 200 traced grid positions, under the server's deadline (504 past it)."""
     st = state(request)
     out = await st.gate.run(lambda budget: _evaluate(req, st.registry, st.settings, budget),
                             Budget(deadline_s=st.settings.request_deadline_s), disconnected=request.is_disconnected)

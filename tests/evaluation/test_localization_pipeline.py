@@ -54,6 +54,7 @@ def test_every_method_finds_the_capsule_in_a_homogeneous_phantom(homogeneous_run
     assert mb.crlb_m == pytest.approx(cv.crlb_m, rel=0.2)
     assert jv.extra["relative_permittivity"] == pytest.approx(N_PHASE**2, rel=1e-3)
     assert all(s.converged_fraction == 1.0 and s.failures == 0 for s in r.methods.values())
+    assert r.delay_kind == "phase"  # GCC measures the carrier-phase delay: phase-index fields
     assert cv.cep50_m <= cv.cep90_m <= cv.rmse_m * 3
 
 
@@ -88,6 +89,8 @@ def test_rss_and_pdoa_ranging_run(box):
     ({"sensors": SENSORS[:7] + ["no_such_site"]}, "sensors[7]"),
     ({"trials": 0}, "trials"),
     ({"seed": -1}, "seed"),
+    ({"delay_kind": "carrier"}, "delay_kind"),
+    ({"ranging": "rss", "delay_kind": "group"}, "delay_kind"),
 ])
 def test_bad_requests_name_the_field(box, kwargs, field):
     args = {"capsule": CAPSULE, "sensors": SENSORS}

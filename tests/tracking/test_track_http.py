@@ -52,18 +52,48 @@ def test_track_names_the_bad_field(api):
 
 
 def test_evaluate_video_only_needs_no_trace(api):
-    """The video tracker alone needs no RF trace: a quick answer with the rmse per tracker."""
-    r = api.post("/v1/track/evaluate", json={"journey": {"steps": 40, "seed": 2}, "trackers": ["video"]})
+    """The video tracker alone needs no RF trace: a quick answer with the rmse per tracker and its
+    consistency (NEES of s and NIS of the advances against their bands; 3 runs of 40 steps)."""
+    r = api.post("/v1/track/evaluate", json={"journey": {"steps": 40, "seed": 2}, "trackers": ["video"], "runs": 3})
     assert r.status_code == 200, r.text
     out = r.json()
-    assert out["rf_positions_traced"] == 0
-    assert 0.0 < out["rmse_m"]["video"] < 0.01
+    assert out["rf_positions_traced"] == 0 and out["runs"] == 3
+    assert 0.0 < out["rmse_m"]["video"] < 0.02  # the prior alone is drawn 5 mm off
     assert len(out["trajectory"]["video"]) == 40 and len(out["truth"]) == 40
+    c = out["consistency"]["video"]
+    assert set(c) == {"nees", "nis_visual"}
+    assert c["nees"]["samples"] == 120 and c["nees"]["effective"] == 3 and c["nees"]["dof"] == 1
+    assert c["nees"]["lower"] < 1.0 < c["nees"]["upper"] and c["nis_visual"]["samples"] > 0
+    r = api.post("/v1/track/evaluate", json={"journey": {"steps": 1000}, "runs": 6, "trackers": ["video"]})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "runs"], r.text
+
+
+def test_track_takes_a_fix_bias_and_the_new_gates(api):
+    """A fix's bias covariance with rf_correlation_length_m (docs/tracking.md): a stopped capsule's
+    repeated fixes keep the uncertainty at the bias's; a speed range drops an impossible advance;
+    a bias covariance that is not positive semi-definite is refused naming it."""
+    line = default_torso().centrelines["gi_tract"]
+    p = line.point_m(0.25).tolist()
+    bias = (6.4e-5 * np.eye(3)).tolist()
+    obs = [{"t_s": 0.5 * k, "rf": {"position_m": p, "covariance_m2": (1e-10 * np.eye(3)).tolist(),
+                                   "bias_covariance_m2": bias}} for k in range(20)]
+    cfg = {"initial_s_m": 0.25, "initial_s_sigma_m": 0.02, "rf_correlation_length_m": 0.003,
+           "speed_range_m_per_s": [-0.002, 0.004]}
+    r = api.post("/v1/track", json={"observations": obs, "config": cfg})
+    assert r.status_code == 200, r.text
+    assert r.json()["steps"][-1]["s_sigma_m"] > 6e-3  # 8 mm of bias, not averaged away
+    obs[5]["visual"] = {"advance_m": -0.003, "advance_sigma_m": 1e-4}  # -6 mm/s: not a motion
+    r = api.post("/v1/track", json={"observations": obs, "config": cfg, "tracker": "particle"})
+    assert r.status_code == 200, r.text
+    obs[3]["rf"]["bias_covariance_m2"] = [[1e-4, 0, 0], [0, -1e-4, 0], [0, 0, 1e-4]]
+    r = api.post("/v1/track", json={"observations": obs, "config": cfg})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "observations", 3, "rf",
+                                                                      "bias_covariance_m2"], r.text
 
 
 def test_evaluate_keeps_to_the_servers_ray_and_interaction_limits(make_settings):
     """The app of this test allows 5000 rays and 3 interactions: more is a 422 naming the field before
-    any work starts; the defaults (20 000 rays, 4 interactions) are lowered to the server's limits (a video-only
+    any work starts; the defaults (20 000 rays, 6 interactions) are lowered to the server's limits (a video-only
     run answers)."""
     from fastapi.testclient import TestClient
 

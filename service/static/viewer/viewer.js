@@ -230,6 +230,7 @@ async function locate() {
   const seen = channel.profiles.filter((p) => p.paths.length);
   const body = {
     method, phantom: traced.phantom, frequency_hz: traced.frequency_hz, relative_permittivity: permittivity,
+    delay_kind: 'phase', // the paths' delay_s is their phase delay (docs/localization.md, "Delay kinds")
     sensors: seen.map((p) => ({ position_m: p.position_m, delay_s: Math.min(...p.paths.map((q) => q.delay_s)), sigma_m })),
   };
   const left = channel.profiles.length - seen.length;

@@ -174,3 +174,23 @@ def test_coplanar_and_collinear_messages_say_which():
         linear_fix(SENSORS * [1, 1, 0], np.ones(8) * 0.1)
     with pytest.raises(EstimatorInputError, match="collinear"):
         linear_fix(np.outer(np.arange(1, 6), [0.01, 0.02, 0.03]), np.ones(5) * 0.1)
+
+
+def test_which_delay_each_ranging_measures():
+    """docs/science.md (S26): the envelope and PDOA time the group delay, the carrier-phase TOA
+    methods the phase delay; sweep column prefixes name the same methods; RSS measures none."""
+    from estimators.localization import DELAY_KINDS, check_delay_kind, measured_delay_kind
+
+    assert DELAY_KINDS == ("group", "phase")
+    expected = {"envelope": "group", "pdoa": "group", "regression": "group", "two_tone": "group",
+                "toa_envelope": "group", "pdoa_regression": "group", "gcc": "phase", "all_peaks": "phase",
+                "first_peak": "phase", "toa_gcc": "phase", "toa_first_peak": "phase"}
+    assert {k: measured_delay_kind(k) for k in expected} == expected
+    for bad in ("rss", "toa_rss", "music"):
+        with pytest.raises(EstimatorInputError) as info:
+            measured_delay_kind(bad)
+        assert info.value.field == "ranging"
+    assert check_delay_kind("phase") == "phase"
+    with pytest.raises(EstimatorInputError) as info:
+        check_delay_kind("Group", "sensors.delay_kind")
+    assert info.value.field == "sensors.delay_kind"
