@@ -127,6 +127,7 @@ class Phantom:
         description: str = "",
         max_triangles: int | None = None,
         check_crossings: bool = True,
+        parent: Sequence[int] | None = None,
     ) -> "Phantom":
         """Validate organs, build the containment tree and the combined mesh.
 
@@ -134,7 +135,10 @@ class Phantom:
         :class:`PhantomValidationError` naming the organ and the defect; nothing
         is returned half-built. ``check_crossings=False`` skips the edge test of
         :func:`_check_crossings` (for phantoms validated before, e.g. an upload a
-        sweep worker reloads); the containment tree is built either way.
+        sweep worker reloads); the containment tree is built either way, unless
+        ``parent`` gives it: the tree of these very organs from a build that passed
+        every check (a built phantom reloaded from its own cache, e.g.
+        ``raytrace.body.abdomen``); then the organs are not validated again either.
         """
         organs = tuple(organs)
         if not organs:
@@ -147,8 +151,12 @@ class Phantom:
             raise PhantomValidationError(
                 f"{total} triangles exceed the cap of {max_triangles}", field="mesh"
             )
-        for organ in organs:
-            _validate_organ_mesh(organ)
+        if parent is None:
+            for organ in organs:
+                _validate_organ_mesh(organ)
+        elif check_crossings or len(parent) != len(organs):
+            raise PhantomValidationError("a known containment tree (parent) needs one entry per organ and "
+                                         "check_crossings=False: it is for phantoms validated before", field="organs")
 
         offsets = np.cumsum([0] + [len(o.mesh.vertices) for o in organs])
         vertices = np.concatenate([np.asarray(o.mesh.vertices, float) for o in organs])
@@ -176,7 +184,7 @@ class Phantom:
         )
         if check_crossings:
             _check_crossings(phantom)
-        phantom.parent = _containment_tree(phantom)
+        phantom.parent = _containment_tree(phantom) if parent is None else np.asarray(parent, np.int64)
         for site_name, (kind, position) in (sites or {}).items():
             if kind not in ("capsule", "sensor"):
                 raise PhantomValidationError(
@@ -196,10 +204,13 @@ class Phantom:
     def triangle_count(self) -> int:
         return int(len(self.faces))
 
-    @property
+    @cached_property
     def bounds_m(self) -> np.ndarray:
-        """(2, 3) axis-aligned bounds of all organs [m]."""
-        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+        """(2, 3) axis-aligned bounds of all organs [m] (read-only; computed once: every antenna check asks for
+        them, and a 300k-triangle phantom's vertices take ~10 ms to scan)."""
+        bounds = np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+        bounds.flags.writeable = False
+        return bounds
 
     @cached_property
     def mesh(self) -> trimesh.Trimesh:
