@@ -57,6 +57,22 @@ def test_a_channel_from_a_landmark(client):
     assert r.status_code == 404 and r.json()["detail"][0]["loc"][:3] == ["body", "transmitter", "site"]
 
 
+def test_localized_from_its_sensor_sites(client):
+    """Ranges to the abdomen's own sensor sites, resolved through the phantom: the constant-velocity fix
+    lands on the landmark (exact ranges: the straight-line distances computed here from the phantom)."""
+    phantom = abdomen_ct()
+    truth = phantom.sites["large_intestine_HF"].position_m
+    names = ["b1_000", "b2_090", "b3_180", "b4_270", "b2_315", "b3_045"]
+    sensors = [{"site": n, "range_m": float(np.linalg.norm(phantom.sites[n].position_m - truth))} for n in names]
+    r = client.post("/v1/localize", json={"phantom": "abdomen-ct", "method": "nonlinear", "sensors": sensors})
+    assert r.status_code == 200, r.text
+    assert np.linalg.norm(np.array(r.json()["position_m"]) - truth) < 1e-6
+    np.testing.assert_allclose(r.json()["sensor_positions_m"][1], phantom.sites["b2_090"].position_m)
+    r = client.post("/v1/localize", json={"phantom": "abdomen-ct", "method": "nonlinear",
+                                          "sensors": [{"site": "nowhere", "range_m": 0.1}, *sensors[1:]]})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"][:4] == ["body", "sensors", 0, "site"]
+
+
 @pytest.mark.parametrize("s_m", [0.03, 0.15, 1.0, 3.2])  # oesophagus, stomach, jejunum, ascending colon
 def test_the_camera_renders_inside_the_real_lumen(client, s_m):
     line = abdomen_ct().centrelines["gi_tract"]
