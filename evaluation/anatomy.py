@@ -2,7 +2,9 @@
 (README, docs/localization.md, docs/tracking.md, docs/vision.md: "On the CT abdomen").
 
     python -m evaluation.anatomy reach [--write]
-    python -m evaluation.anatomy localization [--trials 20 --seed 0 --rays 100000]
+    python -m evaluation.anatomy localization [--trials 20 --seed 0 --rays 20000] [--write]
+    capsule-rt experiment abdomen-ct-path-loss --out runs/abd-pl
+    python -m evaluation.anatomy path-loss --from runs/abd-pl [--write]
     python -m evaluation.anatomy video [--steps 40 --seed 0 --cache-dir DIR]
 
 **Reach** (:func:`reach_rows`): one trace from every capsule site to every sensor site (:data:`REACH_SETTINGS`)
@@ -19,7 +21,15 @@ exactly as the torso's acceptance table (TOA by GCC at 402 MHz, 30 dB, 4 mm trav
 the sensors it reaches by a direct path (the reach table). A sensor that hears the capsule only through
 reflections or not at all would range a path that is not the capsule's straight line to it; a receiver
 array uses the sensors that hear the capsule, and the torso's sensors were placed so that each hears every
-capsule directly.
+capsule directly. The traces use the reach table's 20 000 rays (the torso's table: 100 000) and 6
+interactions: with 100 000 rays the direct-path search loses a sensor that 20 000 find
+(small_intestine_JIJ -> b3_090: 2 paths at 20 000 rays, none at 100 000; reported, not fixed here).
+
+**Path loss**: the experiment ``abdomen-ct-path-loss`` (sweeps/specs/abdomen-ct-path-loss-402mhz.yaml: the
+capsule every 50 mm along the tract, every sensor, 402 MHz) fits the log-distance model and reports the
+medians by distance (sweeps.experiments); ``path-loss --write`` commits its links (arc length, receiver,
+distance, path gain) as ``evaluation/data/abdomen-ct_path_loss.json``, which tests refit with an independent
+least-squares fit and compare with one position traced afresh.
 
 **Video** (:func:`video_pairs`): the capsule journey of docs/tracking.md (2 frames per second, 1.5 mm/s
 with stops and peristalsis, rolling) from each of :data:`SEGMENT_STARTS`, ten arc lengths spread over the tract
@@ -107,8 +117,70 @@ def write_reach_table(phantom, rows: dict) -> None:
     os.replace(tmp, REACH_TABLE)
 
 
-def localization_rows(*, trials: int = 20, seed: int = 0, rays: int = 100_000, capsules: Sequence[str] | None = None,
-                      progress=print):
+#: The committed localization table (``python -m evaluation.anatomy localization --write``).
+LOCALIZATION_TABLE = Path(__file__).resolve().parent / "data" / f"{ABDOMEN_NAME}_localization.json"
+#: The committed path-loss links (module docstring).
+PATH_LOSS_TABLE = Path(__file__).resolve().parent / "data" / f"{ABDOMEN_NAME}_path_loss.json"
+PATH_LOSS_SPEC = "abdomen-ct-path-loss-402mhz"
+
+
+def path_loss_links(run_dir) -> dict:
+    """The links of a finished ``abdomen-ct-path-loss`` experiment (its ``results.parquet``) and its spec."""
+    import pyarrow.parquet as pq
+
+    sweep = Path(run_dir) / PATH_LOSS_SPEC
+    rows = pq.read_table(sweep / "results.parquet", columns=["s_m", "receiver", "distance_m", "path_gain_db"])
+    spec = json.loads((sweep / "sweep.json").read_text())
+    return {"spec": spec.get("spec", spec), "links": rows.to_pydict()}
+
+
+#: Columns of the localization tables: the torso's (evaluation.localization.TABLE_METHODS).
+LOCALIZATION_METHODS = ("nonlinear", "joint_velocity", "model_based")
+
+
+def localization_record(name: str, ev) -> dict:
+    """What the tables need of one site's :class:`evaluation.localization.LocalizationEvaluation`: per method
+    the trials' 3-D errors, the RMSE, CEP90 and the position bound; the model-based fix's error from the exact
+    first-path delays."""
+    out = {"site": name, "sensors": list(ev.sensor_names), "methods": {}}
+    for k in LOCALIZATION_METHODS:
+        m = ev.methods[k]
+        err = np.linalg.norm(np.asarray(m.estimates_m) - ev.capsule_position_m, axis=1)
+        out["methods"][k] = {"errors_m": [float(e) for e in err], "rmse_m": float(m.rmse_m),
+                             "cep90_m": float(m.cep90_m), "crlb_m": float(m.crlb_m)}
+    out["methods"]["model_based"]["first_path_error_m"] = float(ev.methods["model_based"].extra["first_path_error_m"])
+    return out
+
+
+def localization_tables(records: Sequence[dict]) -> tuple[str, str]:
+    """(pooled table, per-site table) in the columns of the torso's (README, docs/localization.md)."""
+    mm = 1e3
+    labels = {"nonlinear": "constant velocity (NLS, eps_r 27.9)", "joint_velocity": "joint velocity",
+              "model_based": "model-based (travel-time fields)"}
+    pooled = {k: np.array([e for r in records for e in r["methods"][k]["errors_m"]]) for k in LOCALIZATION_METHODS}
+    pooled = {k: v[np.isfinite(v)] for k, v in pooled.items()}
+    const = np.sqrt(np.mean(pooled["nonlinear"] ** 2))
+    summary = ["| method | mean | RMSE | CEP50 | CEP90 | position CRLB (RMS over sites) | RMSE / CRLB "
+               "| constant-velocity RMSE / RMSE |", "|---|---|---|---|---|---|---|---|"]
+    for k in LOCALIZATION_METHODS:
+        e = pooled[k]
+        rmse = np.sqrt(np.mean(e**2))
+        bound = np.sqrt(np.mean([r["methods"][k]["crlb_m"] ** 2 for r in records]))
+        summary.append(f"| {labels[k]} | {e.mean() * mm:.1f} | {rmse * mm:.1f} | {np.percentile(e, 50) * mm:.1f} "
+                       f"| {np.percentile(e, 90) * mm:.1f} | {bound * mm:.3f} | {rmse / bound:.0f} "
+                       f"| {const / rmse:.1f} |")
+    sites = ["| capsule site | sensors | constant velocity | joint velocity | model-based | model-based CEP90 "
+             "| model-based CRLB | model-based, first-path delays | const. / model-based |", "|" + "---|" * 9]
+    for r in records:
+        c, j, m = (r["methods"][k] for k in LOCALIZATION_METHODS)
+        sites.append(f"| {r['site']} | {len(r['sensors'])} | {c['rmse_m'] * mm:.1f} | {j['rmse_m'] * mm:.1f} | "
+                     f"{m['rmse_m'] * mm:.1f} | {m['cep90_m'] * mm:.1f} | {m['crlb_m'] * mm:.3f} | "
+                     f"{m['first_path_error_m'] * mm:.1f} | {c['rmse_m'] / m['rmse_m']:.1f} |")
+    return "\n".join(summary), "\n".join(sites)
+
+
+def localization_rows(*, trials: int = 20, seed: int = 0, rays: int = REACH_SETTINGS["rays"],
+                      capsules: Sequence[str] | None = None, progress=print):
     """(capsule names, their :class:`evaluation.localization.LocalizationEvaluation`s, the sensors of each)."""
     from evaluation.localization import TABLE_METHODS, evaluate_localization
 
@@ -177,7 +249,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     loc = sub.add_parser("localization", help="per capsule site: constant velocity, joint velocity, model-based")
     loc.add_argument("--trials", type=int, default=20)
     loc.add_argument("--seed", type=int, default=0)
-    loc.add_argument("--rays", type=int, default=100_000)
+    loc.add_argument("--rays", type=int, default=REACH_SETTINGS["rays"])
+    loc.add_argument("--write", action="store_true", help=f"commit it as {LOCALIZATION_TABLE.name}")
+    pl = sub.add_parser("path-loss", help="commit the links of a finished abdomen-ct-path-loss experiment")
+    pl.add_argument("--from", dest="run_dir", required=True, help="the experiment's --out directory")
+    pl.add_argument("--write", action="store_true", help=f"commit them as {PATH_LOSS_TABLE.name}")
     vid = sub.add_parser("video", help="frame pairs rendered in the real lumen along ten journeys: MI errors")
     vid.add_argument("--steps", type=int, default=40)
     vid.add_argument("--seed", type=int, default=0)
@@ -198,16 +274,40 @@ def main(argv: Sequence[str] | None = None) -> None:
             write_reach_table(phantom, rows)
             print(f"wrote {REACH_TABLE}")
     elif args.table == "localization":
-        from evaluation.localization import markdown_table, summary_table
+        from raytrace.body.indexgrid import phantom_digest
 
         names, rows, used = localization_rows(trials=args.trials, seed=args.seed, rays=args.rays)
-        print(summary_table(rows))
-        print()
-        print(markdown_table(rows, names))
+        records = [localization_record(n, r) for n, r in zip(names, rows)]
+        summary, sites = localization_tables(records)
+        print(summary, sites, sep="\n\n")
         counts = [len(u) for u in used]
         print(f"\n{ABDOMEN_NAME}: {len(names)} capsule sites, {min(counts)}-{max(counts)} sensors each (those with a "
               f"direct path); TOA gcc, {args.trials} trials, seed {args.seed}, {args.rays} rays; "
               f"{time.perf_counter() - t0:.0f} s")
+        if args.write:
+            raw = {"command": "python -m evaluation.anatomy localization --write", "phantom": ABDOMEN_NAME,
+                   "phantom_digest": phantom_digest(abdomen_ct()),
+                   "settings": {"trials": args.trials, "seed": args.seed, "rays": args.rays, "ranging": "gcc",
+                                "snr_db": 30.0, "frequency_hz": 402e6},
+                   "sites": records}
+            tmp = LOCALIZATION_TABLE.with_suffix(".tmp")
+            tmp.write_text(json.dumps(raw, indent=1) + "\n")
+            os.replace(tmp, LOCALIZATION_TABLE)
+            print(f"wrote {LOCALIZATION_TABLE}")
+    elif args.table == "path-loss":
+        from raytrace.body.indexgrid import phantom_digest
+
+        raw = {"command": "capsule-rt experiment abdomen-ct-path-loss --out DIR; "
+                          "python -m evaluation.anatomy path-loss --from DIR --write",
+               "phantom": ABDOMEN_NAME, "phantom_digest": phantom_digest(abdomen_ct()), **path_loss_links(args.run_dir)}
+        links = raw["links"]
+        have = sum(g is not None for g in links["path_gain_db"])
+        print(f"{len(links['s_m'])} links, {have} with a path, from {args.run_dir}")
+        if args.write:
+            tmp = PATH_LOSS_TABLE.with_suffix(".tmp")
+            tmp.write_text(json.dumps(raw) + "\n")
+            os.replace(tmp, PATH_LOSS_TABLE)
+            print(f"wrote {PATH_LOSS_TABLE}")
     else:
         journeys = video_pairs(abdomen_ct(), steps=args.steps, seed=args.seed, cache_dir=args.cache_dir)
         print(pair_table(journeys))
