@@ -142,14 +142,14 @@ def localization_record(name: str, ev) -> dict:
     """What the tables need of one site's :class:`evaluation.localization.LocalizationEvaluation`: per method
     the trials' 3-D errors, the RMSE, CEP90 and the position bound; the model-based fix's error from the exact
     first-path delays."""
-    out = {"site": name, "sensors": list(ev.sensor_names), "methods": {}}
+    methods: dict[str, dict] = {}
     for k in LOCALIZATION_METHODS:
         m = ev.methods[k]
         err = np.linalg.norm(np.asarray(m.estimates_m) - ev.capsule_position_m, axis=1)
-        out["methods"][k] = {"errors_m": [float(e) for e in err], "rmse_m": float(m.rmse_m),
-                             "cep90_m": float(m.cep90_m), "crlb_m": float(m.crlb_m)}
-    out["methods"]["model_based"]["first_path_error_m"] = float(ev.methods["model_based"].extra["first_path_error_m"])
-    return out
+        methods[k] = {"errors_m": [float(e) for e in err], "rmse_m": float(m.rmse_m), "cep90_m": float(m.cep90_m),
+                      "crlb_m": float(m.crlb_m)}
+    methods["model_based"]["first_path_error_m"] = float(ev.methods["model_based"].extra["first_path_error_m"])
+    return {"site": name, "sensors": list(ev.sensor_names), "methods": methods}
 
 
 def localization_tables(records: Sequence[dict]) -> tuple[str, str]:
@@ -211,7 +211,8 @@ def video_pairs(phantom, *, steps: int = 40, seed: int = 0, starts: Sequence[flo
     for k, start in enumerate(starts):
         t0 = time.perf_counter()
         journey = simulate_journey(line, JourneySpec(steps=steps, seed=seed + k, start_m=float(start)))
-        pairs = pair_estimates(phantom, journey.s_m, journey.roll_deg, OdometrySettings(), cache_dir=cache_dir)
+        pairs = pair_estimates(phantom, journey.s_m.tolist(), journey.roll_deg.tolist(), OdometrySettings(),
+                               cache_dir=cache_dir)
         out.append((journey, pairs))
         progress(f"journey from {start:.2f} m ({line.organ_at(float(start))}): {steps} frames, "
                  f"{time.perf_counter() - t0:.0f} s")
@@ -297,10 +298,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     elif args.table == "path-loss":
         from raytrace.body.indexgrid import phantom_digest
 
+        measured = path_loss_links(args.run_dir)
         raw = {"command": "capsule-rt experiment abdomen-ct-path-loss --out DIR; "
                           "python -m evaluation.anatomy path-loss --from DIR --write",
-               "phantom": ABDOMEN_NAME, "phantom_digest": phantom_digest(abdomen_ct()), **path_loss_links(args.run_dir)}
-        links = raw["links"]
+               "phantom": ABDOMEN_NAME, "phantom_digest": phantom_digest(abdomen_ct()), **measured}
+        links: dict[str, list] = measured["links"]
         have = sum(g is not None for g in links["path_gain_db"])
         print(f"{len(links['s_m'])} links, {have} with a path, from {args.run_dir}")
         if args.write:
