@@ -15,24 +15,34 @@ import sys
 import time
 
 import httpx
+import numpy as np
 
 from bench import scenes
 from bench.common import ROOT, percentiles, timed
 
 
 def in_process(repeat: int, rays: int, interactions: int) -> dict:
+    """Wall and CPU time (every thread) of the one-receiver and the all-sensor request, their
+    repeats interleaved (one, all, one, all, ...) so that the machine's drift hits both alike."""
     phantom = scenes.torso()
     tx = scenes.transmitter(phantom)
     rx_all = scenes.receivers(phantom)
     t0 = time.perf_counter()
     scenes.trace(phantom, tx, rx_all, 402e6, rays=rays, max_interactions=interactions)
     cold = time.perf_counter() - t0
-    one = timed(lambda: scenes.trace(phantom, tx, rx_all[:1], 402e6, rays=rays,
-                                      max_interactions=interactions), repeat)
-    every = timed(lambda: scenes.trace(phantom, tx, rx_all, 402e6, rays=rays,
-                                        max_interactions=interactions), repeat)
-    return {"cold_first_trace_s": cold, "one_receiver": percentiles(one),
-            "all_sensor_sites": percentiles(every), "receivers": len(rx_all)}
+    walls = {"one": [], "all": []}
+    cpus = {"one": [], "all": []}
+    for _ in range(repeat):
+        for key, rx in (("one", rx_all[:1]), ("all", rx_all)):
+            w0, c0 = time.perf_counter(), time.process_time()
+            scenes.trace(phantom, tx, rx, 402e6, rays=rays, max_interactions=interactions)
+            walls[key].append(time.perf_counter() - w0)
+            cpus[key].append(time.process_time() - c0)
+    out = {"cold_first_trace_s": cold, "receivers": len(rx_all)}
+    for key, name in (("one", "one_receiver"), ("all", "all_sensor_sites")):
+        out[name] = {**percentiles(np.array(walls[key])), "cpu_p50_s": float(np.median(cpus[key])),
+                     "cpu_min_s": float(np.min(cpus[key]))}
+    return out
 
 
 def _free_port() -> int:

@@ -95,8 +95,10 @@ def normalise_spec(data: Any, limits: Limits = LIMITS) -> dict:
     freq = number(data.get("frequency_hz", 402e6), "frequency_hz", lo=1e6, hi=20e9)
     ch = mapping(data.get("channel") or {}, "channel", set(DEFAULTS_CHANNEL))
     channel = {
-        "rays": integer(ch.get("rays", DEFAULTS_CHANNEL["rays"]), "channel.rays", lo=1, hi=limits.max_rays),
-        "max_interactions": integer(ch.get("max_interactions", DEFAULTS_CHANNEL["max_interactions"]),
+        "rays": integer(ch.get("rays", min(DEFAULTS_CHANNEL["rays"], limits.max_rays)), "channel.rays", lo=1,
+                        hi=limits.max_rays),  # a default over a server's cap is lowered to it, as POST /v1/channel
+        "max_interactions": integer(ch.get("max_interactions",
+                                           min(DEFAULTS_CHANNEL["max_interactions"], limits.max_interactions)),
                                     "channel.max_interactions", lo=1, hi=limits.max_interactions),
         "dynamic_range_db": number(ch.get("dynamic_range_db", DEFAULTS_CHANNEL["dynamic_range_db"]),
                                    "channel.dynamic_range_db", lo=0.0, hi=300.0, lo_open=True),

@@ -44,8 +44,9 @@ MAX_PASSES = 200
 MAX_SEARCH_WORK = 2_000_000_000
 
 
-def normalise_layout(data: Any) -> dict:
-    """The layout spec (module docstring) with defaults; :class:`DesignInputError` naming the field."""
+def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: int = 10) -> dict:
+    """The layout spec (module docstring) with defaults; :class:`DesignInputError` naming the field.
+    ``max_rays`` / ``max_interactions``: the caps of the evaluation's traces (a server's settings)."""
     data = mapping(data if data is not None else {}, "", {"sensors", "criterion", "snr_db", "min_snr_db",
                                                          "require_direct_path", "min_sensors", "constraints",
                                                          "model_error",
@@ -106,9 +107,10 @@ def normalise_layout(data: Any) -> dict:
         ev = mapping(ev, "evaluate", {"trials", "seed", "rays", "max_interactions"})
         evaluate = {"trials": integer(ev.get("trials", 20), "evaluate.trials", lo=1, hi=1000),
                     "seed": integer(ev.get("seed", 0), "evaluate.seed"),
-                    "rays": integer(ev.get("rays", 100_000), "evaluate.rays", lo=1, hi=1_000_000),
-                    "max_interactions": integer(ev.get("max_interactions", 6), "evaluate.max_interactions", lo=1,
-                                                hi=10)}
+                    "rays": integer(ev.get("rays", min(100_000, max_rays)), "evaluate.rays", lo=1, hi=max_rays),
+                    "max_interactions": integer(ev.get("max_interactions", min(6, max_interactions)),
+                                                "evaluate.max_interactions", lo=1,
+                                                hi=max_interactions)}
     model_error = data.get("model_error", "none")
     if model_error not in ("none", "bias"):
         raise DesignInputError("must be none or bias", "model_error")

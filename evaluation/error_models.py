@@ -168,9 +168,10 @@ class RfFixer:
     spreads) or None (fewer than 4 receivers, or no fix)."""
 
     def __init__(self, phantom, receivers: Sequence[str], cell_size_m: float = DEFAULT_CELL_SIZE_M,
-                 field_cache_dir: str | Path | None = None) -> None:
+                 field_cache_dir: str | Path | None = None, check: Callable[[], None] | None = None) -> None:
         sensors = np.array([phantom.sites[n].position_m for n in receivers])
-        self.fields = sensor_fields(phantom, sensors, FREQUENCY_HZ, cell_size_m, "phase", cache_dir=field_cache_dir)
+        self.fields = sensor_fields(phantom, sensors, FREQUENCY_HZ, cell_size_m, "phase", cache_dir=field_cache_dir,
+                                    check=check)
         self.v = velocity_m_per_s(DEFAULT_RELATIVE_PERMITTIVITY)
         self._subsets: dict[tuple, TravelTimeFields] = {}
 

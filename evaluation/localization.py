@@ -217,17 +217,17 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         if ranging == "pdoa":
             r = estimate_pdoa(profile, band=band.to_dict(),
                               method="regression", snr_db=snr_db, trials=trials, seed=generators[j],
-                              relative_permittivity=relative_permittivity, return_estimates=True)
+                              relative_permittivity=relative_permittivity, return_estimates=True, check=check)
             bound = r.crlb_phase_difference_m
         elif ranging == "rss":
             r = estimate_rss(profile, model=path_loss_model(rss_model).name if isinstance(rss_model, str)
                              else "cm2_deep_tissue", trials=trials, seed=generators[j], shadowing=snr_db is not None,
-                             return_estimates=True)
+                             return_estimates=True, check=check)
             bound = r.crlb_m
         else:
             r = estimate_toa(profile, method=ranging, waveform=waveform, snr_db=snr_db, trials=trials,
                              seed=generators[j], relative_permittivity=relative_permittivity,
-                             return_estimates=True)[0]
+                             return_estimates=True, check=check)[0]
             bound = r.crlb_m
         ranges[:, j] = r.estimates_m
         sigma[j] = max(bound if bound is not None else r.std_m, r.std_m if bound is None else 0.0, SIGMA_FLOOR_M)

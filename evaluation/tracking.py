@@ -125,8 +125,8 @@ class TrackingEvaluation:
     elapsed_s: float = 0.0
 
 
-def _rf_fixes(line, truth: Journey, rf_grid_m: float, links: dict, fixer: RfFixer, model: RfErrorModel
-              ) -> list[tuple | None]:
+def _rf_fixes(line, truth: Journey, rf_grid_m: float, links: dict, fixer: RfFixer, model: RfErrorModel,
+              check: Callable[[], None] = lambda: None) -> list[tuple | None]:
     """Per step (calibrated position, bias covariance, noise covariance) of the RF fix, or None
     (module docstring, 2). The delays at the capsule are interpolated linearly in s between the two
     grid positions around it, so the fix's error varies continuously along the tract, as the body's
@@ -139,6 +139,7 @@ def _rf_fixes(line, truth: Journey, rf_grid_m: float, links: dict, fixer: RfFixe
         f = 0.0 if hi <= lo else float((s - lo) / (hi - lo))
         rec = {"distance_m": (1 - f) * np.asarray(a["distance_m"], float) + f * np.asarray(b["distance_m"], float),
                "std_m": (1 - f) * np.asarray(a["std_m"], float) + f * np.asarray(b["std_m"], float)}
+        check()
         got = fixer.fix(rec)
         if got is None:
             continue
@@ -250,8 +251,8 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
                                           trials=trials, seed=RF_SETTINGS["seed"], cache_dir=cache_dir,
                                           check=check)))
         check()
-        fixer = RfFixer(phantom, links[unique[0]]["receivers"], cell_size_m, field_cache_dir)
-        base = _rf_fixes(line, truth, rf_grid_m, links, fixer, rf_model)
+        fixer = RfFixer(phantom, links[unique[0]]["receivers"], cell_size_m, field_cache_dir, check=check)
+        base = _rf_fixes(line, truth, rf_grid_m, links, fixer, rf_model, check)
     rendered = None
     if need_video:
         if visual_source == "rendered":

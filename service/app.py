@@ -17,6 +17,7 @@ from fastapi.middleware.cors import CORSMiddleware
 
 from raytrace.solver.tracer import warm_up
 from service import __version__
+from service.admission import Gate, Table
 from service.compute import ComputeGate
 from service.deps import AppState
 from service.design_jobs import CoverageJobs, DesignEngine, LayoutJobs
@@ -25,7 +26,7 @@ from service.fullwave_jobs import FullwaveJobs
 from service.jobs import JobRunner
 from service.logs import configure_logging
 from service.metrics import Metrics
-from service.middleware import AllowedMethods, BodyLimit, RequestContextMiddleware
+from service.middleware import AllowedMethods, RequestContextMiddleware
 from service.phantom_builds import PhantomBuilds
 from service.registry import Registry
 from service.routes import (
@@ -64,6 +65,10 @@ emitted (a zero gain is reported as -400 dB). Every error has a body
 names the offending field. Heavy requests (channel, ranging, uploads) run in
 worker threads; a saturated server answers 503 with `Retry-After` at once.
 """
+
+#: Every router of the API, in the order the app includes them.
+ROUTERS = (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, design, vision, tracking,
+           ops)
 
 TAGS = [
     {"name": "channel", "description": "Ray-traced channel impulse responses."},
@@ -136,25 +141,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.coverage = coverage_jobs
     app.state.layout = layout_jobs
     install_error_handlers(app, settings.retry_after_s)
-    for module in (channel, ranging, localize, bounds, plots, catalogue, phantoms, sweeps, fullwave, design, vision,
-                   tracking, ops):
+    for module in ROUTERS:
         app.include_router(module.router)
     pages.install(app)
+    table = Table.of(app.router.routes)  # every route the app serves, whatever included it
+    app.state.declarations = table
     # outermost last: request id and metrics see every answer, CORS answers its preflights,
-    # then foreign-origin writes are refused, JSON bodies capped per operation while they
-    # stream in (uploads have their own streaming caps, service.uploads), and OPTIONS / 405
-    # get the contract's Allow
+    # then foreign-origin writes are refused, every write gets its declaration (service.admission:
+    # the API key, then its body capped while it streams in), and OPTIONS / 405 get the contract's Allow
     app.add_middleware(AllowedMethods, openapi=lambda: app.openapi())  # the documented one, see _document
-    app.add_middleware(BodyLimit, caps=[("/v1/ranging/", settings.max_ranging_body_bytes),
-                                        ("/v1/channel", settings.max_json_body_bytes),
-                                        ("/v1/localize", settings.max_json_body_bytes),
-                                        ("/v1/bounds/", settings.max_json_body_bytes),
-                                        ("/v1/plots/", settings.max_ranging_body_bytes),
-                                        ("/v1/sweeps", settings.max_json_body_bytes),
-                                        ("/v1/fullwave", settings.max_json_body_bytes),
-                                        ("/v1/design/", settings.max_json_body_bytes),
-                                        ("/v1/vision/render", settings.max_json_body_bytes)])
-    app.add_middleware(OriginGuard, allowed_origins=settings.cors_origins)
+    app.add_middleware(Gate, table=lambda: table, settings=settings)
+    app.add_middleware(OriginGuard, settings=settings)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,
@@ -164,7 +161,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             expose_headers=["X-Request-ID", "Retry-After", "Location"],
         )
     app.add_middleware(RequestContextMiddleware, metrics=metrics)
-    _document(app, settings)
+    _document(app, settings, table)
     return app
 
 
@@ -185,14 +182,19 @@ _LIMITS = [
     ("FullwaveRequest", "rays", "maximum", "max_rays"),
     ("FullwaveRequest", "max_interactions", "maximum", "max_interactions"),
     ("FullwaveRequest", "receivers", "maxItems", "max_receivers"),
+    ("CoverageChannel", "rays", "maximum", "max_rays"),  # POST /v1/design/coverage
+    ("CoverageChannel", "max_interactions", "maximum", "max_interactions"),
+    ("Evaluate", "rays", "maximum", "max_rays"),  # POST /v1/design/layout's end-to-end evaluation
+    ("Evaluate", "max_interactions", "maximum", "max_interactions"),
 ]
 
 
-def _document(app: FastAPI, settings: Settings) -> None:
+def _document(app: FastAPI, settings: Settings, table: Table) -> None:
     """The served OpenAPI document says what this server enforces: the manifest's schema is
     added to the components (the multipart part is JSON text, so no route references the
     model); limits lowered by settings replace the schema's ceilings (examples follow); with
-    API keys configured, uploads and deletes declare the key."""
+    API keys configured, the operations they guard (service.admission: uploads, jobs, deletes)
+    declare the key."""
     from service.schemas.phantoms import Manifest
 
     generate = app.openapi
@@ -212,8 +214,10 @@ def _document(app: FastAPI, settings: Settings) -> None:
             if settings.api_keys:
                 schema["components"]["securitySchemes"] = {
                     "ApiKey": {"type": "apiKey", "in": "header", "name": API_KEY_HEADER}}
-                schema["paths"]["/v1/phantoms"]["post"]["security"] = [{"ApiKey": []}]
-                schema["paths"]["/v1/phantoms/{phantom_id}"]["delete"]["security"] = [{"ApiKey": []}]
+                for path, method in table.keyed():
+                    operation = schema["paths"].get(path, {}).get(method.lower())
+                    if operation is not None:
+                        operation["security"] = [{"ApiKey": []}]
             app.openapi_schema = schema
         return app.openapi_schema
 

@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from raytrace import ChannelResult, ChannelSpec, Phantom
-from raytrace.solver.footprint import estimate
+from service import costs
+from service.admission import admit
 from service.errors import NotFound, Unprocessable
 from service.registry import Registry
 from service.schemas import GAIN_DB_FLOOR
@@ -61,26 +62,10 @@ def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tupl
 
 
 def check_footprint(spec: ChannelSpec, settings: Settings) -> None:
-    """Refuse (422, before any work) a request whose estimated shooting exceeds the work budget or
-    whose estimated peak memory exceeds one computation's share of the memory ceiling
-    (:func:`raytrace.solver.footprint.estimate`, docs/service.md "Memory and work model"); the loc names the
-    field whose term dominates, the message the estimate and every knob that shrinks it."""
-    fp = estimate(spec, settings.tracer_config())
-    knobs = (f"rays {spec.rays}, max_interactions {spec.max_interactions}, dynamic_range_db "
-             f"{spec.dynamic_range_db:g}, {len(spec.receivers)} receivers"
-             + (f", {len(spec.band.frequencies_hz)} band points" if spec.band is not None else ""))
-    if fp.ray_segments > settings.max_ray_segments:
-        raise Unprocessable(
-            f"the shooting alone is estimated at {fp.ray_segments:.3g} ray segments ({knobs}), over this server's "
-            f"work budget of {settings.max_ray_segments:.3g}: lower rays, max_interactions or dynamic_range_db",
-            loc=["body", "rays"])
-    share = settings.compute_memory_share_bytes
-    if fp.peak_bytes > share:
-        field = fp.largest_field()
-        raise Unprocessable(
-            f"the trace is estimated to need {fp.peak_bytes / 2**20:.0f} MiB ({knobs}), over this server's "
-            f"{share / 2**20:.0f} MiB per computation; lower {field} first (its term is the largest), or rays, "
-            "max_interactions, dynamic_range_db, receivers", loc=["body", *field.split(".")])
+    """Refuse (422, before any work) a trace whose estimated shooting exceeds the work budget or whose
+    estimated peak memory exceeds one computation's share: :func:`service.costs.channel` through the one
+    rule, :func:`service.admission.admit` (docs/service.md "Memory and work model")."""
+    admit(costs.channel(spec, settings), settings)
 
 
 def _check_outputs(outputs: ChannelOutputs | None, spec: ChannelSpec) -> None:

@@ -67,6 +67,9 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     host = args.host or settings.host
     port = args.port or settings.port
     workers = args.workers or settings.workers
+    # the app (built by uvicorn in each worker from the environment) knows where it is served: its own
+    # origin, which browsers' writes must come from (service.security.configured_origins)
+    os.environ["CAPSULE_RT_HOST"], os.environ["CAPSULE_RT_PORT"] = host, str(port)
     uvicorn.run(
         "service.app:app",
         host=host,

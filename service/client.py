@@ -12,7 +12,7 @@ raises :class:`APIError` carrying the status, the ``detail`` list and the
         toa = api.ranging_toa({"profile": ch.profiles[0].model_dump(), "method": "gcc"})
 
 ``api_key=...`` sends ``X-API-Key`` with every request (a server with
-``CAPSULE_RT_API_KEYS`` set needs it for uploads and deletes).
+``CAPSULE_RT_API_KEYS`` set needs it for uploads, jobs and deletes).
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ class _Call(Generic[M]):
 
 
 def _with_key(api_key: str | None, httpx_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """httpx options with the API key (uploads and deletes on a server that requires keys)."""
+    """httpx options with the API key (uploads, jobs and deletes on a server that requires keys)."""
     if api_key is None:
         return httpx_kwargs
     return {**httpx_kwargs, "headers": {**dict(httpx_kwargs.get("headers") or {}), "X-API-Key": api_key}}

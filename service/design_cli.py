@@ -117,7 +117,7 @@ def add_parser(sub) -> None:
     c.add_argument("--resume", action="store_true", help="go on with the positions still missing")
     c.set_defaults(func=_coverage)
     lay = dsub.add_parser("layout", help="optimise a layout (a POST /v1/design/layout body without coverage)")
-    lay.add_argument("spec")
+    lay.add_argument("spec", help="JSON or YAML layout spec (a POST /v1/design/layout body without coverage)")
     lay.add_argument("--coverage", required=True, help="a done coverage's directory")
     lay.add_argument("--out", help="directory for result.json and report.md")
     lay.set_defaults(func=_layout)
@@ -126,8 +126,10 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="map.png (or .svg, .pdf)")
     p.add_argument("--metric", default="snr_db",
                    choices=["snr_db", "rx_power_dbm", "path_gain_db", "first_delay_s", "eikonal_delay_s",
-                            "direct_path", "paths"])
-    p.add_argument("--reduce", default="median", choices=["median", "min", "max", "mean"])
+                            "direct_path", "paths"],
+                   help="the quantity mapped over the skin (default snr_db)")
+    p.add_argument("--reduce", default="median", choices=["median", "min", "max", "mean"],
+                   help="how each candidate's values over the capsule positions become one (default median)")
     p.add_argument("--position", type=int, default=None, help="one capsule position's values")
     p.add_argument("--layout", help="a layout's result.json: its sensors circled")
     p.set_defaults(func=_plot)

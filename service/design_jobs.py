@@ -20,8 +20,6 @@ from __future__ import annotations
 import builtins
 import json
 import logging
-import os
-import shutil
 import threading
 import time
 from pathlib import Path
@@ -32,11 +30,13 @@ import numpy as np
 from design import coverage as cov
 from design.layout import MAX_SEARCH_WORK, constraints_of, normalise_layout, report_markdown, run_layout, search_work  # noqa: F401 (validation before the 202)
 from raytrace.errors import CapsuleRTError
-from service.errors import Conflict, NotFound, Unprocessable
+from service.admission import Cost, Work
+from service.errors import Conflict, NotFound
 from service.jobs import CANCEL_FILE, JobKind, JobRunner
 from service.registry import Registry
 from service.settings import Settings
 from service.storage import is_upload_id
+from service.workers import WORKERS_DIR, register
 from sweeps.engines import make_engine
 from sweeps.store import atomic_write
 from sweeps.task import PhantomSource, phantom_for
@@ -66,7 +66,9 @@ class DesignEngine:
 
     def get(self):
         if self.engine is None:
-            self.engine = make_engine(self.settings.sweep_workers)
+            # the workers record themselves for the next start to reap if this server is killed (service.workers)
+            self.engine = make_engine(self.settings.sweep_workers, initializer=register,
+                                      initargs=(str(Path(self.settings.data_dir) / WORKERS_DIR),))
         return self.engine
 
     def close(self) -> None:
@@ -83,9 +85,8 @@ class CoverageJobs(JobKind):
     id_loc = ["path", "job_id"]
 
     def __init__(self, settings: Settings, registry: Registry, runner: JobRunner, engine: DesignEngine) -> None:
-        super().__init__(runner, Path(settings.data_dir) / "design" / "coverage", settings.design_max_queue,
-                         settings.retry_after_s)
-        self.settings, self.registry, self.engine = settings, registry, engine
+        super().__init__(runner, settings, Path(settings.data_dir) / "design" / "coverage", settings.design_max_queue)
+        self.registry, self.engine = registry, engine
         self.limits = limits_for(settings)
 
     def exists(self, d: Path) -> bool:
@@ -103,26 +104,32 @@ class CoverageJobs(JobKind):
     def close(self) -> None:
         self.engine.close()
 
-    def submit(self, data: dict) -> dict[str, Any]:
-        """Normalise and plan the spec (every check before any work); store the job ``queued``."""
+    def submit(self, data: dict, owner: str | None = None) -> dict[str, Any]:
+        """Normalise and plan the spec (every check before any work); store the job ``queued`` (owned by
+        ``owner``, the submitting key's id)."""
         spec = cov.normalise_spec(data, self.limits)
         phantom = self.registry.get(spec["phantom"], field_loc=["body", "phantom"])
         source = _source(self.registry, spec["phantom"])
         plan = cov.make_plan(spec, phantom, self.limits, self.settings.tracer_config())
-        with self.admission():
-            job_id = self.new_id()
-            tmp = self.root / f".tmp-{job_id}"
-            try:
-                store = cov.CoverageDir(tmp)
-                store.create({"spec": spec, "plan": plan.to_dict(), "source": source.__dict__,
-                              "created_at": time.time(), "links": plan.links})
-                store.write_state({"state": "queued", "done": 0, "total": len(plan.positions), "elapsed_s": 0.0})
-                os.replace(tmp, self.root / job_id)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
+
+        def build(tmp: Path) -> None:
+            store = cov.CoverageDir(tmp)
+            store.create({"spec": spec, "plan": plan.to_dict(), "source": source.__dict__,
+                          "created_at": time.time(), "links": plan.links})
+            store.write_state({"state": "queued", "done": 0, "total": len(plan.positions), "elapsed_s": 0.0})
+
+        job_id = self.create(self.estimate(plan), build, owner)
         log.info("coverage queued", extra={"coverage": job_id, "links": plan.links})
         return self.status(job_id)
+
+    def estimate(self, plan: cov.Plan) -> Cost:
+        """A coverage's cost (service.admission): its links (capsule positions x candidates) against
+        ``design_max_links``; each trace's work and memory were bounded by the plan with the channel
+        endpoint's rules (design.coverage.make_plan, the same footprint model and caps)."""
+        where = ("positions",) if len(plan.positions) > len(plan.candidates) else ("candidates", "spacing_m")
+        return Cost(work=(Work(where, plan.links, self.settings.design_max_links, "links", "design_max_links",
+                               f"{len(plan.positions)} capsule positions x {len(plan.candidates)} candidates",
+                               "fewer positions (a larger ds_m) or a larger candidate spacing"),))
 
     def status(self, job_id: str) -> dict[str, Any]:
         store = cov.CoverageDir(self.job_dir(job_id))
@@ -193,9 +200,8 @@ class LayoutJobs(JobKind):
 
     def __init__(self, settings: Settings, registry: Registry, runner: JobRunner, engine: DesignEngine,
                  coverage: CoverageJobs) -> None:
-        super().__init__(runner, Path(settings.data_dir) / "design" / "layout", settings.design_max_queue,
-                         settings.retry_after_s)
-        self.settings, self.registry, self.engine, self.coverage = settings, registry, engine, coverage
+        super().__init__(runner, settings, Path(settings.data_dir) / "design" / "layout", settings.design_max_queue)
+        self.registry, self.engine, self.coverage = registry, engine, coverage
 
     def exists(self, d: Path) -> bool:
         return (d / JOB).is_file()
@@ -212,34 +218,33 @@ class LayoutJobs(JobKind):
     def created_at(self, d: Path) -> float:
         return json.loads((d / JOB).read_text()).get("created_at") or 0
 
-    def submit(self, data: dict) -> dict[str, Any]:
-        """Check the layout against its coverage (done; constraints; the search's work bound); queue it."""
+    def submit(self, data: dict, owner: str | None = None) -> dict[str, Any]:
+        """Check the layout against its coverage (done; constraints; the search's work bound); queue it (owned
+        by ``owner``, the submitting key's id)."""
         data = dict(data)
         coverage_id = data.pop("coverage", None)
-        layout = normalise_layout(data)
+        layout = normalise_layout(data, max_rays=self.settings.max_rays,
+                                  max_interactions=self.settings.max_interactions)
         d = self.coverage.done_dir(coverage_id, ["body", "coverage"])
         record = cov.CoverageDir(d).record()
         plan = cov.Plan.from_dict(record["plan"])
         is_site = np.array([bool(s) for s in plan.candidates.site])
         cons, _ = constraints_of(layout, plan.candidates.positions_m, is_site)
         work = search_work(layout, len(plan.positions), int(cons.allowed.sum()))
-        if work > MAX_SEARCH_WORK:
-            raise Unprocessable(f"the search may take {work:.3g} candidate scorings x positions, over the bound of "
-                                f"{MAX_SEARCH_WORK:.3g}: fewer search.restarts or search.max_passes",
-                                loc=["body", "search", "restarts"])
-        with self.admission():
-            job_id = self.new_id()
-            tmp = self.root / f".tmp-{job_id}"
-            try:
-                tmp.mkdir(parents=True)
-                atomic_write(tmp / JOB, json.dumps({"layout": layout, "coverage": coverage_id,
-                                                    "created_at": time.time()}, allow_nan=False).encode())
-                self.write_state(tmp, {"state": "queued", "elapsed_s": 0.0})
-                os.replace(tmp, self.root / job_id)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
+
+        def build(tmp: Path) -> None:
+            atomic_write(tmp / JOB, json.dumps({"layout": layout, "coverage": coverage_id,
+                                                "created_at": time.time()}, allow_nan=False).encode())
+            self.write_state(tmp, {"state": "queued", "elapsed_s": 0.0})
+
+        job_id = self.create(self.estimate(work), build, owner)
         return self.status(job_id)
+
+    def estimate(self, work: float) -> Cost:
+        """A layout's cost (service.admission): the search's candidate scorings x positions
+        (design.layout.search_work) against its bound."""
+        return Cost(work=(Work(("search", "restarts"), work, MAX_SEARCH_WORK, "candidate scorings x positions",
+                               "MAX_SEARCH_WORK", "the search", "fewer search.restarts or search.max_passes"),))
 
     def status(self, job_id: str) -> dict[str, Any]:
         d = self.job_dir(job_id)

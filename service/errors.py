@@ -22,6 +22,7 @@ schema violation                   422
 ``raytrace.errors.NotFoundError``   404
 ``Unauthorized`` / ``Forbidden``    401 / 403 (API keys, origins)
 ``UploadTooLarge``                  413
+``UnsupportedMediaType``            415
 ``NotInstalled``                    501 (gprMax missing on the server)
 ``ServerSaturated``                 503 + Retry-After
 ``BudgetExceededError`` deadline    504
@@ -77,6 +78,11 @@ class Forbidden(ServiceError):
 class UploadTooLarge(ServiceError):
     status_code = 413
     type = "too_large"
+
+
+class UnsupportedMediaType(ServiceError):
+    status_code = 415
+    type = "unsupported_media_type"
 
 
 class ServerSaturated(ServiceError):
@@ -221,12 +227,13 @@ def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
 
     text = {
         400: "Malformed request.",
-        401: "API key missing or not valid (only when the server requires keys; header `X-API-Key`).",
-        403: "Refused: the key did not upload this phantom, or a cross-origin write.",
+        401: "API key missing or not valid (only when the server requires keys: uploads, jobs and deletes; header "
+             "`X-API-Key`).",
+        403: "Refused: another key submitted this phantom or job, or a write from a foreign origin.",
         404: "Unknown phantom, scenario, site or route.",
         409: "Conflict (e.g. deleting a built-in phantom).",
         413: "Request body over its size cap.",
-        415: "Unsupported upload format.",
+        415: "Unsupported media type (a body in a format the operation does not take).",
         422: "Schema violation or a physical precondition broken; `detail[].loc` names the field.",
         501: "The server lacks an optional tool the request needs (gprMax); the message says what works without.",
         503: "Saturated or work budget exceeded; retry after `Retry-After` seconds.",

@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import shutil
 import signal
 import threading
 import time
@@ -37,6 +36,7 @@ from fullwave.model import FdtdOptions, build_model, model_size
 from fullwave.run import compare, export, gprmax_available, input_stem
 from raytrace.errors import BudgetExceededError, CapsuleRTError
 from raytrace.spec import ChannelSpec
+from service.admission import Cost, Work, admit
 from service.channel import to_spec
 from service.errors import Conflict, NotFound, NotInstalled, Unprocessable
 from service.jobs import CANCEL_FILE, JobKind, JobRunner
@@ -98,9 +98,7 @@ class FullwaveJobs(JobKind):
     id_loc = ["path", "job_id"]
 
     def __init__(self, settings: Settings, registry: Registry, runner: JobRunner) -> None:
-        super().__init__(runner, Path(settings.data_dir) / "fullwave", settings.fullwave_max_queue,
-                         settings.retry_after_s)
-        self.settings = settings
+        super().__init__(runner, settings, Path(settings.data_dir) / "fullwave", settings.fullwave_max_queue)
         self.registry = registry
 
     # ------------------------------------------------------------ the queue's hooks
@@ -139,28 +137,13 @@ class FullwaveJobs(JobKind):
             raise Unprocessable(f"the second run's cells would be {sizes[1]:.4g} m, outside [1e-4, 0.02] m",
                                 loc=["body", "coarse_factor"])
         runs = []
-        memory_cap = self.settings.compute_memory_share_bytes
-        for k, h in enumerate(sizes):
-            opts = FdtdOptions(cell_m=h, margin_m=options.margin_m, pml_cells=options.pml_cells)
-            size = model_size(spec, phantom, opts)
-            if size.memory_bytes > memory_cap:  # gprMax holds the whole grid: bounded before it starts
-                raise Unprocessable(
-                    f"{h * 1e3:g} mm cells: the FDTD grid ({'x'.join(map(str, size.cells))} cells) needs about "
-                    f"{size.memory_bytes / 2**20:.0f} MiB, over this server's {memory_cap / 2**20:.0f} MiB per "
-                    "computation: larger cells or a smaller margin_m", loc=["body", "coarse_factor" if k else "cell_m"])
+        for h in sizes:
+            size = model_size(spec, phantom, FdtdOptions(cell_m=h, margin_m=options.margin_m,
+                                                        pml_cells=options.pml_cells))
             runs.append({"cell_m": h, "input": f"{input_stem(h)}.in", "cells": list(size.cells),
-                         "iterations": size.iterations, "cell_updates": size.cell_updates})
-        total = sum(r["cell_updates"] for r in runs)
-        cap = self.settings.fullwave_max_cell_updates
-        if total > cap:
-            field = "coarse_factor" if len(runs) == 2 and runs[1]["cell_updates"] > runs[0]["cell_updates"] \
-                else "cell_m"
-            sizes_text = " + ".join(f"{r['cell_m'] * 1e3:g} mm: {'x'.join(map(str, r['cells']))} cells x "
-                                    f"{r['iterations']} steps" for r in runs)
-            raise Unprocessable(
-                f"the FDTD work is {total:.3g} cell updates ({sizes_text}), over this server's limit of {cap:.3g} "
-                f"(about {cap / UPDATES_PER_S / 60:.0f} min of gprMax on 2 cores): larger cell_m, a smaller "
-                "margin_m, or coarse_factor 0 (one run)", loc=["body", field])
+                         "iterations": size.iterations, "cell_updates": size.cell_updates,
+                         "_bytes": size.memory_bytes})
+        admit(self.estimate(runs), self.settings)
         for k, r in enumerate(runs):  # the models themselves: antennas outside the PML, the phantom's voxels
             opts = FdtdOptions(cell_m=r["cell_m"], margin_m=options.margin_m, pml_cells=options.pml_cells)
             try:
@@ -170,14 +153,36 @@ class FullwaveJobs(JobKind):
                 raise Unprocessable(f"{r['cell_m'] * 1e3:g} mm cells: {exc.reason}", loc=["body", field]) from None
             except ValueError as exc:
                 raise Unprocessable(str(exc), loc=["body", "margin_m"]) from None
+            r.pop("_bytes", None)
             r.update(cells=list(model.cells), iterations=model.iterations,
                      cell_updates=model.iterations * model.cells[0] * model.cells[1] * model.cells[2],
                      _model=model)
         return spec, phantom, options, sizes, runs
 
-    def submit(self, req: Any) -> dict[str, Any]:
+    def estimate(self, runs: list[dict]) -> Cost:
+        """A job's cost (its models' sizes, :func:`fullwave.model.model_size`): the cells x time steps of
+        all its gprMax runs against ``fullwave_max_cell_updates`` (``cell_m``, or ``coarse_factor`` when the
+        second run is the bigger one), and the grid gprMax holds (one run at a time: the largest) against one
+        computation's memory share. The trace it also runs was admitted with its channel request."""
+        loc = lambda k: ("coarse_factor",) if k else ("cell_m",)  # noqa: E731
+        total = sum(r["cell_updates"] for r in runs)
+        field = 1 if len(runs) == 2 and runs[1]["cell_updates"] > runs[0]["cell_updates"] else 0
+        sizes_text = " + ".join(f"{r['cell_m'] * 1e3:g} mm: {'x'.join(map(str, r['cells']))} cells x "
+                                f"{r['iterations']} steps" for r in runs)
+        cap = self.settings.fullwave_max_cell_updates
+        biggest = max(range(len(runs)), key=lambda k: runs[k]["_bytes"])
+        return Cost(
+            work=(Work(loc(field), total, cap, "cell updates", "fullwave_max_cell_updates",
+                       f"the FDTD work ({sizes_text})", f"about {cap / UPDATES_PER_S / 60:.0f} min of gprMax on 2 "
+                       "cores; larger cell_m, a smaller margin_m, or coarse_factor 0 (one run)"),),
+            memory=((loc(biggest), runs[biggest]["_bytes"]),),
+            what=f"the FDTD grid at {runs[biggest]['cell_m'] * 1e3:g} mm ({'x'.join(map(str, runs[biggest]['cells']))} "
+                 "cells; gprMax holds it whole)", knobs="larger cells or a smaller margin_m")
+
+    def submit(self, req: Any, owner: str | None = None) -> dict[str, Any]:
         """Validate a :class:`~service.schemas.fullwave.FullwaveRequest`, store the job (``queued``, or
-        ``done`` for ``export_only``); its status. Runs in a worker thread."""
+        ``done`` for ``export_only``) owned by ``owner`` (the submitting key's id); its status. Runs in a
+        worker thread."""
         spec, phantom, options, sizes, runs = self._validate(req)
         if not req.export_only and not gprmax_available():
             raise NotInstalled("gprMax is not installed on this server (pip install 'capsule-rt[fullwave]'); "
@@ -190,23 +195,19 @@ class FullwaveJobs(JobKind):
             "coarse_factor": req.coarse_factor or None, "export_only": req.export_only,
             "runs": [{k: v for k, v in r.items() if k != "_model"} for r in runs], "created_at": time.time(),
         }
-        with self.admission():
-            job_id = self.new_id()
-            tmp = self.root / f".tmp-{job_id}"
-            try:
-                (tmp / RUN_DIR).mkdir(parents=True)
-                for r in runs:  # the inputs are there at once, to download while the job waits
-                    export(r["_model"], tmp / RUN_DIR, input_stem(r["cell_m"]))
-                state = {"state": "queued", "runs_done": 0, "elapsed_s": 0.0}
-                if req.export_only:
-                    compare(spec, phantom, options, tmp / RUN_DIR, coarse_factor=record["coarse_factor"], run=False)
-                    state.update(state="done", finished_at=time.time())
-                atomic_write(tmp / JOB_FILE, json.dumps(record, sort_keys=True, allow_nan=False).encode())
-                self.write_state(tmp, state)
-                os.replace(tmp, self.root / job_id)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
+
+        def build(tmp: Path) -> None:
+            (tmp / RUN_DIR).mkdir()
+            for r in runs:  # the inputs are there at once, to download while the job waits
+                export(r["_model"], tmp / RUN_DIR, input_stem(r["cell_m"]))
+            state = {"state": "queued", "runs_done": 0, "elapsed_s": 0.0}
+            if req.export_only:
+                compare(spec, phantom, options, tmp / RUN_DIR, coarse_factor=record["coarse_factor"], run=False)
+                state.update(state="done", finished_at=time.time())
+            atomic_write(tmp / JOB_FILE, json.dumps(record, sort_keys=True, allow_nan=False).encode())
+            self.write_state(tmp, state)
+
+        job_id = self.create(Cost(), build, owner)  # its cost was admitted by _validate, before the models were built
         log.info("fullwave queued", extra={"fullwave": job_id, "phantom": spec.phantom,
                                            "cell_updates": sum(r["cell_updates"] for r in runs)})
         return self.status(job_id)
@@ -225,7 +226,8 @@ class FullwaveJobs(JobKind):
             "iteration": state.get("iteration", 0), "iterations": state.get("iterations", 0),
             "progress": min(1.0, done_work / sum(work)) if sum(work) else 0.0,
             "elapsed_s": float(state.get("elapsed_s") or 0.0), "eta_s": state.get("eta_s"),
-            "error": state.get("error"), "files": self._files(d), "created_at": job.get("created_at"),
+            "error": self.redact(state.get("error"), d / RUN_DIR), "files": self._files(d),
+            "created_at": job.get("created_at"),
             "started_at": state.get("started_at"), "finished_at": state.get("finished_at"),
             "cancel_requested": (d / CANCEL_FILE).exists(),
         }
@@ -265,15 +267,20 @@ class FullwaveJobs(JobKind):
             raise Conflict(f"the report is written when the job is done; it is {state}", loc=self.id_loc)
         return path.read_bytes()
 
-    def file(self, job_id: str, name: str) -> tuple[Path, str]:
+    def file(self, job_id: str, name: str) -> tuple[Path | bytes, str]:
         """A file of the job's own run directory that :meth:`_files` lists (the route's pattern has
-        already refused any other name), and its media type."""
+        already refused any other name), and its media type. Text files (gprMax's log and input, the
+        report) come as bytes with the server's paths redacted (:meth:`redact`: gprMax writes the
+        absolute paths of its input and output); the HDF5 output as its path."""
         d = self.job_dir(job_id)
         if name not in self._files(d):
             raise NotFound(f"{name!r} is not (yet) a file of {job_id}; its status lists them",
                            loc=["path", "name"])
         path = d / RUN_DIR / name
-        return path, MEDIA.get(path.suffix, "application/octet-stream")
+        media = MEDIA.get(path.suffix, "application/octet-stream")
+        if path.suffix == ".h5":
+            return path, media
+        return (self.redact(path.read_text(errors="replace"), d / RUN_DIR) or "").encode(), media
 
     # ------------------------------------------------------------ runner
     def execute(self, job_id: str, cancel: threading.Event) -> str:

@@ -18,12 +18,15 @@ loop. Cancellation is a ``cancel.requested`` file in the job's directory that th
 children.
 
 Admission is per kind (``sweep_max_queue``, ``fullwave_max_queue``: jobs queued or running;
-beyond, 503 + Retry-After); every job is validated before its 202.
+beyond, 503 + Retry-After); every job is validated before its 202, and its cost goes through the
+service's one rule (:mod:`service.admission`): a kind implements :meth:`JobKind.estimate` and queues
+with :meth:`JobKind.create`, which admits the cost (422 naming the field) before anything is written.
 """
 
 from __future__ import annotations
 
 import fcntl
+import json
 import logging
 import os
 import re
@@ -33,13 +36,19 @@ import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
+from service.admission import Cost, admit
 from service.errors import Conflict, NotFound, ServerSaturated
+from service.security import check_owner
+from service.settings import Settings
+from service.workers import WORKERS_DIR, clear, reap
 
 log = logging.getLogger("capsule_rt.jobs")
 
 CANCEL_FILE = "cancel.requested"
+#: The job's owner: the id of the API key that submitted it (service.security.owner_id), or null.
+OWNER_FILE = "owner.json"
 ACTIVE = ("queued", "running")
 #: How often the runner looks for new jobs and cancellation requests [s].
 POLL_S = 0.5
@@ -51,7 +60,7 @@ class JobKind:
 
     A subclass sets ``kind``, ``prefix``, ``noun``, ``list_path``, ``id_loc`` and implements
     :meth:`exists`, :meth:`read_state`, :meth:`write_state`, :meth:`created_at`,
-    :meth:`status` and :meth:`execute`."""
+    :meth:`status`, :meth:`execute` and :meth:`estimate`; it submits through :meth:`create`."""
 
     kind = ""
     prefix = ""
@@ -59,11 +68,12 @@ class JobKind:
     list_path = ""
     id_loc: list[str] = ["path", "job_id"]
 
-    def __init__(self, runner: "JobRunner", root: Path, max_queue: int, retry_after_s: int) -> None:
+    def __init__(self, runner: "JobRunner", settings: Settings, root: Path, max_queue: int) -> None:
         self.runner = runner
+        self.settings = settings
         self.root = Path(root)
         self.max_queue = max_queue
-        self.retry_after_s = retry_after_s
+        self.retry_after_s = settings.retry_after_s
         self._id_re = re.compile(rf"^{re.escape(self.prefix)}[0-9a-f]{{16}}$")
         runner.register(self)
 
@@ -85,6 +95,12 @@ class JobKind:
 
     def execute(self, job_id: str, cancel: threading.Event) -> str:
         """Run the job until it ends or ``cancel`` is set; its final state (recorded in its state)."""
+        raise NotImplementedError
+
+    def estimate(self, validated: Any) -> Cost:
+        """What one job costs, from its validated request, before it is queued: its work products
+        against their caps and the memory one of its computations holds (service.admission,
+        docs/service.md "Bounded before work"). Every kind implements it; :meth:`create` admits it."""
         raise NotImplementedError
 
     def close(self) -> None:
@@ -114,6 +130,25 @@ class JobKind:
     def active(self) -> int:
         return sum(1 for j in self.job_ids() if self.read_state(self.root / j).get("state") in ACTIVE)
 
+    def create(self, cost: Cost, build: Callable[[Path], None], owner: str | None) -> str:
+        """Queue a new job: ``cost`` through the one rule (422 naming its dominant field), then, under the
+        queue's admission (503 beyond ``max_queue``), ``build(tmp)`` writes the job's files into a
+        temporary directory that one rename makes the job (never half-written), with ``owner`` (the
+        submitting key's id, :func:`service.security.owner_id`; None without keys). Its id."""
+        admit(cost, self.settings)
+        with self.admission():
+            job_id = self.new_id()
+            tmp = self.root / f".tmp-{job_id}"
+            try:
+                tmp.mkdir(parents=True)
+                build(tmp)
+                (tmp / OWNER_FILE).write_text(json.dumps({"owner": owner}))
+                os.replace(tmp, self.root / job_id)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        return job_id
+
     @contextmanager
     def admission(self) -> Iterator[None]:
         """Hold the queue's lock while a job is created; 503 + Retry-After when ``max_queue`` are active."""
@@ -125,9 +160,33 @@ class JobKind:
                     headers={"Retry-After": str(self.retry_after_s)})
             yield
 
-    def cancel(self, job_id: str) -> dict[str, Any]:
-        """Cancel a queued or running job; delete a finished one (and all its files)."""
+    def redact(self, text: str | None, job_dir: Path | None = None) -> str | None:
+        """``text`` (a log, a message) without the server's file system: the job's own directory becomes
+        ``.`` relative to the file asked for (``job_dir``: its run directory), the data directory
+        ``<data_dir>``. Absolute paths tell a client where and as whom the server runs."""
+        if not text:
+            return text
+        pairs = []
+        if job_dir is not None:
+            pairs += [(str(job_dir.resolve()), "."), (str(job_dir.absolute()), ".")]
+        data = Path(self.settings.data_dir)
+        pairs += [(str(data.resolve()), "<data_dir>"), (str(data.absolute()), "<data_dir>")]
+        for path, replacement in sorted(set(pairs), key=lambda p: -len(p[0])):  # the longest first
+            text = text.replace(path, replacement)
+        return text
+
+    def owner(self, job_id: str) -> str | None:
+        """The id of the key that submitted the job (None: submitted without keys, or before owners were kept)."""
+        try:
+            return json.loads((self.job_dir(job_id) / OWNER_FILE).read_text()).get("owner")
+        except (FileNotFoundError, ValueError, AttributeError):
+            return None
+
+    def cancel(self, job_id: str, requester: str | None = None) -> dict[str, Any]:
+        """Cancel a queued or running job; delete a finished one (and all its files). With API keys in use
+        (``requester``: the request's key id), only the key that submitted the job may (403 otherwise)."""
         d = self.job_dir(job_id)
+        check_owner(self.owner(job_id), requester, f"{self.noun} {job_id}")
         state = self.read_state(d)
         if state.get("state") in ACTIVE:
             (d / CANCEL_FILE).touch()
@@ -154,6 +213,8 @@ class JobRunner:
 
     def __init__(self, data_dir: Path) -> None:
         self.data_dir = Path(data_dir)
+        #: Where the kinds' worker processes record themselves (service.workers).
+        self.workers_dir = self.data_dir / WORKERS_DIR
         self.kinds: list[JobKind] = []
         self.submit_lock = threading.Lock()
         self._stop = threading.Event()
@@ -162,12 +223,19 @@ class JobRunner:
         self._current: tuple[JobKind, str, threading.Event] | None = None
 
     def register(self, kind: JobKind) -> None:
+        """Add a kind to the queue; one that does not say what its jobs cost is refused (service.admission)."""
+        if type(kind).estimate is JobKind.estimate:
+            raise TypeError(f"job kind {type(kind).__name__} must implement estimate() (docs/service.md, "
+                            "'Bounded before work')")
         self.kinds.append(kind)
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
+        """Start the runner thread; when this process gets the data directory's lock at once, it first reaps
+        what a killed runner left (its workers, its partial submissions), before the service says ready."""
         for kind in self.kinds:
             kind.root.mkdir(parents=True, exist_ok=True)
+        self._take_lock()
         self._thread = threading.Thread(target=self._run, name="job-runner", daemon=True)
         self._thread.start()
 
@@ -181,6 +249,7 @@ class JobRunner:
             self._thread.join(timeout_s)
         for kind in self.kinds:
             kind.close()
+        clear(self.workers_dir)  # every pool shut down cleanly: nothing for the next start to reap
         if self._lock_fd is not None:
             os.close(self._lock_fd)
             self._lock_fd = None
@@ -201,6 +270,7 @@ class JobRunner:
             os.close(fd)
             return False
         self._lock_fd = fd
+        reap(self.workers_dir)  # the worker processes of a runner that was killed (service.workers)
         for kind in self.kinds:  # leftovers of submissions and deletions a crash interrupted
             if kind.root.is_dir():
                 for entry in kind.root.iterdir():

@@ -1,4 +1,5 @@
-"""Pure-ASGI middleware: request id, access log, request metrics; methods per the contract."""
+"""Pure-ASGI middleware: request id, access log, request metrics; methods per the contract. (A write's
+key and body cap: service.admission.Gate; foreign origins: service.security.OriginGuard.)"""
 
 from __future__ import annotations
 
@@ -6,9 +7,6 @@ import logging
 import re
 import time
 import uuid
-
-from starlette.exceptions import HTTPException
-from starlette.responses import JSONResponse
 
 from service.logs import request_id_var
 from service.metrics import Metrics
@@ -117,53 +115,3 @@ class AllowedMethods:
             await send(message)
 
         await self.app(scope, receive, send_allow)
-
-
-class BodyLimit:
-    """Cap the request body of each operation while it streams in: a declared
-    ``Content-Length`` over the cap is refused before anything is read, and a body that
-    passes the cap while arriving stops being read there. Both answer 413 with the usual
-    error body. ``caps``: (path prefix, bytes), first match wins; other paths are not capped
-    here (uploads stream through their own caps, service.uploads)."""
-
-    def __init__(self, app, caps: list[tuple[str, int]]) -> None:
-        self.app = app
-        self.caps = caps
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] != "http" or scope.get("method") not in ("POST", "PUT", "PATCH"):
-            await self.app(scope, receive, send)
-            return
-        path = scope.get("path", "")
-        cap = next((c for prefix, c in self.caps if path.startswith(prefix)), None)
-        if cap is None:
-            await self.app(scope, receive, send)
-            return
-        declared = next((v for k, v in scope.get("headers", []) if k == b"content-length"), b"")
-        if declared.isdigit() and int(declared) > cap:
-            await _too_large(cap, int(declared))(scope, receive, send)
-            return
-        received = 0
-
-        async def receive_capped():
-            nonlocal received
-            message = await receive()
-            if message["type"] == "http.request":
-                received += len(message.get("body", b""))
-                if received > cap:
-                    # an HTTPException reaches the app's handler (JSON body), wherever the read happens
-                    raise HTTPException(413, _too_large_text(cap, None))
-            return message
-
-        await self.app(scope, receive_capped, send)
-
-
-def _too_large_text(cap: int, declared: int | None) -> str:
-    size = f"of {declared} bytes " if declared is not None else ""
-    return f"request body {size}exceeds this operation's cap of {cap} bytes (refused while reading it)"
-
-
-def _too_large(cap: int, declared: int):
-    from service.errors import error_body
-
-    return JSONResponse(error_body(["body"], _too_large_text(cap, declared), "too_large"), status_code=413)

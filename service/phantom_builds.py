@@ -35,6 +35,7 @@ from typing import Any
 from raytrace.body.anatomy import Limits, build_phantom, check_limits, load_manifest, parse_manifest_text
 from raytrace.body.gltf import export_glb, export_manifest
 from raytrace.errors import CapsuleRTError
+from service.admission import Cost, admit
 from service.errors import Unprocessable, UploadTooLarge, field_to_loc
 from service.jobs import CANCEL_FILE, JobKind, JobRunner
 from service.registry import Registry, describe_phantom
@@ -78,9 +79,7 @@ class PhantomBuilds(JobKind):
     id_loc = ["path", "build_id"]
 
     def __init__(self, settings: Settings, registry: Registry, runner: JobRunner) -> None:
-        super().__init__(runner, Path(settings.data_dir) / "phantom_builds", settings.sweep_max_queue,
-                         settings.retry_after_s)
-        self.settings = settings
+        super().__init__(runner, settings, Path(settings.data_dir) / "phantom_builds", settings.sweep_max_queue)
         self.registry = registry
         self.limits = limits_for(settings)
 
@@ -114,9 +113,10 @@ class PhantomBuilds(JobKind):
                 try:
                     data = parse_manifest_text(manifest_path.read_bytes(), filename=manifest_path.name)
                     manifest = load_manifest(data)
-                    check_limits(manifest, manifest_path.parent, self.limits, confine=True)
+                    plan = check_limits(manifest, manifest_path.parent, self.limits, confine=True)
                 except CapsuleRTError as exc:
                     raise Unprocessable(exc.reason, loc=["body", "archive", *field_to_loc(exc.field)]) from None
+                admit(self.estimate(plan), self.settings)  # the one rule (the build's own check said the same)
                 record = {"manifest": str(manifest_path.relative_to(files)), "name": manifest.name,
                           "owner": owner, "created_at": time.time()}
                 atomic_write(tmp / JOB_FILE, json.dumps(record, sort_keys=True).encode())
@@ -127,6 +127,17 @@ class PhantomBuilds(JobKind):
                 raise
         log.info("phantom build queued", extra={"phantom_build": job_id})
         return self.status(job_id)
+
+    def estimate(self, plan: dict[str, Any]) -> Cost:
+        """A build's cost (service.admission), from the anatomy pipeline's plan of the archive
+        (raytrace.body.anatomy.check_limits, before any mesh is decoded): its memory estimate (12 bytes per
+        file byte, 10 per voxel) against one computation's share."""
+        return Cost(memory=((("archive",), float(plan["memory_estimate_bytes"])),),
+                    what=f"the build ({plan['file_bytes']} file bytes, {plan['voxels']} voxels)")
+
+    def owner(self, job_id: str) -> str | None:
+        """The submitting key's id, kept in the job's record."""
+        return json.loads((self.job_dir(job_id) / JOB_FILE).read_text()).get("owner")
 
     # ------------------------------------------------------------ API
     def status(self, job_id: str) -> dict[str, Any]:

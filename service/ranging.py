@@ -8,6 +8,8 @@ from typing import Any
 import numpy as np
 
 from raytrace.solver.budget import Budget
+from service import costs
+from service.admission import admit
 from service.errors import Unprocessable
 from service.schemas.ranging import PdoaRequest, ProfileIn, RangingCommon, RssRequest, ToaRequest
 from service.settings import Settings
@@ -86,25 +88,11 @@ def _toa_waveform(req: ToaRequest) -> dict[str, Any]:
 
 def _check_toa_work(req: ToaRequest, profile, waveform: dict[str, Any], settings: Settings) -> None:
     """Refuse, before any work, a TOA request over ``max_ranging_samples`` (settings): the
-    synthesis costs samples x paths, the Monte Carlo samples x trials (estimators.toa_samples)."""
+    synthesis costs samples x paths, the Monte Carlo samples x trials (estimators.toa_samples),
+    through the one rule (:func:`service.costs.toa`, :func:`service.admission.admit`)."""
     from estimators import toa_samples
 
-    n = toa_samples(profile, waveform)
-    cap = settings.max_ranging_samples
-    paths = len(req.profile.paths)
-    if n * paths > cap:
-        raise Unprocessable(
-            f"{paths} paths x {n} samples per trial = {n * paths} exceeds this server's work limit of {cap} samples: "
-            "drop weak or late paths, or lower waveform.sample_rate_hz",
-            loc=["body", "profile", "paths"],
-        )
-    if n * req.trials > cap:
-        raise Unprocessable(
-            f"{req.trials} trials x {n} samples per trial = {n * req.trials} exceeds this server's work limit of "
-            f"{cap} samples: lower trials (at most {max(cap // n, 1)} here), or shorten the observation "
-            "(the last path's delay, waveform.duration_s) or waveform.sample_rate_hz",
-            loc=["body", "trials"],
-        )
+    admit(costs.toa(toa_samples(profile, waveform), len(req.profile.paths), req.trials, settings), settings)
 
 
 def _num(x: Any) -> float | None:
@@ -181,6 +169,18 @@ def _tones(req: PdoaRequest) -> np.ndarray:
     return f[[0, -1]] if req.method == "two_tone" else f
 
 
+def pdoa_cost(req: PdoaRequest, settings: Settings):
+    """PDOA's cost: the profile's response at every tone, then every trial's noisy tones
+    (:func:`service.costs.tones`); tones from the request, or at most the band limit (the profile's band)."""
+    if req.frequencies_hz is not None:
+        n, loc = len(req.frequencies_hz), ("frequencies_hz",)
+    elif req.band is not None:
+        n, loc = req.band.points, ("band", "points")
+    else:
+        n, loc = settings.max_band_points, ("profile",)
+    return costs.tones(len(req.profile.paths), n, req.trials, settings, loc)
+
+
 def pdoa(req: PdoaRequest, settings: Settings, budget: Budget | None = None) -> dict[str, Any]:
     from estimators.pdoa import estimate_pdoa
 
@@ -191,6 +191,7 @@ def pdoa(req: PdoaRequest, settings: Settings, budget: Budget | None = None) -> 
     if req.frequencies_hz is not None and len(req.frequencies_hz) > settings.max_band_points:
         raise Unprocessable(f"{len(req.frequencies_hz)} tones exceed this server's limit of {settings.max_band_points}",
                             loc=["body", "frequencies_hz"])
+    admit(pdoa_cost(req, settings), settings)
     result = estimate_pdoa(
         path_profile(req.profile),
         frequencies_hz=None if req.frequencies_hz is None else _tones(req),
@@ -212,6 +213,8 @@ def rss(req: RssRequest, settings: Settings, budget: Budget | None = None) -> di
     from estimators.rss import estimate_rss
 
     _check_trials(req, settings)
+    admit(costs.tones(0 if req.profile is None else len(req.profile.paths), 1, req.trials, settings, ("trials",)),
+          settings)
     result = estimate_rss(
         None if req.profile is None else path_profile(req.profile),
         rss_dbm=req.rss_dbm,

@@ -35,7 +35,9 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="CAPSULE_RT_", extra="ignore")
 
-    host: str = Field("127.0.0.1", description="Interface `capsule-rt serve` binds to.")
+    host: str = Field("127.0.0.1", description="Interface `capsule-rt serve` binds to; with the port, the server's "
+                      "own origin `http://HOST:PORT`, from whose pages writes are accepted (a loopback or wildcard "
+                      "HOST: `localhost`, `127.0.0.1`, `[::1]`; any other public name goes in CORS_ORIGINS).")
     port: int = Field(8000, ge=1, le=65535, description="TCP port of `capsule-rt serve`.")
     workers: int = Field(1, ge=1, le=64, description="Uvicorn worker processes.")
     data_dir: Path = Field(
@@ -66,10 +68,12 @@ class Settings(BaseSettings):
         "trial x trials, and samples per trial x paths (synthesis) [-].",
     )
     max_json_body_bytes: int = Field(
-        256 * 1024, ge=1024, description="Max JSON body of channel and bounds requests [bytes]; beyond it: 413."
+        256 * 1024, ge=1024, description="Max JSON body of the other operations (channel, bounds, localization, "
+        "jobs, renders...) and of any undeclared write [bytes]; beyond it: 413."
     )
     max_ranging_body_bytes: int = Field(
-        16 * 1024 * 1024, ge=1024, description="Max JSON body of ranging requests (a profile) [bytes]; beyond it: 413."
+        16 * 1024 * 1024, ge=1024, description="Max JSON body of the operations that carry data (ranging profiles, "
+        "plots, the track's observations) [bytes]; beyond it: 413."
     )
     max_ray_segments: int = Field(
         50_000_000,
@@ -174,13 +178,15 @@ class Settings(BaseSettings):
     api_keys: CommaList = Field(
         default_factory=list,
         repr=False,
-        description=f"Comma-separated API keys (each >= {MIN_API_KEY_CHARS} characters). Empty: uploads and "
-        "deletes are open. Set: they need header `X-API-Key`, and only the key that uploaded a phantom deletes it.",
+        description=f"Comma-separated API keys (each >= {MIN_API_KEY_CHARS} characters). Empty: uploads, jobs "
+        "and deletes are open. Set: they need header `X-API-Key`, and only the key that submitted a phantom or a "
+        "job deletes it.",
     )
     cors_origins: CommaList = Field(
         default_factory=list,
         description="Comma-separated origins (`https://host:port`) whose web pages may call the API "
-        "(CORS). Empty: none; writes carrying any other `Origin` are refused (403).",
+        "(CORS). Empty: none; writes carrying an `Origin` that is neither one of these nor the server's own "
+        "(HOST, PORT) are refused (403): scheme, host and port all count, the request's Host header never does.",
     )
 
     def trace_knobs(self, rays: int | None, max_interactions: int | None, *, default_rays: int,

@@ -3,7 +3,10 @@
 Each engine's :meth:`run` takes a function and task inputs and yields ``(index, output)``
 pairs as tasks finish (``output`` is the task's return value or the exception it raised),
 stopping early when ``cancel`` is set. The function and its inputs are the same whatever
-the engine, and so are the outputs (``docs/sweeps.md``, "Engines").
+the engine, and so are the outputs (``docs/sweeps.md``, "Engines"). ``shared`` (keyword
+arguments every task gets, e.g. an uploaded phantom's files) is sent once per run: a Dask
+engine scatters it to every worker once (its workers may be other machines that do not see
+this one's files: ``remote``), the local engines pass it along.
 
 * :class:`SerialEngine` (``workers=0``): a plain loop in this process (tests, benchmarks'
   reference, debugging).
@@ -46,28 +49,34 @@ def default_workers() -> int:
 
 class SerialEngine:
     name = "serial"
+    remote = False
 
     def close(self) -> None:
         pass
 
-    def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None) -> Iterator[Result]:
+    def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None,
+            shared: dict | None = None) -> Iterator[Result]:
         for i, item in enumerate(inputs):
             if cancel is not None and cancel.is_set():
                 return
             try:
-                yield i, fn(item)
+                yield i, fn(item, **(shared or {}))
             except Exception as exc:  # noqa: BLE001 - reported as the task's failure
                 yield i, exc
 
 
 class ProcessEngine:
     """A pool of ``workers`` spawned processes, kept between runs (each worker keeps its phantoms
-    and compiled kernels) until :meth:`close`; rebuilt after a worker died or a run was cancelled."""
+    and compiled kernels) until :meth:`close`; rebuilt after a worker died or a run was cancelled.
+    ``initializer(*initargs)`` runs first in every worker (the service's: service.workers.register)."""
 
-    def __init__(self, workers: int) -> None:
+    remote = False
+
+    def __init__(self, workers: int, initializer: Callable | None = None, initargs: tuple = ()) -> None:
         self.workers = int(workers)
         self.name = f"local:{self.workers}"
         self.restarts = 0
+        self.initializer, self.initargs = initializer, tuple(initargs)
         self._pool: cf.ProcessPoolExecutor | None = None
 
     @property
@@ -78,7 +87,8 @@ class ProcessEngine:
     def _get_pool(self) -> cf.ProcessPoolExecutor:
         if self._pool is None:
             self._pool = cf.ProcessPoolExecutor(max_workers=self.workers,
-                                                mp_context=multiprocessing.get_context("spawn"))
+                                                mp_context=multiprocessing.get_context("spawn"),
+                                                initializer=self.initializer, initargs=self.initargs)
         return self._pool
 
     def _kill(self) -> None:
@@ -91,12 +101,13 @@ class ProcessEngine:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
-    def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None) -> Iterator[Result]:
+    def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None,
+            shared: dict | None = None) -> Iterator[Result]:
         pending = dict(enumerate(inputs))
         restarts = 0
         while pending:
             pool = self._get_pool()
-            futures = {pool.submit(fn, item): i for i, item in pending.items()}
+            futures = {pool.submit(fn, item, **(shared or {})): i for i, item in pending.items()}
             broken = False
             try:
                 not_done = set(futures)
@@ -141,6 +152,12 @@ def _terminate(pool: cf.ProcessPoolExecutor) -> None:
 
 
 class DaskEngine:
+    """The tasks on a ``dask.distributed`` scheduler at ``address`` (``tcp://host:8786``): its workers
+    may be processes on other machines, started as on a cluster (``dask scheduler``, ``dask worker``;
+    docs/sweeps.md, "Across machines")."""
+
+    remote = True
+
     def __init__(self, address: str, *, client: Any = None) -> None:
         self.address = address
         self.name = f"dask:{address}"
@@ -158,10 +175,14 @@ class DaskEngine:
             self._client.close()
             self._client = None
 
-    def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None) -> Iterator[Result]:
+    def run(self, fn: Callable, inputs: Sequence, cancel: threading.Event | None = None,
+            shared: dict | None = None) -> Iterator[Result]:
         client = self.client()
         run_id = secrets.token_hex(4)  # fresh keys: a resubmitted task is never a cached old result
-        futures = [client.submit(fn, item, key=f"capsule-rt-sweep-{run_id}-{i}", pure=False)
+        # shared values go to every worker once (a worker that joins later fetches them from a peer
+        # when its first task needs them); each task gets them as futures, resolved on its worker
+        scattered = {name: client.scatter(value, broadcast=True, hash=False) for name, value in (shared or {}).items()}
+        futures = [client.submit(fn, item, **scattered, key=f"capsule-rt-sweep-{run_id}-{i}", pure=False)
                    for i, item in enumerate(inputs)]
         pending = dict(enumerate(futures))
         try:
@@ -184,14 +205,18 @@ class DaskEngine:
             unfinished = [f for f in pending.values() if not f.done()]
             if unfinished:
                 client.cancel(unfinished)
+            for value in scattered.values():
+                value.release()
 
 
-def make_engine(workers: int | None = None, cluster: str | None = None):
+def make_engine(workers: int | None = None, cluster: str | None = None, initializer: Callable | None = None,
+                initargs: tuple = ()):
     """The engine of a sweep: Dask when ``cluster`` is an address, else the local pool of ``workers``
-    processes (default :func:`default_workers`), or this process for ``workers=0``."""
+    processes (default :func:`default_workers`; each runs ``initializer(*initargs)`` first), or this
+    process for ``workers=0``."""
     if cluster:
         return DaskEngine(cluster)
     n = default_workers() if workers is None else int(workers)
     if n < 0:
         raise ValueError("workers must be >= 0")
-    return SerialEngine() if n == 0 else ProcessEngine(n)
+    return SerialEngine() if n == 0 else ProcessEngine(n, initializer, initargs)

@@ -28,12 +28,12 @@ import pyarrow as pa
 from raytrace.body.library import get_phantom
 from raytrace.body.phantom import Phantom
 from raytrace.errors import InputError
-from sweeps.engines import make_engine
+from sweeps.engines import SerialEngine, make_engine
 from sweeps.plan import Plan, make_plan
 from sweeps.spec import LIMITS, Limits, SweepSpec, SweepSpecError
 from sweeps.store import SweepDir
 from sweeps.table import LOCALIZATION_SCHEMA, results_schema, table_from_columns
-from sweeps.task import PhantomSource, TaskInput, run_task
+from sweeps.task import PhantomFiles, PhantomSource, TaskInput, run_task
 
 __all__ = ["MAX_LISTED_FAILURES", "SweepExistsError", "SweepSummary", "open_sweep", "prepare", "run_sweep"]
 
@@ -96,19 +96,26 @@ def run_sweep(spec: SweepSpec, root: str | Path, *, phantom: Phantom | None = No
               source: PhantomSource | None = None, workers: int | None = None, cluster: str | None = None,
               engine: Any = None, resume: bool = False, on_progress: Callable[[dict], None] | None = None,
               cancel: threading.Event | None = None, budget: dict | None = None,
-              limits: Limits = LIMITS) -> SweepSummary:
+              limits: Limits = LIMITS, tracer_threads: int | None = None) -> SweepSummary:
     """Run (or resume) ``spec`` into ``root`` (module docstring); returns the final state and tables."""
     store, plan = prepare(spec, root, phantom=phantom, source=source, limits=limits, resume=resume)
     record = store.record()
     source = PhantomSource(**record["phantom"])
     return execute(store, SweepSpec(record["spec"]), plan, source, workers=workers, cluster=cluster, engine=engine,
-                   on_progress=on_progress, cancel=cancel, budget=budget)
+                   on_progress=on_progress, cancel=cancel, budget=budget, tracer_threads=tracer_threads)
 
 
 def execute(store: SweepDir, spec: SweepSpec, plan: Plan, source: PhantomSource, *, workers: int | None = None,
             cluster: str | None = None, engine: Any = None, on_progress: Callable[[dict], None] | None = None,
-            cancel: threading.Event | None = None, budget: dict | None = None) -> SweepSummary:
-    """Run the tasks of a prepared sweep that have no part yet (or whose part recorded failures)."""
+            cancel: threading.Event | None = None, budget: dict | None = None,
+            tracer_threads: int | None = None) -> SweepSummary:
+    """Run the tasks of a prepared sweep that have no part yet (or whose part recorded failures).
+
+    ``tracer_threads``: the tracer's threads per trace; by default 1 on a pool or a cluster (one
+    task per worker process: the workers are the parallelism, and a worker's task does not
+    compete with its neighbours for the cores) and every CPU in this process (``workers=0``).
+    An uploaded phantom's files are shipped to a cluster's workers with the tasks
+    (:class:`sweeps.task.PhantomFiles`), not read there."""
     schema = results_schema(spec.methods)
     loc_schema = LOCALIZATION_SCHEMA if spec["localization"] else None
     previous = store.read_state()
@@ -148,10 +155,13 @@ def execute(store: SweepDir, spec: SweepSpec, plan: Plan, source: PhantomSource,
 
     publish()
     record = plan.to_dict()
+    if tracer_threads is None and not isinstance(engine, SerialEngine):
+        tracer_threads = 1
     inputs = [TaskInput(task=t, spec=spec.to_dict(), plan=_task_plan(record, plan.task_positions(t)),
-                        phantom=source, budget=dict(budget or {})) for t in todo]
+                        phantom=source, budget=dict(budget or {}), tracer_threads=tracer_threads) for t in todo]
+    shared = {"phantom_files": PhantomFiles.read(source)} if engine.remote and source.glb_path and todo else None
     try:
-        for i, out in engine.run(run_task, inputs, cancel):
+        for i, out in engine.run(run_task, inputs, cancel, shared):
             t = todo[i]
             if isinstance(out, BaseException):
                 task_errors[t] = {"task": t, "positions": [plan.labels[p] for p in plan.task_positions(t)],

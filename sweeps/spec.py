@@ -65,6 +65,8 @@ __all__ = [
 ]
 
 PDOA_METHODS = ("two_tone", "regression")
+#: Largest seed: what a JSON number holds exactly (the HTTP schema's maximum too).
+MAX_SEED = 2**53 - 1
 
 
 class SweepSpecError(InputError):
@@ -226,16 +228,25 @@ def _positions(value: Any, limits: Limits) -> tuple[dict, ...]:
 
 
 # ------------------------------------------------------------------ channel
-def _band(value: Any, field: str) -> dict | None:
+def _band(value: Any, field: str, limits: Limits) -> dict | None:
+    """A band (``{span_hz, points}`` around each carrier, or a :class:`~raytrace.spec.Band`'s fields), its
+    ``points`` checked against ``limits.max_band_points`` before any frequency is allocated."""
     if value is None:
         return None
     value = _mapping(value, field)
+    if "points" in value:  # bounded before Band's linspace allocates them (1e11 points: 745 GiB)
+        _int(value["points"], f"{field}.points", 2, limits.max_band_points)
     if "span_hz" in value:
         value = _mapping(value, field, {"span_hz", "points"})
         if "points" not in value:
             raise _fail("required with span_hz", f"{field}.points")
         return {"span_hz": _number(value["span_hz"], f"{field}.span_hz", positive=True),
                 "points": value["points"]}
+    frequencies = value.get("frequencies_hz")
+    if isinstance(frequencies, Sequence) and not isinstance(frequencies, (str, bytes)) \
+            and len(frequencies) > limits.max_band_points:
+        raise _fail(f"{len(frequencies)} band points exceed the limit of {limits.max_band_points}",
+                    f"{field}.frequencies_hz")
     try:
         return Band(**dict(value)).to_dict()
     except CapsuleRTError as exc:
@@ -406,7 +417,7 @@ class SweepSpec:
         out["frequencies_hz"] = freqs
 
         channel = dict(_mapping(data.get("channel", {}) or {}, "channel", _CHANNEL))
-        band = _band(channel.pop("band", None), "channel.band")
+        band = _band(channel.pop("band", None), "channel.band", limits)
         polarization = channel.pop("capsule_polarization", [0.0, 0.0, 1.0])
         pattern = channel.pop("capsule_pattern", "isotropic")
         if pattern not in PATTERNS:
@@ -457,8 +468,11 @@ class SweepSpec:
         out["localization"] = localization.validate(data.get("localization"), out["ranging"], "localization")
         out["trials"] = _int(data.get("trials", min(100, limits.max_trials)), "trials", 1, limits.max_trials)
         seed = _integral(data.get("seed", 0))
-        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
-            raise _fail(f"must be an integer in [0, 2^63), got {seed!r}", "seed")
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+            got = f"an integer of {len(str(abs(seed)))} digits" if isinstance(seed, int) and abs(seed) > 10**20 \
+                else repr(seed)[:100]
+            raise _fail(f"must be an integer in [0, 2^53 - 1] (a JSON number holds integers exactly up to 2^53), "
+                        f"got {got}", "seed")
         out["seed"] = int(seed)
         out["chunk_positions"] = _int(data.get("chunk_positions", 4), "chunk_positions", 1,
                                       limits.max_chunk_positions)
@@ -538,6 +552,8 @@ def parse_text(text: str, suffix: str = ".yaml") -> Any:
         data = yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
         raise _fail(f"not valid YAML: {exc}", "spec") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (sys.get_int_max_str_digits)
+        raise _fail(f"not valid YAML for a spec: {str(exc)[:200]}", "spec") from None
     _check_expanded_size(data)
     return data
 

@@ -21,6 +21,7 @@ paths that cancel) leaves that method's columns null and says why in ``note``.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import threading
 import time
@@ -35,6 +36,7 @@ from raytrace.body.library import get_phantom
 from raytrace.body.phantom import Phantom
 from raytrace.errors import CapsuleRTError
 from raytrace.solver.budget import Budget
+from raytrace.solver.config import TracerConfig
 from raytrace.solver.tracer import trace_channel
 from raytrace.spec import Antenna
 from sweeps import localization as loc
@@ -42,7 +44,7 @@ from sweeps.heap import task_heap
 from sweeps.spec import SweepSpec, rss_model
 from sweeps.table import HAS_GROUP_DELAY
 
-__all__ = ["PhantomSource", "TaskInput", "TaskOutput", "phantom_for", "run_task"]
+__all__ = ["PhantomFiles", "PhantomSource", "TaskInput", "TaskOutput", "phantom_for", "run_task"]
 
 _FAMILY = {"toa": 0, "pdoa": 1, "rss": 2}
 
@@ -50,11 +52,32 @@ _FAMILY = {"toa": 0, "pdoa": 1, "rss": 2}
 @dataclass(frozen=True)
 class PhantomSource:
     """Where a worker gets the phantom: a built-in id, or an uploaded phantom's stored files
-    (``glb_path`` + ``manifest_path``; a cluster's workers must see them: a shared filesystem)."""
+    (``glb_path`` + ``manifest_path``). A local pool's workers read the files; a cluster's
+    workers need not see them: the engine ships their bytes (:class:`PhantomFiles`) once per
+    worker and each worker keeps the phantom built from them (:func:`phantom_for`)."""
 
     id: str
     glb_path: str | None = None
     manifest_path: str | None = None
+
+
+@dataclass(frozen=True)
+class PhantomFiles:
+    """An uploaded phantom's stored files as bytes, and their sha256 (the workers' cache key):
+    what a Dask engine broadcasts to workers that do not share this machine's filesystem."""
+
+    sha256: str
+    glb: bytes
+    manifest: bytes
+
+    @classmethod
+    def read(cls, source: PhantomSource) -> "PhantomFiles":
+        with open(source.glb_path, "rb") as fh:
+            glb = fh.read()
+        with open(source.manifest_path, "rb") as fh:
+            manifest = fh.read()
+        digest = hashlib.sha256(len(glb).to_bytes(8, "little") + glb + manifest).hexdigest()
+        return cls(digest, glb, manifest)
 
 
 @dataclass(frozen=True)
@@ -64,6 +87,10 @@ class TaskInput:
     plan: dict  # Plan.to_dict() restricted to this task's positions, plus "position_indices"
     phantom: PhantomSource
     budget: dict = field(default_factory=dict)  # Budget(**budget) per trace: deadline_s, max_ray_segments
+    #: Tracer threads per trace (TracerConfig.threads); None: every CPU of the worker. A pool or a
+    #: cluster runs one task per worker process, so 1: the workers are the parallelism (the same
+    #: paths on any number of threads: docs/tracer.md, "Determinism").
+    tracer_threads: int | None = None
 
 
 @dataclass
@@ -74,17 +101,21 @@ class TaskOutput:
     failures: list[dict]
     elapsed_s: float
     worker: str
+    cpu_s: float = 0.0  # CPU time of the worker process while the task ran (every thread)
 
 
 _PHANTOMS: dict[tuple, Phantom] = {}
 _LOCK = threading.Lock()
 
 
-def phantom_for(source: PhantomSource) -> Phantom:
-    """The phantom of ``source``, built once per process (and per stored file version)."""
+def phantom_for(source: PhantomSource, files: PhantomFiles | None = None) -> Phantom:
+    """The phantom of ``source``, built once per process (and per stored file version): from
+    the shipped ``files`` when given (keyed by their sha256: a worker of a cluster), else from
+    the stored files (keyed by path and modification time: a local worker)."""
     if source.glb_path is None:
         return get_phantom(source.id)
-    key = (source.id, source.glb_path, os.stat(source.glb_path).st_mtime_ns)
+    key = (source.id, files.sha256) if files is not None else (
+        source.id, source.glb_path, os.stat(source.glb_path).st_mtime_ns)
     with _LOCK:
         hit = _PHANTOMS.get(key)
     if hit is not None:
@@ -93,10 +124,9 @@ def phantom_for(source: PhantomSource) -> Phantom:
 
     from raytrace.body.gltf import load_phantom
 
-    with open(source.glb_path, "rb") as fh:
-        glb = fh.read()
-    with open(source.manifest_path) as fh:
-        manifest = json.load(fh)
+    if files is None:
+        files = PhantomFiles.read(source)
+    glb, manifest = files.glb, json.loads(files.manifest)
     phantom = load_phantom(glb, manifest, max_bytes=len(glb) + 1, max_triangles=10**8, check_crossings=False)
     with _LOCK:
         if len(_PHANTOMS) >= 4:
@@ -178,7 +208,7 @@ def _append(columns: dict[str, list], row: dict, n_before: int) -> None:
         values.append(row.get(key))
 
 
-def run_task(job: TaskInput) -> TaskOutput:
+def run_task(job: TaskInput, phantom_files: PhantomFiles | None = None) -> TaskOutput:
     """Run one task (module docstring), with one BLAS thread: a multi-threaded BLAS sums in an order
     that depends on its thread count (Dask's workers default to 1, a plain process to the CPUs),
     which moved the last bits of a GCC estimate; parallelism comes from the workers anyway. The C
@@ -187,14 +217,15 @@ def run_task(job: TaskInput) -> TaskOutput:
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"), task_heap():
-        return _run_task(job)
+        return _run_task(job, phantom_files)
 
 
-def _run_task(job: TaskInput) -> TaskOutput:
-    started = time.monotonic()
+def _run_task(job: TaskInput, phantom_files: PhantomFiles | None) -> TaskOutput:
+    started, cpu = time.monotonic(), time.process_time()
     spec = SweepSpec(job.spec)
     plan = job.plan
-    phantom = phantom_for(job.phantom)
+    phantom = phantom_for(job.phantom, phantom_files)
+    config = TracerConfig() if job.tracer_threads is None else TracerConfig(threads=int(job.tracer_threads))
     receivers = tuple(Antenna.from_dict(r) for r in plan["receivers"])
     rx_m = np.asarray(plan["receivers_m"], float)
     pattern = spec["channel"]["capsule_pattern"]
@@ -210,7 +241,7 @@ def _run_task(job: TaskInput) -> TaskOutput:
         for fi, f in enumerate(plan["frequencies_hz"]):
             channel = spec.channel_spec(tx, receivers, f, plan["phantom_id"])
             try:
-                result = trace_channel(channel, phantom, budget=Budget(**job.budget))
+                result = trace_channel(channel, phantom, budget=Budget(**job.budget), config=config)
             except CapsuleRTError as exc:
                 failures.append({"task": job.task, "position_index": pi, "capsule": plan["labels"][k],
                                  "frequency_hz": f, "reason": exc.reason, "type": type(exc).__name__})
@@ -243,7 +274,8 @@ def _run_task(job: TaskInput) -> TaskOutput:
                 for lrow in localize(spec, per_link, rx_m, pos, s_m, f, line, traced):
                     _append(loc_rows, {"position_index": pi, "capsule": plan["labels"][k], **lrow}, n_loc)
                     n_loc += 1
-    return TaskOutput(job.task, rows, loc_rows, failures, time.monotonic() - started, f"pid {os.getpid()}")
+    return TaskOutput(job.task, rows, loc_rows, failures, time.monotonic() - started, f"pid {os.getpid()}",
+                      time.process_time() - cpu)
 
 
 def _homogeneous(phantom: Phantom, material) -> Phantom:

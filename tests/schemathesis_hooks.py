@@ -73,6 +73,12 @@ CROSS_FIELD_RULES = [
     *(("submit_sweep", ["body", part], "sweep_spec", "sites, positions and centrelines of the phantom; bands, "
        "methods and localizers consistent with each other (sweeps.spec)")
       for part in ("capsule_positions", "receivers", "frequencies_hz", "channel", "ranging", "localization")),
+    *(("submit_sweep", ["body", part], "invalid", "each trace's estimated work and memory fit the server's budget "
+       "(docs/service.md, 'Bounded before work')") for part in ("channel", "receivers")),
+    ("track", ["body", "config", "particles"], "invalid", "particles x observations within the tracker's work "
+     "bound, its particles within the memory share (docs/service.md, 'Bounded before work')"),
+    ("track_evaluate", ["body", "rays"], "invalid", "the journey's RF traces (one per grid position it visits) "
+     "within the work budget (docs/service.md, 'Bounded before work')"),
     *((op, ["body", part], kind, "sensors (and a capsule) inside the phantom's body, off its surfaces, apart from "
        "each other and not coplanar, of known sites; one measurement kind for every sensor and the method's, "
        "sigmas for all or none; methods that suit the ranging; a frequency whose wavelength fits the phantom")
@@ -110,6 +116,14 @@ CROSS_FIELD_RULES = [
     *((op, ["body", "centreline"], "tracking_input", "a centreline of the phantom")
       for op in ("track", "track_evaluate")),
     ("track_evaluate", ["body", "journey", "start_m"], "tracking_input", "a start within the phantom's centreline"),
+    ("submit_coverage", ["body", "positions"], "design_input", "exactly one of along_tract, sites and positions_m, "
+     "given and not null (oneOf's required cannot exclude a null value); positions inside the phantom's lumens"),
+    *(("submit_coverage", ["body", part], "design_input", "a burst of at least one carrier period sampled above "
+       "twice the carrier; a non-zero polarization; candidates on the phantom's skin in the region; positions x "
+       "candidates links and each trace's work and memory within the server's budget (docs/design.md)")
+      for part in ("waveform", "channel", "candidates", "link", "positions")),
+    ("submit_layout", ["body", "constraints"], "design_input", "keep-out boxes with each max_m coordinate above "
+     "min_m's, a non-zero axis, belt counts for all belts or none summing to sensors"),
     # the JSON parts are strings to the schema: their content's errors have the body models' types
     *(("vision_motion", ["body", part], None, "the part is JSON text of its model (MotionOptions, "
        "RenderRequest)") for part in ("options", "geometry")),

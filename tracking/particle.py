@@ -46,6 +46,8 @@ with ``keep_particles=True`` also ``particles_s_m`` and ``weights`` (n, N).
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -68,9 +70,11 @@ def _systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def particle_track(line, observations: list[Observation], config: TrackerConfig | None = None, *,
-                   name: str = "particle", keep_particles: bool = False) -> Track:
+                   name: str = "particle", keep_particles: bool = False,
+                   check: Callable[[], None] | None = None) -> Track:
     """Filter ``observations`` along ``line`` with ``config.particles`` particles, seeded by
-    ``config.seed`` (module docstring). Raises :class:`~tracking.errors.TrackingInputError`."""
+    ``config.seed`` (module docstring). Raises :class:`~tracking.errors.TrackingInputError`.
+    ``check`` (e.g. a request budget's) is called before each step and may raise to stop."""
     cfg = config or TrackerConfig()
     obs = check_observations(observations)
     rng = np.random.default_rng(cfg.seed)
@@ -105,6 +109,8 @@ def particle_track(line, observations: list[Observation], config: TrackerConfig 
     keep_s = np.empty((n, N)) if keep_particles else None
     keep_w = np.empty((n, N)) if keep_particles else None
     for k, o in enumerate(obs):
+        if check is not None:
+            check()
         if k > 0:
             dt = o.t_s - obs[k - 1].t_s
             Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])

@@ -121,7 +121,9 @@ def fields_for_sensors(grid_key: str, sensors_m: Any, index_grid: Callable[[], t
                 # done: the idle workers exit at once and are reaped here; stopped (a budget, an
                 # error): queued solves are cancelled and nobody waits for the running ones
                 pool.shutdown(wait=finished, cancel_futures=True)
-    stacked = tt.TravelTimeFields(out)
+    complete = [f for f in out if f is not None]
+    assert len(complete) == len(out), "every sensor's field was loaded or solved"
+    stacked = tt.TravelTimeFields(complete)
     tt.stack_put(tuple(keys), stacked)
     return stacked
 
@@ -223,9 +225,10 @@ def _load(path: Path) -> tt.TravelTimeField | None:
         with np.load(path, allow_pickle=False) as z:
             if int(z["format"]) != FORMAT:
                 return None
+            scalars: dict[str, Any] = {k: (int(z[k]) if k == "order" else float(z[k])) for k in _SCALARS}
             field = tt.TravelTimeField(
                 sensor_position_m=z["sensor_position_m"], origin_m=z["origin_m"], time_s=z["time_s"],
-                domain=z["domain"], **{k: (int(z[k]) if k == "order" else float(z[k])) for k in _SCALARS})
+                domain=z["domain"], **scalars)
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError):
         return None
     try:
@@ -243,9 +246,9 @@ def _store(disk: Path, name: str, field: tt.TravelTimeField, max_bytes: int) -> 
         fd, tmp = tempfile.mkstemp(dir=disk, prefix=".tmp-", suffix=_SUFFIX)
         try:
             with os.fdopen(fd, "wb") as fh:
+                arrays: dict[str, Any] = {k: np.asarray(getattr(field, k)) for k in _SCALARS}
                 np.savez(fh, format=np.int64(FORMAT), sensor_position_m=field.sensor_position_m,
-                         origin_m=field.origin_m, time_s=field.time_s, domain=field.domain,
-                         **{k: np.asarray(getattr(field, k)) for k in _SCALARS})
+                         origin_m=field.origin_m, time_s=field.time_s, domain=field.domain, **arrays)
             os.replace(tmp, disk / name)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)

@@ -10,12 +10,20 @@ embreex wheel ships, loaded once into the process), so a kernel traces a ray to
 its end with no interpreter in between, and the machine code stays cacheable
 (a symbol, not an address, is baked in).
 
-The scene is built with the C API too: one triangle geometry in float32
-(Embree's own padded buffers, data copied in), by default with
+The scene is built with the C API too, in float32, by default with
 ``RTC_SCENE_FLAG_ROBUST`` (watertight traversal: a ray through a shared edge or
 vertex hits one of the triangles, never slips between them), as embreex builds
 its scenes: the hits are bit-identical to embreex's (tests/raytrace/test_embree.py).
-``robust=False`` gives Embree's faster default traversal.
+``robust=False`` gives Embree's faster default traversal. The triangles are given as
+contiguous *runs* of one face table (:class:`Geometry`: by default one run of all faces; the
+tracer makes one per organ), each an Embree geometry with its own 32-bit mask over one
+shared vertex buffer and one shared index buffer (``rtcSetSharedGeometryBuffer``: no copy
+into Embree, and two scenes of the same faces, the robust and the fast one, hold one copy
+between them). A query carries a ray mask and only hits the runs whose mask it shares a bit
+with: one scene then serves every subset of organs a trace needs (the surfaces between
+identical materials are left out of propagation by the mask, not by another scene). A hit is
+reported as the index of its face in the face table: the hit run's first face
+(``base[geomID]``) plus Embree's ``primID``.
 
 Layout of ``RTCRayHit`` (Embree 4 ``rtcore_ray.h``, 16-byte aligned): the ray
 ``org_x org_y org_z tnear dir_x dir_y dir_z time tfar mask id flags`` (float32 /
@@ -62,6 +70,8 @@ _RTC_DEVICE_PROPERTY_VERSION_PATCH = 3
 EMBREE_MAJOR = 4
 #: float32 words of one ray-hit buffer (RTCRayHit is 80 bytes, 96 with instPrimID).
 RAYHIT_WORDS = 24
+#: The ray mask that hits every geometry.
+ALL = 0xFFFFFFFF
 
 #: Where the embreex wheels put the Embree library, relative to the directory holding the
 #: ``embreex`` package (site-packages), per platform: auditwheel's ``embreex.libs/`` (Linux,
@@ -141,9 +151,10 @@ def _load() -> tuple[ctypes.CDLL, str, tuple[int, int, int]]:
         ("rtcCommitScene", None, [vp]),
         ("rtcReleaseScene", None, [vp]),
         ("rtcNewGeometry", vp, [vp, c_int]),
-        ("rtcSetNewGeometryBuffer", vp, [vp, c_int, c_uint, c_int, c_size, c_size]),
+        ("rtcSetSharedGeometryBuffer", None, [vp, c_int, c_uint, c_int, vp, c_size, c_size, c_size]),
+        ("rtcSetGeometryMask", None, [vp, c_uint]),
         ("rtcCommitGeometry", None, [vp]),
-        ("rtcAttachGeometry", c_uint, [vp, vp]),
+        ("rtcAttachGeometryByID", None, [vp, vp, c_uint]),
         ("rtcReleaseGeometry", None, [vp]),
         ("rtcIntersect1", None, [vp, vp, vp]),
     ):
@@ -172,46 +183,83 @@ class RayHit(NamedTuple):
     ptr: int  # buf's address
 
 
-class EmbreeScene:
-    """One committed Embree scene of float32 triangles; :attr:`handle` is what kernels take.
-    Released (scene, then device) when the object is collected."""
+class Geometry(NamedTuple):
+    """Runs of a face table as Embree geometries: run ``k`` is faces ``start[k]`` to
+    ``stop[k] - 1``, hit by rays whose mask shares a bit with ``mask[k]`` (module doc)."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, robust: bool = True):
-        vertices = np.ascontiguousarray(vertices, np.float32)
-        faces = np.ascontiguousarray(faces, np.uint32)
-        if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
-            raise ValueError("vertices and faces must be (N, 3) arrays")
-        if len(faces) and (faces.max() >= len(vertices)):
-            raise ValueError("a face indexes a vertex that does not exist")
+    start: np.ndarray  # (G,) int64
+    stop: np.ndarray  # (G,) int64
+    mask: np.ndarray  # (G,) uint32
+
+
+def buffers(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The float32 vertex buffer (padded by one float: Embree reads a vertex with one 16-byte
+    load) and the uint32 index buffer of a scene, in the layout :class:`EmbreeScene` shares
+    with Embree; pass the same pair to several scenes of one face table."""
+    vertices = np.asarray(vertices)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError("vertices and faces must be (N, 3) arrays")
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise ValueError("a face indexes a vertex that does not exist")
+    padded = np.zeros(3 * len(vertices) + 1, np.float32)
+    padded[:-1] = vertices.reshape(-1)
+    return padded, np.ascontiguousarray(faces, np.uint32)
+
+
+class EmbreeScene:
+    """One committed Embree scene of float32 triangles; :attr:`handle` is what kernels take,
+    :attr:`base` (the first face of each geometry) turns a hit's ``(geomID, primID)`` into a
+    face index. The scene reads ``vertices`` and ``faces`` from the arrays it was given (kept
+    alive here; :func:`buffers` makes them from any arrays). Released (scene, then device) when
+    the object is collected."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, robust: bool = True,
+                 geometry: Geometry | None = None):
+        if not (vertices.dtype == np.float32 and vertices.ndim == 1 and len(vertices) % 3 == 1
+                and vertices.flags.c_contiguous and faces.dtype == np.uint32 and faces.flags.c_contiguous):
+            vertices, faces = buffers(vertices, faces)
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise ValueError("faces must be an (N, 3) array")
+        n_vertices = (len(vertices) - 1) // 3
+        if geometry is None:
+            geometry = Geometry(np.zeros(1, np.int64), np.full(1, len(faces), np.int64), np.full(1, ALL, np.uint32))
+        start, stop = np.asarray(geometry.start, np.int64), np.asarray(geometry.stop, np.int64)
+        if np.any(start < 0) or np.any(stop > len(faces)) or np.any(stop < start):
+            raise ValueError("a geometry's run of faces lies outside the face table")
+        keep = stop > start  # an empty run is not a geometry
+        start, stop, masks = start[keep], stop[keep], np.asarray(geometry.mask, np.uint32)[keep]
+        self._vertices, self._faces = vertices, faces  # Embree reads them (shared buffers)
+        self.base = np.ascontiguousarray(start, np.int64)
+        self.triangles = int((stop - start).sum())
+        self.faces = len(faces)
         lib = _LIB
         device = lib.rtcNewDevice(None)
         if not device:
             raise RuntimeError("Embree could not create a device")
         scene = lib.rtcNewScene(device)
         self.handle = int(scene)
-        self.triangles = len(faces)
         self._finalizer = weakref.finalize(self, _release, scene, device)
         lib.rtcSetSceneFlags(scene, _RTC_SCENE_FLAG_ROBUST if robust else 0)
-        if len(faces):
-            geometry = lib.rtcNewGeometry(device, _RTC_GEOMETRY_TYPE_TRIANGLE)
-            for kind, fmt, data in ((_RTC_BUFFER_TYPE_VERTEX, _RTC_FORMAT_FLOAT3, vertices),
-                                    (_RTC_BUFFER_TYPE_INDEX, _RTC_FORMAT_UINT3, faces)):
-                target = lib.rtcSetNewGeometryBuffer(geometry, kind, 0, fmt, 12, len(data))
-                if not target:
-                    lib.rtcReleaseGeometry(geometry)
-                    raise RuntimeError(f"Embree could not allocate a buffer (error {lib.rtcGetDeviceError(device)})")
-                ctypes.memmove(target, data.ctypes.data, data.nbytes)
-            lib.rtcCommitGeometry(geometry)
-            lib.rtcAttachGeometry(scene, geometry)
-            lib.rtcReleaseGeometry(geometry)
+        for k, (a, b, mask) in enumerate(zip(start.tolist(), stop.tolist(), masks.tolist())):
+            geom = lib.rtcNewGeometry(device, _RTC_GEOMETRY_TYPE_TRIANGLE)
+            lib.rtcSetSharedGeometryBuffer(geom, _RTC_BUFFER_TYPE_VERTEX, 0, _RTC_FORMAT_FLOAT3,
+                                           vertices.ctypes.data, 0, 12, n_vertices)
+            lib.rtcSetSharedGeometryBuffer(geom, _RTC_BUFFER_TYPE_INDEX, 0, _RTC_FORMAT_UINT3,
+                                           faces.ctypes.data, 12 * a, 12, b - a)
+            lib.rtcSetGeometryMask(geom, mask)
+            lib.rtcCommitGeometry(geom)
+            lib.rtcAttachGeometryByID(scene, geom, k)
+            lib.rtcReleaseGeometry(geom)
         lib.rtcCommitScene(scene)
         error = lib.rtcGetDeviceError(device)
         if error:
             raise RuntimeError(f"Embree failed to build the scene (error {error})")
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, mask: int = ALL) -> Hits:
         """First hits of a batch of float32 rays (:class:`~raytrace.engine.records.Hits`:
-        ``prim, tfar, u, v``); ``prim = -1`` and ``tfar = inf`` on a miss; the hit point is
+        ``prim, tfar, u, v``) among the geometries sharing a bit with ``mask``: ``prim`` is the
+        face index (module doc), -1 with ``tfar = inf`` on a miss; the hit point is
         ``(1 - u - v) v0 + u v1 + v v2``."""
         o = np.ascontiguousarray(origins, np.float32)
         d = np.ascontiguousarray(directions, np.float32)
@@ -219,7 +267,7 @@ class EmbreeScene:
             raise ValueError(f"origins and directions must be (N, 3) arrays of one shape, got {o.shape} and {d.shape}")
         n = len(o)
         hits = Hits(np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32))
-        intersect_batch(self.handle, o, d, *hits)
+        intersect_batch(self.handle, int(mask), self.base, o, d, *hits)
         return hits
 
 
@@ -239,25 +287,27 @@ def ray_hit() -> RayHit:
 
 
 @kernel
-def intersect(handle, hit, ox, oy, oz, dx, dy, dz):
+def intersect(handle, mask, base, hit, ox, oy, oz, dx, dy, dz):
     """First hit of one ray (float32 origin and direction, from distance 0) in the scene
-    ``handle``, through the buffer ``hit`` (:func:`ray_hit`): returns ``(primID or -1, tfar,
-    u, v)``."""
+    ``handle`` among its geometries sharing a bit with the ray ``mask``, through the buffer
+    ``hit`` (:func:`ray_hit`): returns ``(face or -1, tfar, u, v)``, the face being
+    ``base[geomID] + primID`` (:attr:`EmbreeScene.base`)."""
     buf, words = hit.buf, hit.words
     buf[0], buf[1], buf[2], buf[3] = ox, oy, oz, 0.0
     buf[4], buf[5], buf[6], buf[7] = dx, dy, dz, 0.0
     buf[8] = 1e37
-    words[9], words[10], words[11] = _RTC_INVALID_ID, 0, 0  # mask (all), id, flags
+    words[9], words[10], words[11] = mask, 0, 0  # mask, id, flags
     words[17], words[18] = _RTC_INVALID_ID, _RTC_INVALID_ID  # primID, geomID
     rtc_intersect1(handle, hit.ptr, 0)
     if words[18] == _RTC_INVALID_ID:
         return -1, np.float32(np.inf), np.float32(0.0), np.float32(0.0)
-    return np.int64(words[17]), buf[8], buf[15], buf[16]
+    return base[words[18]] + np.int64(words[17]), buf[8], buf[15], buf[16]
 
 
 @kernel
-def intersect_batch(handle, o, d, prim, tfar, u, v):
+def intersect_batch(handle, mask, base, o, d, prim, tfar, u, v):
     """:func:`intersect` over a batch of rays, results written into ``prim, tfar, u, v``."""
     hit = ray_hit()
     for i in range(len(o)):
-        prim[i], tfar[i], u[i], v[i] = intersect(handle, hit, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2])
+        prim[i], tfar[i], u[i], v[i] = intersect(handle, mask, base, hit, o[i, 0], o[i, 1], o[i, 2], d[i, 0],
+                                                 d[i, 1], d[i, 2])

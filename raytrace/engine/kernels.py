@@ -147,6 +147,22 @@ def _smooth_normal_uv(corner, face_normals, f, bu, bv):
 
 
 @helper
+def _smooth_normal_uv64(frame, face_normals, f, bu, bv):
+    """:func:`_smooth_normal_uv` in float64 from the face's frame row (corner normals in columns
+    13-21; the differences to the first are taken here, the same numbers as a precomputed table)."""
+    fr = frame[f]
+    nx = fr[13] + bu * (fr[16] - fr[13]) + bv * (fr[19] - fr[13])
+    ny = fr[14] + bu * (fr[17] - fr[14]) + bv * (fr[20] - fr[14])
+    nz = fr[15] + bu * (fr[18] - fr[15]) + bv * (fr[21] - fr[15])
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+    nx, ny, nz = nx / norm, ny / norm, nz / norm
+    if not nx * fx + ny * fy + nz * fz > 0.0:
+        return fx, fy, fz
+    return nx, ny, nz
+
+
+@helper
 def _sides(face_organ, parent, f, d_dot_n):
     """Which side of face f a ray with ``d . n_facet = d_dot_n`` crosses: ``(leaving, organ,
     m_from, m_to)``; leaving its organ into the parent when the direction is along the outward
@@ -258,9 +274,8 @@ def _trace_ray(i, hit, scene, media, state, steps, max_steps, differentials, dp,
     o, d, med, push, k, nint, ok, done = state.o, state.d, state.med, state.push, state.k, state.nint, state.ok, \
         state.done
     codes, targets, record = state.codes, state.targets, state.record
-    handle, center, offset_m = scene.handle, scene.center, scene.offset_m
-    face_map, face_normals, plane_d, frame, face_organ = scene.face_map, scene.face_normals, scene.plane_d, \
-        scene.frame, scene.face_organ
+    handle, mask, base, center, offset_m = scene.handle, scene.mask, scene.base, scene.center, scene.offset_m
+    face_normals, plane_d, frame, face_organ = scene.face_normals, scene.plane_d, scene.frame, scene.face_organ
     parent, cls, transparent, n_re = media.parent, media.material_class, media.transparent, media.n_real
     n_codes = codes.shape[1]
     s = 0
@@ -272,18 +287,17 @@ def _trace_ray(i, hit, scene, media, state, steps, max_steps, differentials, dp,
             d[i, 0], d[i, 1], d[i, 2] = tx / nrm, ty / nrm, tz / nrm
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
-        g, t32, _u, _v = embree.intersect(
-            handle, hit, np.float32(ox - center[0] + push[i, 0]),
+        f, t32, _u, _v = embree.intersect(
+            handle, mask, base, hit, np.float32(ox - center[0] + push[i, 0]),
             np.float32(oy - center[1] + push[i, 1]), np.float32(oz - center[2] + push[i, 2]),
             np.float32(dx), np.float32(dy), np.float32(dz))
         s += 1
-        if g < 0:
+        if f < 0:
             if record and final:
                 done[i] = True  # nothing between the last event and the target
             else:
                 ok[i] = False
             break
-        f = face_map[g]
         fx, fy, fz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
         # float64 re-intersection with the hit triangle's plane from the true origin
         t = _plane_distance(face_normals, plane_d, f, ox, oy, oz, dx, dy, dz, t32)
@@ -677,7 +691,8 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     """
     o, d, med, w, rad, ang, length = rays.o, rays.d, rays.med, rays.w, rays.rad, rays.ang, rays.length
     nint, hist, src, mode = rays.nint, rays.hist, rays.src, rays.mode
-    handle, face_map, face_normals32, face_organ = scene.handle, scene.face_map, scene.face_normals, scene.face_organ
+    handle, mask, base, face_normals32, face_organ = scene.handle, scene.mask, scene.base, scene.face_normals, \
+        scene.face_organ
     corner32, curvature32, offset_m = scene.corner, scene.curvature, scene.offset_m
     parent, cls, transparent, n_re, alpha, need = media.parent, media.material_class, media.transparent, \
         media.n_real, media.alpha, media.need
@@ -699,7 +714,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
                                                                                d, i, rad, ang, reception_factor):
             prim[i], tfar[i] = -1, np.inf  # no children possible, and no receiver on its line: not cast
             continue
-        prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, hit, o[i, 0], o[i, 1], o[i, 2],
+        prim[i], tfar[i], bu[i], bv[i] = embree.intersect(handle, mask, base, hit, o[i, 0], o[i, 1], o[i, 2],
                                                           d[i, 0], d[i, 1], d[i, 2])
         cast += 1
     # receptions: tested ray by ray (each ray's data once, the receivers stay in cache; with
@@ -820,7 +835,7 @@ def bounce(rays, scene, media, receivers, settings, walk, log_base):
     for i in range(n):
         if prim[i] < 0:
             continue
-        f = face_map[prim[i]]
+        f = prim[i]
         t = tfar[i]
         m = med[i]
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
@@ -974,8 +989,7 @@ def walk_step(rays, hits, targets, out, scene, media, exact, max_events):
     prim, tfar, bu, bv = hits.prim, hits.tfar, hits.u, hits.v
     rx_m, rx_cls, ray_rx = targets.position_m, targets.material_class, targets.ray_rx
     miss, nmiss, codes = out.miss, out.nmiss, out.codes
-    face_map, face_normals, plane_d, frame, corner64 = scene.face_map, scene.face_normals, scene.plane_d, \
-        scene.frame, scene.corner
+    face_normals, plane_d, frame = scene.face_normals, scene.plane_d, scene.frame
     face_organ, offset_m, center = scene.face_organ, scene.offset_m, scene.center
     parent, cls, n_re = media.parent, media.material_class, media.n_real
     n = len(ids)
@@ -993,8 +1007,7 @@ def walk_step(rays, hits, targets, out, scene, media, exact, max_events):
         ox, oy, oz = o[r, 0], o[r, 1], o[r, 2]
         if not exact:  # Embree's distance is from the query's origin, pushed off the surface
             ox, oy, oz = q[r, 0] + center[0], q[r, 1] + center[1], q[r, 2] + center[2]
-        g = prim[r]
-        f = face_map[g] if g >= 0 else -1
+        f = np.int64(prim[r])
         t = np.inf
         fx = fy = fz = 0.0
         if f >= 0:
@@ -1022,7 +1035,7 @@ def walk_step(rays, hits, targets, out, scene, media, exact, max_events):
         if exact:
             nx, ny, nz = _smooth_normal(frame, face_normals, f, px, py, pz)
         else:
-            nx, ny, nz = _smooth_normal_uv(corner64, face_normals, f, bu[r], bv[r])
+            nx, ny, nz = _smooth_normal_uv64(frame, face_normals, f, bu[r], bv[r])
         tir, tx, ty, tz, _ci, _ct = _refract(dx, dy, dz, nx, ny, nz, n_re[m_from + 1] / n_re[m_to + 1])
         sg = 1.0 if leaving else -1.0
         if tir or (tx * fx + ty * fy + tz * fz) * sg <= 0.0:
@@ -1108,3 +1121,101 @@ def first_of_duplicates(group, dirs, max_angle):
             nxt[row] = head[g]
             head[g] = row
     return out
+
+
+
+@helper
+def _root(parent, a):
+    """The root of ``a`` in the union-find forest ``parent``, halving the path on the way."""
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@kernel
+def link_components(pts, cells, link):
+    """Connected components of the graph linking two rows of ``pts`` (n, 3) whose Euclidean
+    distance is at most ``link`` (single linkage), without listing the pairs: ``cells`` (n, 3)
+    are the rows' integer cubic cells of edge just under ``link / sqrt(3)``
+    (:func:`raytrace.solver.tracer._clusters`), so two rows of one cell are always within
+    ``link`` (a cell is one component at once) and two rows within ``link`` lie at most two
+    cells apart on each axis; two such cells are joined by the first pair of their rows found
+    within ``link`` (squared distances, as a k-d tree's pair query compares them). Returns the
+    label of each row: components numbered in order of their smallest row (as
+    :func:`scipy.sparse.csgraph.connected_components` numbers them)."""
+    n = pts.shape[0]
+    labels = np.empty(n, np.int64)
+    if n == 0:
+        return labels
+    lo_y, lo_z = cells[:, 1].min(), cells[:, 2].min()
+    ny = cells[:, 1].max() - lo_y + 5
+    nz = cells[:, 2].max() - lo_z + 5
+    lo_x = cells[:, 0].min()
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = ((cells[i, 0] - lo_x + 2) * ny + (cells[i, 1] - lo_y + 2)) * nz + (cells[i, 2] - lo_z + 2)
+    order = np.argsort(key, kind="mergesort")
+    parent = np.arange(n)
+    keys = np.empty(n, np.int64)
+    starts = np.empty(n + 1, np.int64)
+    m = 0
+    for j in range(n):
+        k = key[order[j]]
+        if m > 0 and k == keys[m - 1]:
+            a, b = _root(parent, order[j]), _root(parent, order[starts[m - 1]])
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+        else:
+            keys[m] = k
+            starts[m] = j
+            m += 1
+    starts[m] = n
+    link2 = link * link
+    # the key offsets of the cells up to two apart on each axis with a higher key (each pair of
+    # cells once), each with a cursor through the sorted keys (a merge: no search per cell)
+    offsets = np.empty(62, np.int64)
+    o = 0
+    for dx in range(0, 3):
+        for dy in range(-2, 3):
+            for dz in range(-2, 3):
+                if dx == 0 and (dy < 0 or (dy == 0 and dz <= 0)):
+                    continue
+                offsets[o] = (dx * ny + dy) * nz + dz
+                o += 1
+    cursor = np.zeros(62, np.int64)
+    for c in range(m):
+        for o in range(62):
+            want = keys[c] + offsets[o]
+            e = cursor[o]
+            while e < m and keys[e] < want:
+                e += 1
+            cursor[o] = e
+            if e >= m or keys[e] != want:
+                continue
+            if _root(parent, order[starts[c]]) == _root(parent, order[starts[e]]):
+                continue
+            joined = False
+            for p in range(starts[c], starts[c + 1]):
+                i = order[p]
+                for q in range(starts[e], starts[e + 1]):
+                    j = order[q]
+                    ex, ey, ez = pts[i, 0] - pts[j, 0], pts[i, 1] - pts[j, 1], pts[i, 2] - pts[j, 2]
+                    if ex * ex + ey * ey + ez * ez <= link2:
+                        a, b = _root(parent, i), _root(parent, j)
+                        parent[max(a, b)] = min(a, b)
+                        joined = True
+                        break
+                if joined:
+                    break
+    # number the components by their smallest row: every root is its component's smallest row
+    # (unions keep the smaller root), so a row that is its own root opens a new label
+    count = 0
+    for i in range(n):
+        r = _root(parent, i)
+        if r == i:
+            labels[i] = count
+            count += 1
+        else:
+            labels[i] = labels[r]
+    return labels

@@ -83,15 +83,16 @@ class SceneTables(NamedTuple):
     """A scene's faces in float64, for the exact kernels (:func:`~raytrace.engine.kernels.follow`,
     :func:`~raytrace.engine.kernels.newton`, :func:`~raytrace.engine.kernels.walk_step`);
     :attr:`raytrace.engine.scene.TracerScene.kernel_tables`. ``F`` faces of the phantom,
-    ``E`` triangles in the Embree scene."""
+    ``G`` geometries (organs) in the Embree scene."""
 
     handle: _HANDLE  # the Embree scene (robust traversal) the kernels cast into
+    mask: _INT  # the ray mask of this scene's faces (raytrace.engine.embree: one geometry per organ)
+    base: _i64("G", within=(0, "F"))  # first face of each Embree geometry: a hit is base[geomID] + primID
     center: _f64(3)  # translation applied before the float32 conversion of Embree's queries
-    face_map: _i64("E", within=(0, "F"))  # Embree primitive -> phantom face
+    face_map: _i64("F", within=(0, "F"))  # the identity (hits are faces): for kernels that take a face map
     face_normals: _f64("F", 3)  # unit, outward
     plane_d: _f64("F")  # n . v0
     frame: _f64("F", 22)  # barycentric frame and corner normals (TracerScene._barycentric_frame)
-    corner: _f64("F", 9)  # first corner normal, differences to the other two
     face_organ: _i64("F")
     offset_m: _FLOAT  # spawn offset off a surface just left
 
@@ -110,7 +111,8 @@ class ShotScene(NamedTuple):
     """A scene's faces in float32 for the shooting (:func:`~raytrace.engine.kernels.bounce`)."""
 
     handle: _HANDLE  # the Embree scene with the fast traversal (seeds only)
-    face_map: _i64("E", within=(0, "F"))
+    mask: _INT
+    base: _i64("G", within=(0, "F"))
     face_normals: _f32("F", 3)
     corner: _f32("F", 9)
     curvature: _f32("F")  # largest normal curvature per face [1/m]

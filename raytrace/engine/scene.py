@@ -20,6 +20,19 @@ re-traces in the robust scene, cast into one built without
 price of a ray now and then slipping through a shared edge. Measured on 6
 capsules x 24 receivers: the same 5732 paths either way.
 
+One phantom, one set of tables (:class:`FaceTables`): the face tables the kernels read
+(float64 for the exact kernels, float32 for the shooting) are computed once per phantom by one
+compiled pass (:func:`_face_tables`, no per-face temporaries), and both Embree scenes hold
+every organ as its own geometry with its own mask bit over one shared float32 copy of the
+vertices and faces (:mod:`raytrace.engine.embree`). The scene of a trace that leaves out the
+surfaces between identical materials (:func:`scene_for` with ``visible``) is then the same
+two Embree scenes queried with a ray mask of the visible organs, not two more scenes and a
+copy of every table: on the 0.98 M-triangle torso this took the first trace's scene build
+from 7.4 CPU-s and 1.3 GB to what ``python -m bench.scene_build`` reports
+(docs/performance-log.md, session 11). Only a subset of faces that no mask expresses (more
+than 32 organs sharing bits across the subset, or a subset that splits an organ) gets Embree
+scenes of its own, still over the shared tables.
+
 Normals: the facet normal decides the side (entering / leaving an organ);
 directions (reflection, refraction) use smooth normals interpolated from the
 hit's barycentrics over per-corner normals (:func:`corner_normals`). An edge
@@ -36,6 +49,7 @@ normal per vertex (docs/tracer.md, "Numerical care").
 
 from __future__ import annotations
 
+import math
 import threading
 import weakref
 from dataclasses import dataclass, field
@@ -45,8 +59,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from raytrace.body.phantom import Phantom
-from raytrace.engine.embree import EmbreeScene
+from raytrace.body.phantom import AIR_INDEX, Phantom
+from raytrace.engine.embree import ALL, EmbreeScene, Geometry, buffers
+from raytrace.engine.jit import kernel
 from raytrace.engine.records import SceneTables, ShotScene, build
 
 #: Default crease angle [deg]: an edge whose two faces' normals differ by more than this is a crease
@@ -57,66 +72,307 @@ CREASE_ANGLE_DEG = 45.0
 OFFSET_ULPS = 16.0
 
 
-@dataclass
-class TracerScene:
-    """Everything the tracer needs about a phantom's triangles, float64 plus an Embree scene."""
+@kernel
+def _face_tables(vertices, faces, fn, corners, plane_d, frame, normals32, corner32, curvature32):
+    """The per-face tables of :class:`FaceTables` in one pass over the faces (the arithmetic of
+    the numpy expressions they replace, in the same order: tests/raytrace/test_scene_build.py
+    checks them bit for bit): ``plane_d = n . a``; the barycentric frame row (first vertex
+    ``a``, edges ``v0 = b - a``, ``v1 = c - a``, ``d00, d01, d11``, the Gram determinant, the
+    three corner normals); the float32 facet normal; the float32 corner table (first corner
+    normal and the differences to the other two, differenced in float64); and the largest
+    normal curvature over the face's edges, the angle between two corner normals over the
+    edge's length (:attr:`FaceTables.curvature32`)."""
+    for f in range(faces.shape[0]):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        ax, ay, az = vertices[i0, 0], vertices[i0, 1], vertices[i0, 2]
+        bx, by, bz = vertices[i1, 0], vertices[i1, 1], vertices[i1, 2]
+        cx, cy, cz = vertices[i2, 0], vertices[i2, 1], vertices[i2, 2]
+        ux, uy, uz = bx - ax, by - ay, bz - az
+        wx, wy, wz = cx - ax, cy - ay, cz - az
+        # the three-term dot products summed as numpy's einsum sums them: (x0 y0 + x2 y2) + x1 y1
+        d00 = (ux * ux + uz * uz) + uy * uy
+        d01 = (ux * wx + uz * wz) + uy * wy
+        d11 = (wx * wx + wz * wz) + wy * wy
+        nx, ny, nz = fn[f, 0], fn[f, 1], fn[f, 2]
+        plane_d[f] = (nx * ax + nz * az) + ny * ay
+        row = frame[f]
+        row[0], row[1], row[2] = ax, ay, az
+        row[3], row[4], row[5] = ux, uy, uz
+        row[6], row[7], row[8] = wx, wy, wz
+        row[9], row[10], row[11], row[12] = d00, d01, d11, d00 * d11 - d01 * d01
+        for c in range(3):
+            for q in range(3):
+                row[13 + 3 * c + q] = corners[f, c, q]
+        normals32[f, 0], normals32[f, 1], normals32[f, 2] = np.float32(nx), np.float32(ny), np.float32(nz)
+        for q in range(3):
+            corner32[f, q] = np.float32(corners[f, 0, q])
+            corner32[f, 3 + q] = np.float32(corners[f, 1, q] - corners[f, 0, q])
+            corner32[f, 6 + q] = np.float32(corners[f, 2, q] - corners[f, 0, q])
+        best = 0.0
+        for e in range(3):
+            i, j = e, (e + 1) % 3
+            cos = corners[f, i, 0] * corners[f, j, 0] + corners[f, i, 1] * corners[f, j, 1] \
+                + corners[f, i, 2] * corners[f, j, 2]
+            cos = min(max(cos, -1.0), 1.0)
+            pi_, pj = faces[f, i], faces[f, j]
+            ex = vertices[pi_, 0] - vertices[pj, 0]
+            ey = vertices[pi_, 1] - vertices[pj, 1]
+            ez = vertices[pi_, 2] - vertices[pj, 2]
+            length = math.sqrt(ex * ex + ey * ey + ez * ez)
+            best = max(best, math.acos(cos) / max(length, 1e-12))
+        curvature32[f] = np.float32(best)
 
-    embree: EmbreeScene  # watertight traversal: every exact query (refinement, walks, signatures)
+
+#: Organs with their own mask bit: beyond that, organs share bits by how they are seen
+#: (:func:`_organ_masks`).
+MASK_BITS = 32
+
+
+def _organ_masks(phantom: Phantom) -> np.ndarray:
+    """The Embree mask bit of each organ: its own bit for up to :data:`MASK_BITS` organs; else one
+    of four bits by (the same material as its parent, its parent is air), which keeps the two
+    subsets a trace asks for (the surfaces between identical materials left out, with the
+    phantom's own materials or the homogeneous override) expressible by a mask."""
+    n = len(phantom.organs)
+    if n <= MASK_BITS:
+        return (np.uint32(1) << np.arange(n, dtype=np.uint32)).astype(np.uint32)
+    parent = np.asarray(phantom.parent, np.int64)
+    same = np.array([phantom.organs[i].material == phantom.material(int(parent[i])) for i in range(n)])
+    return (np.uint32(1) << (2 * same + (parent == AIR_INDEX)).astype(np.uint32)).astype(np.uint32)
+
+
+@dataclass(eq=False)
+class FaceTables:
+    """One phantom's face tables and Embree scenes, shared by every :class:`TracerScene` of it
+    (module doc). Face ``f`` is the phantom's face ``f`` everywhere."""
+
     center: np.ndarray  # (3,) float64 translation applied before float32 conversion
-    vertices: np.ndarray  # (V, 3) float64
-    faces: np.ndarray  # (F, 3) int64
-    face_organ: np.ndarray  # (F,) int
+    vertices: np.ndarray  # (V, 3) float64 (the phantom's)
+    faces: np.ndarray  # (F, 3) int64 (the phantom's)
+    face_organ: np.ndarray  # (F,) int64
     face_normals: np.ndarray  # (F, 3) float64 unit, outward
     plane_d: np.ndarray  # (F,) n . v0
-    corner_normals: np.ndarray  # (F, 3, 3) per-corner smooth normals (creased)
+    frame: np.ndarray  # (F, 22) float64 barycentric frame and corner normals (_face_tables)
+    normals32: np.ndarray  # (F, 3) float32 facet normals
+    corner32: np.ndarray  # (F, 9) float32 first corner normal, differences to the other two
+    curvature32: np.ndarray  # (F,) float32 largest normal curvature [1/m]
+    bounds32: np.ndarray  # (2, 3) float64 box of the float32 centred vertices Embree holds
+    organ_start: np.ndarray  # (organs + 1,) first face of each organ (organs are runs of faces)
+    organ_mask: np.ndarray  # (organs,) uint32 Embree mask bit of each organ (_organ_masks)
     scale_m: float  # bounding-box diagonal
     offset_m: float  # spawn offset
-    face_map: np.ndarray | None = None  # Embree primitive -> phantom face (None: identity)
-    _shooting: EmbreeScene | None = field(default=None, repr=False, compare=False)
-    _shooting_lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
-
-    @property
-    def embree_shooting(self) -> EmbreeScene:
-        """The same triangles with Embree's fast (non-robust) traversal, for seed searches only
-        (module doc); built on first use (the full scene of the final re-trace never needs it),
-        once, whichever thread asks first."""
-        with self._shooting_lock:
-            if self._shooting is None:
-                kept = self.faces if self.face_map is None else self.faces[self.face_map]
-                self._shooting = EmbreeScene(self.vertices - self.center, kept, robust=False)
-            return self._shooting
+    buffers: tuple  # Embree's shared float32 vertex / uint32 index buffers (embree.buffers)
+    _robust: EmbreeScene | None = field(default=None, repr=False)
+    _fast: EmbreeScene | None = field(default=None, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, phantom: Phantom, visible: np.ndarray | None = None) -> "TracerScene":
-        """Scene of all triangles, or only of ``visible`` ones (surfaces between identical
-        materials are invisible to propagation; face indices stay the phantom's)."""
+    def build(cls, phantom: Phantom) -> "FaceTables":
+        """The tables of every face of ``phantom`` (its Embree scenes are built on first use)."""
         vertices = np.asarray(phantom.vertices, dtype=float)
         faces = np.asarray(phantom.faces, dtype=np.int64)
         lo, hi = vertices.min(axis=0), vertices.max(axis=0)
         center = 0.5 * (lo + hi)
-        centred = vertices - center
-        face_map = None if visible is None else np.flatnonzero(visible)
-        embree = EmbreeScene(centred, faces if face_map is None else faces[face_map])
         fn = np.asarray(phantom.face_normals, dtype=float)
         fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
         crease_deg = np.array([CREASE_ANGLE_DEG if o.crease_angle_deg is None else float(o.crease_angle_deg)
                                for o in phantom.organs])
         corners = corner_normals(vertices, faces, fn, crease_deg[np.asarray(phantom.face_organ, np.int64)])
-        magnitude = float(np.abs(centred).max())
+        n_faces = len(faces)
+        plane_d = np.empty(n_faces)
+        frame = np.empty((n_faces, 22))
+        normals32 = np.empty((n_faces, 3), np.float32)
+        corner32 = np.empty((n_faces, 9), np.float32)
+        curvature32 = np.empty(n_faces, np.float32)
+        _face_tables(vertices, faces, np.ascontiguousarray(fn), np.ascontiguousarray(corners, np.float64), plane_d,
+                     frame, normals32, corner32, curvature32)
+        del corners
+        vbuf, fbuf = buffers(vertices - center, faces)
+        magnitude = float(np.abs(vbuf).max()) if len(vbuf) else 0.0
         ulp = np.spacing(np.float32(max(magnitude, 1e-6)))
+        v32 = vbuf[:-1].reshape(-1, 3)
+        face_organ = np.asarray(phantom.face_organ, dtype=np.int64)
+        if len(face_organ) and (np.any(face_organ[1:] < face_organ[:-1]) or face_organ[0] < 0):
+            raise ValueError("a phantom's faces must be grouped organ by organ (Phantom.build concatenates them)")
+        counts = np.bincount(face_organ, minlength=len(phantom.organs))
+        organ_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         return cls(
-            embree=embree,
-            center=center,
-            vertices=vertices,
-            faces=faces,
-            face_organ=np.asarray(phantom.face_organ, dtype=np.int64),
-            face_normals=fn,
-            plane_d=np.einsum("fj,fj->f", fn, vertices[faces[:, 0]]),
-            corner_normals=corners,
-            scale_m=float(np.linalg.norm(hi - lo)),
-            offset_m=float(OFFSET_ULPS * ulp),
-            face_map=face_map,
+            center=center, vertices=vertices, faces=faces, face_organ=face_organ, face_normals=fn, plane_d=plane_d,
+            frame=frame, normals32=normals32, corner32=corner32, curvature32=curvature32,
+            bounds32=np.array([v32.min(axis=0), v32.max(axis=0)], np.float64) if len(v32) else np.zeros((2, 3)),
+            organ_start=organ_start, organ_mask=_organ_masks(phantom), scale_m=float(np.linalg.norm(hi - lo)),
+            offset_m=float(OFFSET_ULPS * ulp), buffers=(vbuf, fbuf),
         )
+
+    def _geometry(self, organs: np.ndarray | None = None) -> Geometry:
+        """Every organ (or the ``organs`` given) as one geometry with its mask bit."""
+        idx = np.arange(len(self.organ_mask)) if organs is None else np.asarray(organs, np.int64)
+        return Geometry(self.organ_start[idx], self.organ_start[idx + 1], self.organ_mask[idx])
+
+    def robust(self) -> EmbreeScene:
+        """The watertight Embree scene of every face, built once, whichever thread asks first."""
+        with self._lock:
+            if self._robust is None:
+                self._robust = EmbreeScene(*self.buffers, geometry=self._geometry())
+            return self._robust
+
+    def fast(self) -> EmbreeScene:
+        """The same faces with Embree's fast (non-robust) traversal, for seed searches only."""
+        with self._lock:
+            if self._fast is None:
+                self._fast = EmbreeScene(*self.buffers, robust=False, geometry=self._geometry())
+            return self._fast
+
+    def cached(self, key, make):
+        """A value derived from these tables, made once per ``key`` (small tables a trace
+        derives from the faces and its media, e.g. :func:`raytrace.solver.sbr.return_lengths`)."""
+        with self._lock:
+            if key in self._cache:
+                return self._cache[key]
+        value = make()
+        with self._lock:
+            if len(self._cache) >= 16:
+                self._cache.pop(next(iter(self._cache)))
+            return self._cache.setdefault(key, value)
+
+    @cached_property
+    def identity(self) -> np.ndarray:
+        """``arange(F)``: the face map of a scene that reports phantom faces (vision's kernels)."""
+        return np.arange(len(self.faces), dtype=np.int64)
+
+
+class EmbreeView:
+    """An Embree scene queried with one ray mask: the faces a :class:`TracerScene` holds."""
+
+    def __init__(self, scene: EmbreeScene, mask: int):
+        self.scene, self.mask = scene, int(mask)
+        self.handle, self.base = scene.handle, scene.base
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray):
+        """:meth:`raytrace.engine.embree.EmbreeScene.intersect` with this view's mask: hits are
+        phantom faces."""
+        return self.scene.intersect(origins, directions, self.mask)
+
+
+@dataclass(eq=False)
+class TracerScene:
+    """Everything the tracer needs about a phantom's triangles, float64 plus Embree scenes: the
+    phantom's :class:`FaceTables` and which faces this scene holds (all, or the ``visible``
+    ones: by a ray mask, or by scenes of their own when no mask expresses them)."""
+
+    tables: FaceTables
+    visible: np.ndarray | None = None  # (F,) bool, None: every face
+    mask: int = ALL  # the ray mask of this scene's faces in the phantom's scenes
+    _own: tuple | None = field(default=None, repr=False)  # (robust, fast) of a subset no mask expresses
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    @classmethod
+    def build(cls, phantom: Phantom, visible: np.ndarray | None = None,
+              tables: FaceTables | None = None) -> "TracerScene":
+        """Scene of all triangles, or only of ``visible`` ones (surfaces between identical
+        materials are invisible to propagation; face indices stay the phantom's), over the
+        phantom's ``tables`` (built here if not given)."""
+        tables = FaceTables.build(phantom) if tables is None else tables
+        if visible is None:
+            return cls(tables)
+        visible = np.asarray(visible, bool)
+        seen = np.add.reduceat(visible.astype(np.int64), tables.organ_start[:-1]) if len(visible) else np.zeros(0)
+        counts = np.diff(tables.organ_start)
+        whole = (seen == 0) | (seen == counts)
+        shown = np.flatnonzero(seen > 0)
+        mask = int(np.bitwise_or.reduce(tables.organ_mask[shown])) if len(shown) else 0
+        hidden = np.flatnonzero(seen == 0)
+        if whole.all() and not (len(hidden) and np.any(tables.organ_mask[hidden] & np.uint32(mask))) and mask:
+            return cls(tables, visible, mask)
+        return cls(tables, visible, ALL, _own=_subset_scenes(tables, visible))
+
+    # ----------------------------------------------------------- the tables, as before
+    @property
+    def center(self) -> np.ndarray:
+        return self.tables.center
+
+    @property
+    def vertices(self) -> np.ndarray:
+        return self.tables.vertices
+
+    @property
+    def faces(self) -> np.ndarray:
+        return self.tables.faces
+
+    @property
+    def face_organ(self) -> np.ndarray:
+        return self.tables.face_organ
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        return self.tables.face_normals
+
+    @property
+    def plane_d(self) -> np.ndarray:
+        return self.tables.plane_d
+
+    @property
+    def corner_normals(self) -> np.ndarray:
+        """(F, 3, 3) per-corner smooth normals (creased): a view of the frame's last columns."""
+        return self.tables.frame[:, 13:22].reshape(-1, 3, 3)
+
+    @property
+    def scale_m(self) -> float:
+        return self.tables.scale_m
+
+    @property
+    def offset_m(self) -> float:
+        return self.tables.offset_m
+
+    @property
+    def face_normals32(self) -> np.ndarray:
+        return self.tables.normals32
+
+    @property
+    def face_curvature32(self) -> np.ndarray:
+        """Per face, an estimate of the surface's largest normal curvature [1/m]: the largest
+        angle between two corner normals over the edge joining them (0 on flat organs; 1/R on
+        a faceted sphere of radius R). The shooting widens ray tubes by it (curved organs
+        focus and defocus: a mirror of curvature k turns a ray at height h by 2 k h)."""
+        return self.tables.curvature32
+
+    @property
+    def corner_table32(self) -> np.ndarray:
+        return self.tables.corner32
+
+    @property
+    def _barycentric_frame(self) -> np.ndarray:
+        """Per face, one row (F, 22) so :meth:`smooth_normals` gathers once: first vertex a (0:3),
+        edge vectors v0 = b - a (3:6), v1 = c - a (6:9), their dot products d00, d01, d11
+        (9:12), the Gram determinant (12) and the three corner normals (13:22), float64."""
+        return self.tables.frame
+
+    # ----------------------------------------------------------- Embree
+    @property
+    def embree(self) -> EmbreeView:
+        """The watertight traversal of this scene's faces: every exact query (refinement, walks,
+        signatures)."""
+        if self._own is not None:
+            return EmbreeView(self._own[0], ALL)
+        return EmbreeView(self.tables.robust(), self.mask)
+
+    @property
+    def embree_shooting(self) -> EmbreeView:
+        """The same faces with Embree's fast (non-robust) traversal, for seed searches only
+        (module doc); built on first use (the full scene of the final re-trace never needs it)."""
+        if self._own is not None and self.visible is not None:  # a subset with scenes of its own
+            with self._lock:
+                if self._own[1] is None:
+                    self._own = (self._own[0], EmbreeScene(*self.tables.buffers, robust=False,
+                                                           geometry=_visible_runs(self.tables, self.visible)))
+                return EmbreeView(self._own[1], ALL)
+        return EmbreeView(self.tables.fast(), self.mask)
+
+    def has_transparent(self, transparent: np.ndarray) -> bool:
+        """Whether this scene holds a face of the ``transparent`` mask (F,)."""
+        t = np.asarray(transparent, bool)
+        return bool(t.any() if self.visible is None else (t & self.visible).any())
 
     # ----------------------------------------------------------- queries
     def first_hit(self, origins_m: np.ndarray, directions: np.ndarray, push: np.ndarray | None = None):
@@ -133,8 +389,7 @@ class TracerScene:
             q = q + push
         prim, tfar, _u, _v = self.embree.intersect(q, directions)
         hit = prim >= 0
-        face = np.full(len(prim), -1, np.int64)
-        face[hit] = prim[hit] if self.face_map is None else self.face_map[prim[hit]]
+        face = np.asarray(prim, np.int64)
         t = np.full(len(prim), np.inf)
         if hit.any():
             f = face[hit]
@@ -148,70 +403,24 @@ class TracerScene:
         return face, t
 
     @cached_property
-    def _primitive_faces(self) -> np.ndarray:
-        """Phantom face of each Embree primitive, int64."""
-        return np.ascontiguousarray(np.arange(len(self.faces)) if self.face_map is None else self.face_map, np.int64)
-
-    @cached_property
     def kernel_tables(self) -> SceneTables:
         """The float64 face tables the exact kernels of :mod:`raytrace.engine.kernels` take
         (robust Embree scene)."""
-        return build(SceneTables, handle=self.embree.handle, center=np.ascontiguousarray(self.center, np.float64),
-                     face_map=self._primitive_faces, face_normals=np.ascontiguousarray(self.face_normals, np.float64),
-                     plane_d=np.ascontiguousarray(self.plane_d, np.float64),
-                     frame=np.ascontiguousarray(self._barycentric_frame), corner=self.corner_table64,
-                     face_organ=np.ascontiguousarray(self.face_organ, np.int64), offset_m=self.offset_m)
+        view = self.embree
+        t = self.tables
+        return build(SceneTables, handle=view.handle, mask=view.mask, base=view.base,
+                     center=np.ascontiguousarray(t.center, np.float64), face_map=t.identity,
+                     face_normals=t.face_normals, plane_d=t.plane_d, frame=t.frame, face_organ=t.face_organ,
+                     offset_m=t.offset_m)
 
     @cached_property
     def shot_tables(self) -> ShotScene:
         """The float32 face tables the shooting's kernel takes (the fast Embree scene,
         :attr:`embree_shooting`)."""
-        return build(ShotScene, handle=self.embree_shooting.handle, face_map=self._primitive_faces,
-                     face_normals=self.face_normals32, corner=self.corner_table32, curvature=self.face_curvature32,
-                     face_organ=np.ascontiguousarray(self.face_organ, np.int64), offset_m=self.offset_m)
-
-    @cached_property
-    def face_normals32(self) -> np.ndarray:
-        return self.face_normals.astype(np.float32)
-
-    @cached_property
-    def face_curvature32(self) -> np.ndarray:
-        """Per face, an estimate of the surface's largest normal curvature [1/m]: the largest
-        angle between two corner normals over the edge joining them (0 on flat organs; 1/R on
-        a faceted sphere of radius R). The shooting widens ray tubes by it (curved organs
-        focus and defocus: a mirror of curvature k turns a ray at height h by 2 k h)."""
-        tri = self.vertices[self.faces]
-        c = self.corner_normals
-        out = np.zeros(len(self.faces))
-        for i, j in ((0, 1), (1, 2), (2, 0)):
-            cos = np.clip(np.einsum("ij,ij->i", c[:, i], c[:, j]), -1.0, 1.0)
-            length = np.linalg.norm(tri[:, i] - tri[:, j], axis=1)
-            out = np.maximum(out, np.arccos(cos) / np.maximum(length, 1e-12))
-        return out.astype(np.float32)
-
-    @cached_property
-    def corner_table64(self) -> np.ndarray:
-        """Per face (F, 9): the first corner normal and the differences to the other two."""
-        c = self.corner_normals
-        return np.ascontiguousarray(np.concatenate([c[:, 0], c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]], axis=1))
-
-    @cached_property
-    def corner_table32(self) -> np.ndarray:
-        return self.corner_table64.astype(np.float32)
-
-    @cached_property
-    def _barycentric_frame(self) -> np.ndarray:
-        """Per face, one row (F, 22) so :meth:`smooth_normals` gathers once: first vertex a (0:3),
-        edge vectors v0 = b - a (3:6), v1 = c - a (6:9), their dot products d00, d01, d11
-        (9:12), the Gram determinant (12) and the three corner normals (13:22), float64."""
-        tri = self.vertices[self.faces]  # (F, 3, 3)
-        a = tri[:, 0]
-        v0, v1 = tri[:, 1] - a, tri[:, 2] - a
-        d00 = np.einsum("ij,ij->i", v0, v0)
-        d01 = np.einsum("ij,ij->i", v0, v1)
-        d11 = np.einsum("ij,ij->i", v1, v1)
-        return np.concatenate([a, v0, v1, np.stack([d00, d01, d11, d00 * d11 - d01 * d01], axis=1),
-                               self.corner_normals.reshape(-1, 9)], axis=1)
+        view = self.embree_shooting
+        t = self.tables
+        return build(ShotScene, handle=view.handle, mask=view.mask, base=view.base, face_normals=t.normals32,
+                     corner=t.corner32, curvature=t.curvature32, face_organ=t.face_organ, offset_m=t.offset_m)
 
     def smooth_normals(self, face: np.ndarray, points_m: np.ndarray) -> np.ndarray:
         """Unit outward normals interpolated from barycentrics (float64) of points on their faces."""
@@ -233,6 +442,21 @@ class TracerScene:
         # Never let the smooth normal flip relative to the facet.
         flip = np.einsum("ij,ij->i", nrm, fallback) <= 0.0
         return np.where(flip[:, None], fallback, nrm)
+
+
+def _visible_runs(tables: FaceTables, visible: np.ndarray) -> Geometry:
+    """The ``visible`` faces as runs of consecutive faces within one organ (a geometry each)."""
+    v = np.asarray(visible, bool)
+    boundary = np.zeros(len(v) + 1, bool)
+    boundary[tables.organ_start] = True
+    starts = np.flatnonzero(v & (~np.r_[False, v[:-1]] | boundary[:-1]))
+    stops = np.flatnonzero(v & (~np.r_[v[1:], False] | boundary[1:])) + 1
+    return Geometry(starts.astype(np.int64), stops.astype(np.int64), np.full(len(starts), ALL, np.uint32))
+
+
+def _subset_scenes(tables: FaceTables, visible: np.ndarray) -> tuple:
+    """The robust scene of a subset of faces no mask expresses (the fast one is built on first use)."""
+    return EmbreeScene(*tables.buffers, geometry=_visible_runs(tables, visible)), None
 
 
 def corner_normals(vertices: np.ndarray, faces: np.ndarray, face_normals: np.ndarray,
@@ -306,7 +530,8 @@ _LOCK = threading.Lock()
 
 def scene_for(phantom: Phantom, visible: np.ndarray | None = None) -> TracerScene:
     """The :class:`TracerScene` of a phantom (optionally of its ``visible`` triangles only),
-    built once and cached while the phantom lives."""
+    built once and cached while the phantom lives; every scene of one phantom shares its
+    :class:`FaceTables`."""
     mask_key = None if visible is None or bool(np.all(visible)) else np.packbits(visible).tobytes()
     if mask_key is None:
         visible = None
@@ -315,7 +540,8 @@ def scene_for(phantom: Phantom, visible: np.ndarray | None = None) -> TracerScen
         entry = _CACHE.get(key)
         if entry is not None and entry[0]() is phantom:
             return entry[1]
-    scene = TracerScene.build(phantom, visible)
+    tables = None if mask_key is None else scene_for(phantom).tables
+    scene = TracerScene.build(phantom, visible, tables)
     with _LOCK:
         _CACHE[key] = (weakref.ref(phantom, lambda _r, k=key: _CACHE.pop(k, None)), scene)
     return scene

@@ -105,6 +105,13 @@ class TracerConfig:
     zoom_levels: int = 24
     #: The zoom stops once the miss is below this [m] (Newton then takes over).
     zoom_miss_m: float = 1e-7
+    #: A zoomed seed whose miss is not below zoom_stall_factor times its miss zoom_stall_window
+    #: levels earlier (less than 1 % progress over 6 levels) stops zooming: it sits in a geometric-
+    #: optics shadow. Measured on the torso's tract (35 positions x 12 sensors, 2e4 rays, and the six
+    #: capsule sites at 1e5): 21 seeds reached the miss, none ever improved less than 19 % over 4
+    #: levels; the 651 that did not stall at level 12 (median) of 24 under this rule.
+    zoom_stall_window: int = 6
+    zoom_stall_factor: float = 0.99
     #: Stages of the homotopy on the refractive indices (n_i^s, s from 0 to 1) for direct paths
     #: whose straight launch is totally reflected.
     continuation_stages: int = 8
@@ -158,3 +165,5 @@ class TracerConfig:
                              f"got {self.cluster_link}")
         if self.stall_factor > 1.0:
             raise ValueError(f"TracerConfig.stall_factor: must be at most 1, got {self.stall_factor}")
+        if self.zoom_stall_factor > 1.0:
+            raise ValueError(f"TracerConfig.zoom_stall_factor: must be at most 1, got {self.zoom_stall_factor}")

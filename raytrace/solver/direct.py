@@ -237,8 +237,12 @@ def zoom_seeds(
 ) -> Seeds:
     """Derivative-free zoom: a ``zoom_grid`` x ``zoom_grid`` patch of launch directions around
     each seed, the best (smallest refraction-only miss) becomes the centre, the half-width
-    halves; until the miss is below ``zoom_miss_m`` or ``zoom_levels`` levels (all seeds at
-    once; :class:`~raytrace.solver.config.TracerConfig`)."""
+    halves; until the miss is below ``zoom_miss_m``, or ``zoom_levels`` levels, or the seed
+    stalls: its miss less than ``1 - zoom_stall_factor`` smaller than ``zoom_stall_window``
+    levels earlier (all seeds at once; :class:`~raytrace.solver.config.TracerConfig`). A seed
+    with a refraction-only path nearby closes in on it level after level (its miss shrinks
+    with the patch), one in a geometric-optics shadow settles on the shadow's edge, mm away,
+    and used to zoom all its levels there."""
     config = config or TracerConfig()
     s = len(seeds.receiver)
     if s == 0:
@@ -251,8 +255,10 @@ def zoom_seeds(
     a = np.linspace(-1.0, 1.0, config.zoom_grid)
     ga, gb = (x.ravel() for x in np.meshgrid(a, a))
     segments = 0
+    stalled = np.zeros(s, bool)
+    history = [best.copy()]
     for _ in range(config.zoom_levels):
-        act = np.flatnonzero(best >= config.zoom_miss_m)
+        act = np.flatnonzero((best >= config.zoom_miss_m) & ~stalled)
         if len(act) == 0:
             break
         u, v = tangent_basis(d0[act])
@@ -274,6 +280,9 @@ def zoom_seeds(
         codes[sel] = w.codes(row[better], 0)
         nint[sel] = w.nint[row[better], 0]
         scale[act] *= 0.5
+        history.append(best.copy())
+        if len(history) > config.zoom_stall_window:
+            stalled |= best > config.zoom_stall_factor * history[-1 - config.zoom_stall_window]
     return Seeds(receiver=seeds.receiver, launch_dir=d0, miss_m=best, codes=codes, nint=nint,
                  segments=seeds.segments + segments)
 

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from raytrace.engine import kernels
+from raytrace.engine.boxgap import least_gap
 from raytrace.engine.records import ShotMedia, ShotRays, ShotReceivers, ShotScene, ShotSettings, WalkRecords, build
 from raytrace.engine.scene import TracerScene
 from raytrace.physics.em import C0
@@ -140,17 +141,16 @@ def _context(scene: TracerScene, media: MediaTable, rx_m: np.ndarray, rx_medium:
     alpha = (2.0 * np.pi * media.frequencies_hz[0] / C0) * -media.n[0].imag
     zone = zones(media)
     need = _interactions_needed(media, rx_medium)
-    verts32 = (scene.vertices - scene.center).astype(np.float32)  # what Embree holds
     shot = scene.shot_tables
     rx32 = np.ascontiguousarray((np.asarray(rx_m, float) - scene.center).astype(np.float32))
-    no_passes = not bool(tables.transparent[shot.face_map].any())
+    no_passes = not scene.has_transparent(tables.transparent)
     return _Context(
         scene=shot,
         media=build(ShotMedia, parent=tables.parent, material_class=tables.material_class,
                     transparent=tables.transparent, n_real=media.n_real.astype(np.float32),
                     alpha=alpha.astype(np.float32), zone=zone, need=need,
                     return_m=return_lengths(scene, media, zone, need, alpha),
-                    bounds_m=np.array([verts32.min(axis=0), verts32.max(axis=0)], np.float64)),
+                    bounds_m=scene.tables.bounds32),
         receivers=build(ShotReceivers, position_m=rx32,
                         zone=np.ascontiguousarray(zone[rx_medium + 1]),
                         **receiver_grid(rx32)),
@@ -381,7 +381,7 @@ def zones(media: MediaTable) -> np.ndarray:
 
 
 def return_lengths(scene: TracerScene, media: MediaTable, zone: np.ndarray, need: np.ndarray,
-                   alpha: np.ndarray, max_pairs: int = 4_000_000) -> np.ndarray:
+                   alpha: np.ndarray) -> np.ndarray:
     """(F, 2) float32: for a ray on the inside (column 0) / outside (1) of face f's organ, in a
     zone (:func:`zones`) from which no receiver is reached without an interaction, the least
     length it must still travel in that zone's medium before it can cross towards a receiver.
@@ -392,18 +392,31 @@ def return_lengths(scene: TracerScene, media: MediaTable, zone: np.ndarray, need
     exit face needs no length (0). A ray on any other face of Z must reach an exit face, or
     leave Z and come back through a non-exit face (its side of the tree has no receiver), so
     it travels at least D_Z, the least distance between Z's non-exit and exit faces, in Z:
-    bounded below by the distance between their bounding boxes (all pairs, when there are at
-    most ``max_pairs``; else 0, no bound). When every exit face is on one convex organ that Z
-    surrounds, a ray leaving that organ's surface into Z cannot meet it again before it has
+    bounded below by the least distance between their bounding boxes
+    (:func:`raytrace.engine.boxgap.least_gap`, exact, in O(n log n) time). When every exit face is
+    on one convex organ that Z surrounds, a ray leaving that organ's surface into Z cannot meet it again before it has
     reached another face of Z: it travels at least twice D_Z. Only absorbing zones
     (``alpha > 0``) get a bound.
     The shooting drops a ray whose power factor times ``exp(-2 alpha L)`` over that length is
     below the dynamic range (:func:`raytrace.engine.kernels._may_return`): exact, since power
     factors only decrease. In a closed room of 1 m concrete walls at 3.5 GHz (alpha 3.8 Np/m)
     a ray reflected at the walls' outer face must cross the 1 m back, -66 dB: the steep ones
-    are dropped there instead of being cast."""
-    out = np.zeros((len(scene.face_organ), 2), np.float32)
+    are dropped there instead of being cast.
+
+    The table depends on the faces and on which zones hold a receiver and absorb, not on the
+    request otherwise: it is made once per phantom and such a pattern
+    (:meth:`raytrace.engine.scene.FaceTables.cached`; at 0.98 M triangles it took 2 s per request)."""
     parent = np.asarray(media.parent, np.int64)
+    zone = np.asarray(zone, np.int64)
+    need = np.asarray(need, np.int64)
+    key = ("return_lengths", parent.tobytes(), zone.tobytes(), need.tobytes(), (np.asarray(alpha) > 0.0).tobytes())
+    return scene.tables.cached(key, lambda: _return_lengths(scene, parent, zone, need, alpha))
+
+
+def _return_lengths(scene: TracerScene, parent: np.ndarray, zone: np.ndarray, need: np.ndarray,
+                    alpha: np.ndarray) -> np.ndarray:
+    """:func:`return_lengths`, computed."""
+    out = np.zeros((len(scene.face_organ), 2), np.float32)
     organ = np.asarray(scene.face_organ, np.int64)
     z_in, z_out = zone[organ + 1], zone[parent[organ] + 1]
     n_zone = len(zone)
@@ -433,8 +446,10 @@ def return_lengths(scene: TracerScene, media: MediaTable, zone: np.ndarray, need
         child = up[y] == z  # y below z
         return np.where(child, below[y] > 0, total - below[z] > 0)
 
-    tri = scene.vertices[scene.faces]
-    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    def boxes(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        tri = scene.vertices[scene.faces[rows]]
+        return tri.min(axis=1), tri.max(axis=1)
+
     for z in np.unique(zone):
         m = int(np.flatnonzero(zone == z)[0])
         if need[m] == 0 or not alpha[m] > 0.0 or need[m] >= 1 << 20:
@@ -445,15 +460,11 @@ def return_lengths(scene: TracerScene, media: MediaTable, zone: np.ndarray, need
             sides.append((rows, col, exit_towards(np.full(len(rows), z), there[rows])))
         exits = np.concatenate([rows[ex] for rows, _c, ex in sides])
         others = [(rows[~ex], col) for rows, col, ex in sides]
-        n_other = sum(len(r) for r, _c in others)
-        if len(exits) == 0 or n_other == 0 or len(exits) * n_other > max_pairs:
+        if len(exits) == 0 or sum(len(r) for r, _c in others) == 0:
             continue
-        gap = np.inf
-        for rows, _col in others:
-            for k in range(0, len(rows), 256):
-                a = rows[k:k + 256]
-                d = np.maximum(np.maximum(lo[exits][None] - hi[a][:, None], lo[a][:, None] - hi[exits][None]), 0.0)
-                gap = min(gap, float(np.sqrt((d * d).sum(axis=2)).min()))
+        lo_e, hi_e = boxes(exits)
+        lo_o, hi_o = boxes(np.concatenate([r for r, _c in others]))
+        gap = least_gap(lo_o, hi_o, lo_e, hi_e)
         for rows, col in others:
             out[rows, col] = np.float32(gap * (1.0 - 1e-4))  # rounded down: a lower bound in float32
         # all exits on one convex organ C around which Z lies (a room's air in its walls): a ray

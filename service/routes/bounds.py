@@ -8,6 +8,7 @@ from fastapi import APIRouter
 
 from estimators import bounds
 from estimators.link import LinkBudget
+from service.admission import declare
 from service.bodies import ThreadedJsonRoute
 from service.errors import Unprocessable, error_responses
 from service.schemas.ranging import (
@@ -20,6 +21,9 @@ from service.schemas.ranging import (
 )
 
 router = APIRouter(prefix="/v1/bounds", tags=["bounds"], route_class=ThreadedJsonRoute)
+
+#: A bound's cost: a closed form of a few scalars, O(1) work and memory whatever the (schema-bounded) input.
+CLOSED_FORM = "closed form: O(1) work and memory"
 
 
 def _snr_db(req: ToaBoundRequest | PdoaBoundRequest, bandwidth_hz: float) -> float:
@@ -53,6 +57,7 @@ def _finite(values: dict[str, float]) -> dict[str, float]:
     summary="TOA CRLB of a single tone (thesis Eq 4.16-4.17)",
     responses=error_responses(400, 413, 422),
 )
+@declare(body="max_json_body_bytes", cost=CLOSED_FORM)
 async def bound_toa(req: ToaBoundRequest) -> ToaBoundResponse:
     """sigma_tau^2 = Is / (2 SNR W T0 Itau) for A cos(w (t - tau)) observed for T0
     (w = 2 pi f; the thesis listing's f-for-w slip is corrected), sigma_m = v sigma_tau.
@@ -69,6 +74,7 @@ async def bound_toa(req: ToaBoundRequest) -> ToaBoundResponse:
     summary="Two-tone PDOA CRLB (thesis Eq 5.16, E/N0 = SNR W T0)",
     responses=error_responses(400, 413, 422),
 )
+@declare(body="max_json_body_bytes", cost=CLOSED_FORM)
 async def bound_pdoa(req: PdoaBoundRequest) -> PdoaBoundResponse:
     """sigma_s = [8 pi^2 (f0^2 + W^2/4) E/N0]^(-1/2) (carrier ambiguity resolved) and the
     phase-difference-only bound from the W^2/4 term; distances by v = c / sqrt(eps_r).
@@ -95,6 +101,7 @@ async def bound_pdoa(req: PdoaBoundRequest) -> PdoaBoundResponse:
     summary="RSS CRLB under log-normal shadowing",
     responses=error_responses(400, 413, 422),
 )
+@declare(body="max_json_body_bytes", cost=CLOSED_FORM)
 async def bound_rss(req: RssBoundRequest) -> RssBoundResponse:
     """sigma_d >= ln(10) sigma d / (10 n)."""
     b = bounds.rss_crlb(req.shadowing_db, req.path_loss_exponent, req.distance_m)

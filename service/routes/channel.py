@@ -8,6 +8,8 @@ from fastapi import APIRouter, Request, Response
 
 from raytrace import Budget, trace_channel
 from service import channel as channel_ops
+from service import costs
+from service.admission import declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
@@ -23,6 +25,7 @@ router = APIRouter(prefix="/v1", tags=["channel"], route_class=ThreadedJsonRoute
     summary="Ray-trace the channel from a capsule to skin sensors",
     responses=error_responses(400, 404, 413, 422, 503, 504),
 )
+@declare(body="max_json_body_bytes", cost=costs.channel)
 async def compute_channel(req: ChannelRequest, request: Request) -> Response:
     """Every path (reflections, refractions, total internal reflections up to
     `max_interactions`) from the transmitter to each receiver, with absolute

@@ -10,6 +10,8 @@ import numpy as np
 from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.responses import JSONResponse
 
+from service.admission import declare
+from service.design_jobs import CoverageJobs, LayoutJobs
 from service.errors import error_responses
 from service.schemas.design import (
     CoverageList,
@@ -39,13 +41,14 @@ def _layout(request: Request):
 
 @router.post("/coverage", status_code=202, response_model=CoverageStatus, operation_id="submit_coverage",
              summary="Submit a coverage map", responses=error_responses(400, 401, 404, 413, 422, 503))
+@declare(body="max_json_body_bytes", cost=CoverageJobs.estimate, keyed=True)
 async def submit_coverage(req: CoverageRequest, request: Request) -> JSONResponse:
     """Plan the capsule positions and the sensor candidates on the phantom's outermost surface, bound the
     work (positions x candidates, each trace's rays and memory) and queue the job: one trace per capsule
     position serves every candidate. 202 with its status at once."""
-    writer(request, request.app.state.capsule.settings)
+    owner = writer(request, request.app.state.capsule.settings)
     body = req.model_dump(mode="json", exclude_unset=True)
-    status = await anyio.to_thread.run_sync(_coverage(request).submit, body)
+    status = await anyio.to_thread.run_sync(_coverage(request).submit, body, owner)
     return JSONResponse(CoverageStatus.model_validate(status).model_dump(), status_code=202,
                         headers={"Location": f"/v1/design/coverage/{status['id']}"})
 
@@ -144,24 +147,26 @@ async def get_coverage_plot(
 
 @router.delete("/coverage/{job_id}", response_model=CoverageStatus, operation_id="cancel_coverage",
                summary="Cancel or delete a coverage job", responses=error_responses(401, 404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job", keyed=True)
 async def cancel_coverage(request: Request, job_id: str = CoverageId) -> CoverageStatus:
-    writer(request, request.app.state.capsule.settings)
-    return CoverageStatus.model_validate(await anyio.to_thread.run_sync(_coverage(request).cancel, job_id))
+    requester = writer(request, request.app.state.capsule.settings)
+    return CoverageStatus.model_validate(await anyio.to_thread.run_sync(_coverage(request).cancel, job_id, requester))
 
 
 @router.post("/layout", status_code=202, response_model=LayoutStatus, operation_id="submit_layout",
              summary="Submit a layout optimisation", responses=error_responses(400, 401, 404, 409, 413, 422, 503))
+@declare(body="max_json_body_bytes", cost=LayoutJobs.estimate, keyed=True)
 async def submit_layout(req: LayoutRequest, request: Request) -> JSONResponse:
     """Check the layout against its (done) coverage, bound the search and queue it: N sensors chosen from
     the coverage's candidates under the constraints, minimising the mean or 90th-percentile position
     bound along the tract, beside the best same-size subset of the phantom's sensor sites."""
-    writer(request, request.app.state.capsule.settings)
+    owner = writer(request, request.app.state.capsule.settings)
     body = req.model_dump(mode="json", exclude_unset=True)
     if "evaluate" in req.model_fields_set and req.evaluate is None:
         body["evaluate"] = None
     elif "evaluate" not in body:
         body["evaluate"] = {}
-    status = await anyio.to_thread.run_sync(_layout(request).submit, body)
+    status = await anyio.to_thread.run_sync(_layout(request).submit, body, owner)
     return JSONResponse(LayoutStatus.model_validate(status).model_dump(), status_code=202,
                         headers={"Location": f"/v1/design/layout/{status['id']}"})
 
@@ -191,6 +196,7 @@ async def get_layout_report(request: Request, job_id: str = LayoutId,
 
 @router.delete("/layout/{job_id}", response_model=LayoutStatus, operation_id="cancel_layout",
                summary="Cancel or delete a layout job", responses=error_responses(401, 404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job", keyed=True)
 async def cancel_layout(request: Request, job_id: str = LayoutId) -> LayoutStatus:
-    writer(request, request.app.state.capsule.settings)
-    return LayoutStatus.model_validate(await anyio.to_thread.run_sync(_layout(request).cancel, job_id))
+    requester = writer(request, request.app.state.capsule.settings)
+    return LayoutStatus.model_validate(await anyio.to_thread.run_sync(_layout(request).cancel, job_id, requester))

@@ -9,8 +9,11 @@ import anyio.to_thread
 from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.responses import FileResponse, JSONResponse
 
+from service.admission import declare
 from service.errors import error_responses
+from service.fullwave_jobs import FullwaveJobs
 from service.schemas.fullwave import FullwaveList, FullwaveRequest, FullwaveStatus
+from service.security import writer
 
 router = APIRouter(prefix="/v1/fullwave", tags=["fullwave"])
 
@@ -27,7 +30,8 @@ def _jobs(request: Request):
 
 
 @router.post("", status_code=202, response_model=FullwaveStatus, operation_id="submit_fullwave",
-             summary="Submit a full-wave cross-check", responses=error_responses(400, 404, 413, 422, 501, 503))
+             summary="Submit a full-wave cross-check", responses=error_responses(400, 401, 404, 413, 422, 501, 503))
+@declare(body="max_json_body_bytes", cost=FullwaveJobs.estimate, keyed=True)
 async def submit_fullwave(req: FullwaveRequest, request: Request) -> JSONResponse:  # type: ignore[valid-type]
     """Validate the channel request and the FDTD models (their size against the server's work bound,
     the antennas outside the absorbing layer), write the gprMax inputs and queue the job on the
@@ -35,7 +39,8 @@ async def submit_fullwave(req: FullwaveRequest, request: Request) -> JSONRespons
     status at once; `export_only` jobs are already `done`. At most `fullwave_max_queue` jobs may be
     queued or running (503 + Retry-After beyond); 501 when gprMax is not installed and the job would
     need it."""
-    status = await anyio.to_thread.run_sync(_jobs(request).submit, req)
+    owner = writer(request, request.app.state.capsule.settings)
+    status = await anyio.to_thread.run_sync(_jobs(request).submit, req, owner)
     return JSONResponse(FullwaveStatus.model_validate(status).model_dump(), status_code=202,
                         headers={"Location": f"/v1/fullwave/{status['id']}"})
 
@@ -78,16 +83,21 @@ async def get_fullwave_report(
                              "content": {"text/plain": {}, "application/x-hdf5": {}, "application/json": {},
                                          "text/markdown": {}}},
                        **error_responses(404, 422)})
-async def get_fullwave_file(request: Request, job_id: str = JobIdPath, name: str = FileNamePath) -> FileResponse:
+async def get_fullwave_file(request: Request, job_id: str = JobIdPath, name: str = FileNamePath) -> Response:
     """One of the files the job's status lists: e.g. `model_20.in` to run the same model with gprMax
     on one's own cluster. Only the job's own files, by name (the pattern admits no path)."""
-    path, media = await anyio.to_thread.run_sync(_jobs(request).file, job_id, name)
-    return FileResponse(path, media_type=media, filename=f"{job_id}-{name}")
+    content, media = await anyio.to_thread.run_sync(_jobs(request).file, job_id, name)
+    if isinstance(content, bytes):  # a text file, the server's paths redacted
+        return Response(content, media_type=media,
+                        headers={"Content-Disposition": f'attachment; filename="{job_id}-{name}"'})
+    return FileResponse(content, media_type=media, filename=f"{job_id}-{name}")
 
 
 @router.delete("/{job_id}", response_model=FullwaveStatus, operation_id="cancel_fullwave",
-               summary="Cancel or delete a full-wave job", responses=error_responses(404, 409, 422))
+               summary="Cancel or delete a full-wave job", responses=error_responses(401, 403, 404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job", keyed=True)
 async def cancel_fullwave(request: Request, job_id: str = JobIdPath) -> FullwaveStatus:
     """A queued or running job is cancelled (its gprMax process is killed; the files written so far
     stay); a finished (`done`, `failed`, `cancelled`) one is deleted with its files (`deleted: true`)."""
-    return FullwaveStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, job_id))
+    requester = writer(request, request.app.state.capsule.settings)
+    return FullwaveStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, job_id, requester))

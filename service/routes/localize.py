@@ -46,6 +46,8 @@ from estimators.rss import CM2_MODELS
 from estimators.toa import METHODS as TOA_METHODS
 from raytrace import Budget, Phantom
 from raytrace.errors import InputError, InvalidGeometryError, field_text
+from service import costs
+from service.admission import admit, declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import Unprocessable, error_responses
@@ -108,9 +110,10 @@ class LocalizeSensor(PositionOrSite):
                                   "linear / nonlinear turn it into a range with relative_permittivity), of the "
                                   "request's delay_kind (default group).")
     rss_dbm: float | None = Field(None, ge=-300.0, le=100.0, description="Received power [dBm] (method rss).")
-    sigma_m: float | None = Field(None, gt=0.0, le=100.0, description="Standard deviation of the measurement as a "
-                                  "range [m] (a delay's is sigma_m / v at relative_permittivity). Give it for every "
-                                  "sensor or none; without it the fit weighs sensors equally and crlb_m is null.")
+    sigma_m: float | None = Field(None, ge=1e-12, le=100.0, description="Standard deviation of the measurement as "
+                                  "a range [m] (a delay's is sigma_m / v at relative_permittivity), at least 1 pm (no "
+                                  "ranging resolves less; below ~1e-150 the 1 / sigma^2 weights overflow). Give it for "
+                                  "every sensor or none; without it the fit weighs sensors equally and crlb_m is null.")
 
     @model_validator(mode="after")
     def _measured(self) -> "LocalizeSensor":
@@ -395,6 +398,7 @@ def localize(req: LocalizeRequest, registry: Registry, settings: Settings, budge
 
             sensor_positions(sensors)  # duplicates / coplanar refused before any grid is built
             _check_grid(phantom)
+            admit(costs.travel_time_fields(_grid_cells(phantom), len(sensors)), settings)
             fields = sensor_fields(phantom, sensors, req.frequency_hz, CELL_SIZE_M, delay_kind=req.delay_kind,
                                    check=lambda: _stop(budget), cache_dir=field_cache_dir(settings))
             _stop(budget)
@@ -451,11 +455,16 @@ def evaluate(req: LocalizeEvaluateRequest, registry: Registry, settings: Setting
     capsule = _place(phantom, req.capsule, "capsule")
     sensors = np.array([_place(phantom, s, f"sensors[{i}]") for i, s in enumerate(req.sensors)])
     methods = req.methods
-    if methods is not None and "model_based" in methods or methods is None and req.ranging != "rss":
+    model_based = methods is not None and "model_based" in methods or methods is None and req.ranging != "rss"
+    if model_based:
         _check_grid(phantom)
     band = None
     if req.ranging == "pdoa":
         band = {"start_hz": 400e6, "stop_hz": 420e6, "points": min(21, settings.max_band_points)}
+    admit(costs.localization_evaluation(
+        phantom, capsule, sensors, ranging=req.ranging, model_based=model_based, frequency_hz=req.frequency_hz,
+        trials=req.trials, rays=rays, max_interactions=interactions, near_field=req.near_field, band=band,
+        grid_cells=_grid_cells(phantom) if model_based else 0, settings=settings), settings)
     try:
         result = evaluate_localization(
             phantom, capsule, list(sensors), ranging=req.ranging, methods=methods, frequency_hz=req.frequency_hz,
@@ -498,6 +507,7 @@ _ERRORS = error_responses(400, 404, 413, 422, 503, 504)
 
 @router.post("", response_model=LocalizeResponse, operation_id="localize", summary="Position fix from sensors' "
              "ranges, delays or received powers", responses=_ERRORS)
+@declare(body="max_json_body_bytes", cost=costs.travel_time_fields)
 async def localize_route(req: LocalizeRequest, request: Request) -> LocalizeResponse:
     """The capsule's position from at least four sensors (five for joint_velocity), each with a
     range, a delay or a received power: closed-form or weighted nonlinear least squares at a constant
@@ -513,13 +523,15 @@ async def localize_route(req: LocalizeRequest, request: Request) -> LocalizeResp
 
 @router.post("/evaluate", response_model=LocalizeEvaluateResponse, operation_id="localize_evaluate",
              summary="Trace, range and locate: position error statistics beside the bound", responses=_ERRORS)
+@declare(body="max_json_body_bytes", cost=costs.localization_evaluation)
 async def localize_evaluate_route(req: LocalizeEvaluateRequest, request: Request) -> LocalizeEvaluateResponse:
     """One trace from the capsule to the sensors, a seeded Monte Carlo ranging run per sensor
     (TOA, PDOA or RSS), a fix per trial and method; per method the mean error, RMSE, CEP50/CEP90 and
     every trial's error beside the position CRLB and GDOP/PDOP at the true position
     (docs/localization.md, "End-to-end evaluation")."""
     st = state(request)
-    budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments)
+    budget = Budget(deadline_s=st.settings.request_deadline_s, max_ray_segments=st.settings.max_ray_segments,
+                    max_bytes=st.settings.compute_memory_share_bytes)
     out = await st.gate.run(lambda b: evaluate(req, st.registry, st.settings, b), budget,
                             disconnected=request.is_disconnected)
     return LocalizeEvaluateResponse.model_validate(out)

@@ -9,6 +9,7 @@ from fastapi.responses import JSONResponse
 
 from raytrace.body.gltf import load_phantom, parse_manifest
 from raytrace.solver.budget import Budget
+from service.admission import declare
 from service.deps import state
 from service.errors import Conflict, NotFound, StorageFull, error_responses
 from service.registry import describe_phantom
@@ -22,7 +23,7 @@ from service.schemas.phantoms import (
 )
 from service.security import check_owner, writer
 from service.storage import Full, Missing, is_upload_id, new_upload_id
-from service.uploads import read_upload
+from service.uploads import MULTIPART_OVERHEAD_BYTES, read_upload
 
 router = APIRouter(prefix="/v1/phantoms", tags=["phantoms"])
 
@@ -108,12 +109,14 @@ async def get_phantom_build(request: Request, build_id: str = BuildIdPath) -> Ph
 
 @router.delete("/builds/{build_id}", response_model=PhantomBuildStatus, operation_id="cancel_phantom_build",
                summary="Cancel or delete a phantom build", responses=error_responses(401, 403, 404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished build's record", keyed=True)
 async def cancel_phantom_build(request: Request, build_id: str = BuildIdPath) -> PhantomBuildStatus:
     """A queued or running build is cancelled (nothing is stored); a finished one's record is deleted (its
     phantom stays, `DELETE /v1/phantoms/{phantom_id}` removes it)."""
     st = state(request)
-    writer(request, st.settings)
-    return PhantomBuildStatus.model_validate(await anyio.to_thread.run_sync(_builds(request).cancel, build_id))
+    requester = writer(request, st.settings)
+    return PhantomBuildStatus.model_validate(await anyio.to_thread.run_sync(_builds(request).cancel, build_id,
+                                                                            requester))
 
 
 @router.get(
@@ -175,6 +178,7 @@ async def get_phantom_manifest(request: Request, phantom_id: str = PhantomIdPath
     response_class=Response,
     responses=error_responses(401, 403, 404, 409, 422),
 )
+@declare(body=None, cost="none: removes the phantom's directory", keyed=True)
 async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> Response:
     """Built-in phantoms cannot be deleted (409). When the server requires API keys, only
     the key that uploaded a phantom deletes it (docs/service.md, "Security")."""
@@ -190,7 +194,7 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
             stored_owner = await anyio.to_thread.run_sync(reg.store.owner, phantom_id)
         except Missing:
             raise NotFound(reg.unknown_message(phantom_id), loc=["path", "phantom_id"]) from None
-        check_owner(stored_owner, requester, phantom_id)
+        check_owner(stored_owner, requester, f"phantom {phantom_id!r}")
     removed = await anyio.to_thread.run_sync(reg.store.delete, phantom_id)
     reg.forget(phantom_id)
     if not removed:
@@ -209,6 +213,10 @@ async def delete_phantom(request: Request, phantom_id: str = PhantomIdPath) -> R
                      "(`Location`: /v1/phantoms/builds/{build_id})."},
                **error_responses(400, 401, 403, 413, 422, 503, 504, 507)},
 )
+@declare(body=lambda s: s.max_upload_bytes + s.max_manifest_bytes + MULTIPART_OVERHEAD_BYTES,
+         cost="a .glb: its triangles, read from its accessors and refused over max_triangles before any geometry "
+              "is built (raytrace.body.gltf.load_phantom; ~5 s of CPU per million); an archive: its build's plan "
+              "(service.phantom_builds.PhantomBuilds.estimate)", keyed=True)
 async def upload_phantom(request: Request) -> JSONResponse:
     """With `archive`: the zip's files and build manifest are checked (sizes, voxels, every named file present,
     the build's memory) and built as a job by the anatomy pipeline (202; follow it at

@@ -13,6 +13,8 @@ from fastapi.responses import JSONResponse
 from plots.figure import FORMATS, PlotInputError
 from plots.registry import KINDS, PlotKind, render
 from raytrace import Budget
+from service import costs
+from service.admission import admit, declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import ServiceError, Unprocessable, error_body, error_responses
@@ -70,6 +72,22 @@ _IMAGE_RESPONSES = {
 }
 
 
+def plot_cost(req) -> costs.Cost:
+    """A figure's cost (:func:`service.costs.plot`): its canvas at ``dpi`` and one artist per number sent."""
+    dpi = getattr(req, "dpi", 150)
+    width, height = (getattr(req, "width_in", 8.0) or 8.0) * dpi, (getattr(req, "height_in", None) or 8.0) * dpi
+    count, stack = 0, [req.model_dump()]
+    while stack:
+        value = stack.pop()
+        if isinstance(value, dict):
+            stack.extend(value.values())
+        elif isinstance(value, list):
+            stack.extend(value)
+        elif isinstance(value, (int, float)):
+            count += 1
+    return costs.plot(width, height, count)
+
+
 def _add_route(spec: PlotKind) -> None:
     model = spec.request
 
@@ -78,6 +96,7 @@ def _add_route(spec: PlotKind) -> None:
         st = state(request)
 
         def work(budget: Budget) -> bytes:
+            admit(plot_cost(req), st.settings)
             try:
                 return render(spec.name, req, fmt)
             except PlotInputError as exc:
@@ -90,6 +109,7 @@ def _add_route(spec: PlotKind) -> None:
     plot.__doc__ = (f"{spec.summary}. The body is the figure's data and options (`title`, `width_in`, "
                     "`height_in`, `dpi`); the answer is the image: PNG unless `Accept` asks for "
                     "`image/svg+xml` or `application/pdf`.")
+    declare(body="max_ranging_body_bytes", cost=plot_cost)(plot)
     router.add_api_route(f"/{spec.name}", plot, methods=["POST"], operation_id=f"plot_{spec.name}",
                          summary=spec.summary, response_class=Response, responses=_IMAGE_RESPONSES)
 
@@ -99,6 +119,7 @@ for _spec in KINDS.values():
 
 
 @router.post("/{kind}", include_in_schema=False)
+@declare(body="max_json_body_bytes", cost="none: answers 404 without reading the body")
 async def unknown_kind(kind: str) -> JSONResponse:
     return JSONResponse(error_body(["path", "kind"], f"unknown plot kind {kind[:64]!r}; one of "
                                    f"{', '.join(KINDS)}", "not_found"), status_code=404)

@@ -6,6 +6,7 @@ from fastapi import APIRouter, Request
 
 from raytrace.solver.budget import Budget
 from service import ranging as ops
+from service.admission import declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
@@ -30,6 +31,7 @@ async def _run(request: Request, fn, req) -> RangingResponse:
 
 @router.post("/toa", response_model=RangingResponse, operation_id="ranging_toa", summary="TOA ranging",
              responses=_ERRORS)
+@declare(body="max_ranging_body_bytes", cost=ops._check_toa_work)
 async def ranging_toa(req: ToaRequest, request: Request) -> RangingResponse:
     """Transmit the waveform through the profile, add white Gaussian noise at `snr_db`,
     estimate the delay by first peak (Eq 4.18), all peaks (Eq 4.19-4.21) or generalized
@@ -40,6 +42,7 @@ async def ranging_toa(req: ToaRequest, request: Request) -> RangingResponse:
 
 @router.post("/pdoa", response_model=RangingResponse, operation_id="ranging_pdoa", summary="PDOA ranging",
              responses=_ERRORS)
+@declare(body="max_ranging_body_bytes", cost=ops.pdoa_cost)
 async def ranging_pdoa(req: PdoaRequest, request: Request) -> RangingResponse:
     """Phase of the channel at two tones (Eq 5.3-5.5) or a regression of the unwrapped
     phase over N tones (slope = -2 pi tau), with noise; adds the unambiguous range and
@@ -49,6 +52,7 @@ async def ranging_pdoa(req: PdoaRequest, request: Request) -> RangingResponse:
 
 @router.post("/rss", response_model=RangingResponse, operation_id="ranging_rss", summary="RSS ranging",
              responses=_ERRORS)
+@declare(body="max_ranging_body_bytes", cost="trials x tones (service.costs.tones): the schema bounds both")
 async def ranging_rss(req: RssRequest, request: Request) -> RangingResponse:
     """Invert the IEEE 802.15.6 CM2 path-loss model (thesis Eq 2.2, Table 2.2) for the
     distance, with log-normal shadowing drawn per trial."""

@@ -10,7 +10,10 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.errors import ServiceError, Unprocessable, UploadTooLarge, error_responses
+from service.admission import declare
+from service.errors import ServiceError, Unprocessable, UnsupportedMediaType, UploadTooLarge, error_responses
+from service.security import writer
+from service.sweep_jobs import SweepJobs
 from sweeps.spec import LIMITS, parse_text
 
 router = APIRouter(prefix="/v1/sweeps", tags=["sweeps"])
@@ -142,6 +145,19 @@ def _jobs(request: Request):
     return request.app.state.sweeps
 
 
+#: The media types a spec may come as: JSON, or YAML. Anything else (above all the types a web page's form
+#: or a no-preflight fetch sends: text/plain, application/x-www-form-urlencoded, multipart/form-data) is 415.
+YAML_TYPES = ("application/yaml", "application/x-yaml", "text/yaml")
+
+
+def spec_media_type(header: str | None) -> str:
+    kind = (header or "").split(";")[0].strip().lower()
+    if kind == "application/json" or (kind.startswith("application/") and kind.endswith("+json")) or kind in YAML_TYPES:
+        return kind
+    raise UnsupportedMediaType(f"a sweep spec is sent as application/json or application/yaml, not "
+                               f"{kind[:100] or 'a body without Content-Type'}", loc=["header", "content-type"])
+
+
 def decode_spec(body: bytes, kind: str) -> dict:
     """A sweep spec's body (JSON, or YAML for ``application/yaml``) as an object: 400 naming the
     body when it is not UTF-8, not JSON/YAML, or nests too deeply to parse; 422 when it is not an
@@ -151,7 +167,7 @@ def decode_spec(body: bytes, kind: str) -> dict:
     except UnicodeDecodeError:
         raise ServiceError("the spec is not UTF-8 text", loc=["body"]) from None
     try:
-        if kind in ("application/yaml", "application/x-yaml", "text/yaml"):
+        if kind in YAML_TYPES:
             from raytrace.errors import InputError
 
             try:
@@ -171,21 +187,24 @@ def decode_spec(body: bytes, kind: str) -> dict:
 
 
 @router.post("", status_code=202, response_model=SweepStatus, operation_id="submit_sweep", summary="Submit a sweep",
-             responses=error_responses(400, 404, 413, 422, 503), openapi_extra=_SUBMIT)
+             responses=error_responses(400, 401, 404, 413, 415, 422, 503), openapi_extra=_SUBMIT)
+@declare(body="max_json_body_bytes", cost=SweepJobs.estimate, keyed=True)
 async def submit_sweep(request: Request) -> JSONResponse:
     """Validate the spec (and plan it against the phantom: sites, positions, centreline), store the job
-    and queue it. Answers 202 with its status at once; the work runs in worker processes. At most
-    `sweep_max_queue` jobs may be queued or running (503 + Retry-After beyond)."""
+    and queue it. The body is JSON (`application/json`) or YAML (`application/yaml`); any other type is 415.
+    Answers 202 with its status at once; the work runs in worker processes. At most `sweep_max_queue` jobs
+    may be queued or running (503 + Retry-After beyond)."""
     jobs = _jobs(request)
+    owner = writer(request, request.app.state.capsule.settings)
+    kind = spec_media_type(request.headers.get("content-type"))
     cap = jobs.limits.max_spec_bytes
     body = bytearray()
     async for chunk in request.stream():
         body += chunk
         if len(body) > cap:
             raise UploadTooLarge(f"a sweep spec is at most {cap} bytes", loc=["body"])
-    kind = request.headers.get("content-type", "application/json").split(";")[0].strip().lower()
     # parsing (up to max_spec_bytes of JSON or YAML), validation and planning all run in a worker thread
-    status = await anyio.to_thread.run_sync(lambda: jobs.submit(decode_spec(bytes(body), kind)))
+    status = await anyio.to_thread.run_sync(lambda: jobs.submit(decode_spec(bytes(body), kind), owner))
     return JSONResponse(SweepStatus.model_validate(status).model_dump(), status_code=202,
                         headers={"Location": f"/v1/sweeps/{status['id']}"})
 
@@ -227,8 +246,10 @@ async def get_sweep_results(
 
 
 @router.delete("/{sweep_id}", response_model=SweepStatus, operation_id="cancel_sweep", summary="Cancel a sweep",
-               responses=error_responses(404, 409, 422))
+               responses=error_responses(401, 403, 404, 409, 422))
+@declare(body=None, cost="none: writes a cancellation file, or removes a finished job", keyed=True)
 async def cancel_sweep(request: Request, sweep_id: str = SweepIdPath) -> SweepStatus:
     """A queued or running sweep is cancelled (its finished tasks' rows stay available); a finished
     (`done`, `failed`, `cancelled`) one is deleted with its results (`deleted: true`)."""
-    return SweepStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, sweep_id))
+    requester = writer(request, request.app.state.capsule.settings)
+    return SweepStatus.model_validate(await anyio.to_thread.run_sync(_jobs(request).cancel, sweep_id, requester))

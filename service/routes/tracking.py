@@ -11,6 +11,8 @@ from fastapi import APIRouter, Request
 from pydantic import BaseModel, ConfigDict, Field
 
 from raytrace.solver.budget import Budget
+from service import costs
+from service.admission import admit, declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
@@ -175,7 +177,13 @@ class EvaluateResponse(BaseModel):
     trajectory: dict[str, list[TrackStep]]
 
 
-def run_track(req: TrackRequest, registry, budget: Budget) -> dict:
+def track_cost(req: TrackRequest, settings) -> costs.Cost:
+    """The particle filter's particles x observations steps (:func:`service.costs.particles`); a Kalman
+    track is linear in the (schema-bounded) observations."""
+    return costs.particles(req.config.particles, len(req.observations), settings, MAX_PARTICLE_STEPS)
+
+
+def run_track(req: TrackRequest, registry, budget: Budget, settings=None) -> dict:
     from tracking import (
         Observation,
         RfFix,
@@ -186,8 +194,11 @@ def run_track(req: TrackRequest, registry, budget: Budget) -> dict:
         particle_track,
     )
 
-    if req.tracker == "particle" and req.config.particles * len(req.observations) > MAX_PARTICLE_STEPS:
-        raise TrackingInputError(f"particles x observations must be <= {MAX_PARTICLE_STEPS}", "config.particles")
+    if req.tracker == "particle":
+        from service.settings import Settings
+
+        settings = settings if settings is not None else Settings()
+        admit(track_cost(req, settings), settings)
     phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
     line = phantom.centrelines.get(req.centreline)
     if line is None:
@@ -201,7 +212,10 @@ def run_track(req: TrackRequest, registry, budget: Budget) -> dict:
         conf["speed_range_m_per_s"] = tuple(conf["speed_range_m_per_s"])
     cfg = TrackerConfig(**conf)
     budget.charge()
-    out = (particle_track if req.tracker == "particle" else kalman_track)(line, obs, cfg, name=req.tracker)
+    if req.tracker == "particle":  # checked at every step: past the deadline, or once the client left, it stops
+        out = particle_track(line, obs, cfg, name=req.tracker, check=budget.charge)
+    else:
+        out = kalman_track(line, obs, cfg, name=req.tracker)
     budget.charge()
     return out.to_dict()
 
@@ -209,6 +223,25 @@ def run_track(req: TrackRequest, registry, budget: Budget) -> dict:
 def _finite_or_none(x: float | None) -> float | None:
     """NaN (no RF fix made) as null: JSON has no NaN, and pydantic would write it as null anyway."""
     return None if x is None or not math.isfinite(x) else float(x)
+
+
+def track_evaluate_cost(req: EvaluateRequest, phantom, rays: int, interactions: int, settings) -> costs.Cost:
+    """The journey's RF traces (one per RF grid position it visits: at most 200, the journey's steps, the
+    tract's length over rf_grid_m), each a channel request's cost to the phantom's sensor sites
+    (:func:`service.costs.channel`); their shootings add up against the work budget, one is held at a time."""
+    from evaluation.tracking import MAX_RF_POSITIONS
+    from raytrace.spec import Antenna, ChannelSpec
+
+    if all(t == "video" for t in req.trackers):
+        return costs.Cost()
+    line = phantom.centrelines.get("gi_tract")
+    length = line.length_m if line is not None else 0.0
+    positions = min(MAX_RF_POSITIONS, req.journey.steps, int(length / req.rf_grid_m) + 1)
+    sensors = tuple(Antenna(site=n, name=n) for n, s in phantom.sites.items() if s.kind == "sensor")
+    spec = ChannelSpec(Antenna(position_m=[0.0, 0.0, 0.0]), sensors or (Antenna(position_m=[0.0, 0.0, 0.1]),),
+                       rays=rays, max_interactions=interactions)
+    trace = costs.channel(spec, settings, {"receivers": ("rays",), "band.points": ("rays",)})
+    return costs.repeat(trace, positions, what="RF grid positions")
 
 
 def _evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
@@ -221,6 +254,7 @@ def _evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
     rays, interactions = settings.trace_knobs(req.rays, req.max_interactions, default_rays=DEFAULT_EVALUATE_RAYS,
                                               default_interactions=6)
     phantom = registry.get(req.phantom, field_loc=["body", "phantom"])
+    admit(track_evaluate_cost(req, phantom, rays, interactions, settings), settings)
     ev = evaluate_tracking(JourneySpec(**req.journey.model_dump()), req.trackers, phantom=phantom,
                            rf_grid_m=req.rf_grid_m, rays=rays, max_interactions=interactions, runs=req.runs,
                            check=budget.charge, field_cache_dir=field_cache_dir(settings))
@@ -238,6 +272,7 @@ def _evaluate(req: EvaluateRequest, registry, settings, budget: Budget) -> dict:
 
 @router.post("", response_model=TrackResponse, operation_id="track", summary="Track the capsule along the tract",
              responses=_ERRORS)
+@declare(body="max_ranging_body_bytes", cost=track_cost)
 async def track(req: TrackRequest, request: Request) -> TrackResponse:
     """RF position fixes (with covariance) and frame-pair motion (advance, roll) per time step in;
     the trajectory along the centreline out: arc length, rate, roll and the 3-D point, each with its
@@ -245,13 +280,14 @@ async def track(req: TrackRequest, request: Request) -> TrackResponse:
     particles on the centreline weighted by the fixes' 3-D likelihood (keeps both loops where the
     tract folds back)."""
     st = state(request)
-    out = await st.gate.run(lambda budget: run_track(req, st.registry, budget),
+    out = await st.gate.run(lambda budget: run_track(req, st.registry, budget, st.settings),
                             Budget(deadline_s=st.settings.request_deadline_s), disconnected=request.is_disconnected)
     return TrackResponse.model_validate(out)
 
 
 @router.post("/evaluate", response_model=EvaluateResponse, operation_id="track_evaluate",
              summary="The journey experiment: RMSE per tracker", responses=_ERRORS)
+@declare(body="max_json_body_bytes", cost=track_evaluate_cost)
 async def track_evaluate(req: EvaluateRequest, request: Request) -> EvaluateResponse:
     """A seeded journey along the default torso's GI tract; RF fixes from the sweep engine and the
     model-based fix (positions traced once per grid position and kept in memory), calibrated and declared

@@ -28,10 +28,12 @@ from fastapi.responses import JSONResponse
 from pydantic import ConfigDict, Field, ValidationError, model_validator
 
 from raytrace import Budget
+from service import costs
+from service.admission import admit, declare
 from service.deps import state
 from service.errors import ServiceError, Unprocessable, error_responses, field_to_loc
 from service.schemas import ID_PATTERN, ErrorResponse, Int, Name, Out, Strict, Vec3, alternatives
-from service.uploads import read_parts
+from service.uploads import MULTIPART_OVERHEAD_BYTES, read_parts
 from vision.advance import advance_for_scale
 from vision.camera import DEFAULT_FOV_DEG, DEFAULT_SIZE_PX, FisheyeCamera, Pose
 from vision.errors import VisionInputError
@@ -46,7 +48,8 @@ router = APIRouter(prefix="/v1/vision", tags=["vision"])
 
 #: Largest rendered frame [px a side] (the camera's own ceiling; ~1 s of CPU).
 MAX_RENDER_SIZE_PX = 1024
-#: Largest frame accepted by the motion estimator here [px a side], and its PNG's size [bytes].
+#: Smallest and largest frame accepted by the motion estimator here [px a side], and its PNG's size [bytes].
+MIN_FRAME_SIDE_PX = 16
 MAX_FRAME_SIDE_PX = 1024
 MAX_FRAME_BYTES = 4 * 1024 * 1024
 #: Largest JSON part (options, geometry) [bytes].
@@ -120,7 +123,8 @@ class SensorIn(Strict):
 
 class RenderRequest(Strict):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [
-        {"phantom": "torso", "pose": {"s_m": 1.2}, "roll_deg": 0.0, "camera": {"fov_deg": 150.0, "size_px": 256}},
+        # 0.3 m along the default torso's 0.69 m GI-tract centreline (GET /v1/phantoms/torso: centrelines)
+        {"phantom": "torso", "pose": {"s_m": 0.3}, "roll_deg": 0.0, "camera": {"fov_deg": 150.0, "size_px": 256}},
         {"phantom": "torso", "pose": {"position_m": [0.0, 0.0, 0.0], "direction": [0.0, 0.0, 1.0]}},
     ]})
 
@@ -281,8 +285,14 @@ _RENDER_RESPONSES = {
 }
 
 
+def render_cost(req: RenderRequest) -> costs.Cost:
+    """A rendered frame: ``camera.size_px`` squared pixels (:func:`service.costs.pixels`)."""
+    return costs.pixels(req.camera.size_px, 1, ("camera", "size_px"), "the frame")
+
+
 @router.post("/render", operation_id="vision_render", summary="Render the capsule camera's frame at a pose",
              response_class=Response, responses=_RENDER_RESPONSES)
+@declare(body="max_json_body_bytes", cost=render_cost)
 async def vision_render(req: RenderRequest, request: Request) -> Response:
     """The capsule camera's view (equidistant fisheye, LEDs, procedural mucosa, sensor;
     docs/vision.md) at `pose` inside the phantom's GI lumen, with the exact pose echoed:
@@ -293,6 +303,7 @@ async def vision_render(req: RenderRequest, request: Request) -> Response:
     st = state(request)
 
     def work(budget: Budget) -> tuple[bytes, dict[str, Any]]:
+        admit(render_cost(req), st.settings)
         phantom = st.registry.get(req.phantom, ["body", "phantom"])
         frame, organ, s_m = _vision_errors(lambda: render_request(phantom, req))
         budget.charge(0)
@@ -383,9 +394,14 @@ def _json_part(model, data: bytes | None, name: str):
 
 
 def frame_from_png(data: bytes, field: str) -> np.ndarray:
-    """The grey levels of a PNG part: colour by BT.601 luma, grey + alpha by its grey channel."""
+    """The grey levels of a PNG part: colour by BT.601 luma, grey + alpha by its grey channel; its size
+    within this server's frames (:data:`MIN_FRAME_SIDE_PX` to :data:`MAX_FRAME_SIDE_PX` a side, said so:
+    the estimator's own range is wider)."""
     pixels = decode_png(data, field=field, max_side_px=MAX_FRAME_SIDE_PX,
                         max_pixels=MAX_FRAME_SIDE_PX * MAX_FRAME_SIDE_PX)
+    if min(pixels.shape[:2]) < MIN_FRAME_SIDE_PX:
+        raise VisionInputError(f"is {pixels.shape[1]} x {pixels.shape[0]} pixels: frames are {MIN_FRAME_SIDE_PX} to "
+                               f"{MAX_FRAME_SIDE_PX} pixels a side", field)
     return pixels[..., 0] if pixels.ndim == 3 and pixels.shape[2] == 2 else pixels
 
 
@@ -412,9 +428,16 @@ def advance_of(frame: Frame, scale: float) -> tuple[float | None, str | None]:
         return None, exc.reason
 
 
+def motion_cost(side_px: int) -> costs.Cost:
+    """Two frames of ``side_px`` a side registered (:func:`service.costs.pixels`): what the body cap and
+    the PNG headers (read before anything is inflated) allow."""
+    return costs.pixels(side_px, 2, ("reference",), "the registration")
+
+
 @router.post("/motion", operation_id="vision_motion", summary="Rotation, scale and advance between two frames",
              response_model=MotionResponse, openapi_extra=_MOTION_BODY,
              responses=error_responses(400, 404, 413, 422, 503, 504))
+@declare(body=lambda s: sum(_MOTION_PARTS.values()) + MULTIPART_OVERHEAD_BYTES, cost=motion_cost)
 async def vision_motion(request: Request) -> MotionResponse:
     """Maximum mutual information registration of `moving` against `reference` (thesis Ch. 3;
     docs/vision.md, "The estimator"): Butterworth pre-filter, MI of the joint histogram,
@@ -436,6 +459,7 @@ async def vision_motion(request: Request) -> MotionResponse:
         geometry = _json_part(RenderRequest, raw.get("geometry"), "geometry")
         ref = _vision_errors(lambda: frame_from_png(raw["reference"], "reference"))
         mov = _vision_errors(lambda: frame_from_png(raw["moving"], "moving"))
+        admit(motion_cost(max(ref.shape[:2])), st.settings)
         if geometry is not None and ref.shape[:2] != (geometry.camera.size_px,) * 2:
             raise VisionUnprocessable(f"the frames are {ref.shape[1]} x {ref.shape[0]} px, the geometry's camera "
                                       f"{geometry.camera.size_px} px a side", loc=["body", "geometry", "camera",

@@ -78,7 +78,7 @@ class Link(Strict):
     bandwidth_hz: float | None = Field(None, ge=1.0, description="Noise bandwidth [Hz]; null: the waveform's fs / 2.")
 
 
-class Waveform(Strict):
+class CoverageWaveform(Strict):
     duration_s: float = Field(25e-9, gt=0.0, le=1e-3, description="Tone burst duration T0 [s].")
     sample_rate_hz: float = Field(20e9, gt=0.0, le=1e12, description="Sample rate [Hz]; the SNR is per sample.")
 
@@ -94,7 +94,7 @@ class CoverageRequest(Strict):
     frequency_hz: float = Field(402e6, ge=1e6, le=20e9, description="Carrier [Hz].")
     channel: CoverageChannel = Field(default_factory=CoverageChannel)
     link: Link = Field(default_factory=Link)
-    waveform: Waveform = Field(default_factory=Waveform)
+    waveform: CoverageWaveform = Field(default_factory=CoverageWaveform)
     cell_size_m: float = Field(0.004, ge=0.001, le=0.02, description="Travel-time grid cell [m].")
 
 
@@ -132,13 +132,21 @@ class Belt(Strict):
     count: int_range(0, 64) | None = Field(None, description="Sensors on this belt (all belts or none).")
 
 
-class KeepOut(Strict):
-    """A box (`min_m`, `max_m`) or a ball (`centre_m`, `radius_m`) where no sensor may go."""
+class KeepOutBox(Strict):
+    """A box where no sensor may go."""
 
-    min_m: Vec3 | None = None
-    max_m: Vec3 | None = None
-    centre_m: Vec3 | None = None
-    radius_m: float | None = Field(None, gt=0.0)
+    min_m: Vec3 = Field(description="Lower corner [m].")
+    max_m: Vec3 = Field(description="Upper corner [m] (each coordinate above min_m's).")
+
+
+class KeepOutBall(Strict):
+    """A ball where no sensor may go."""
+
+    centre_m: Vec3 = Field(description="Centre [m].")
+    radius_m: float = Field(gt=0.0, le=10.0, description="Radius [m].")
+
+
+KeepOut = KeepOutBox | KeepOutBall
 
 
 class Constraints(Strict):

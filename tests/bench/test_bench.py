@@ -97,3 +97,19 @@ def test_sionna_room_says_why_when_sionna_cannot_run(monkeypatch, capsys) -> Non
     monkeypatch.setattr(sionna_room, "sionna_python", lambda: pytest.fail("must not install"))
     assert sionna_room.main(["--receivers", "1"]) == 2
     assert "DRJIT_LIBLLVM_PATH=/nonexistent/libLLVM.so does not exist" in capsys.readouterr().err
+
+
+def test_readme_table_is_rewritten_between_its_markers(tmp_path, monkeypatch) -> None:
+    """bench/readme.py replaces only what lies between the markers, and refuses a file without them."""
+    import pytest
+
+    from bench import readme
+
+    monkeypatch.setattr(readme, "table", lambda report: "| a | 1 | — |")
+    path = tmp_path / "README.md"
+    path.write_text(f"# x\n\nbefore\n{readme.START}\nold table\n{readme.END}\nafter\n")
+    readme.write({}, str(path))
+    assert path.read_text() == f"# x\n\nbefore\n{readme.START}\n| a | 1 | — |\n{readme.END}\nafter\n"
+    path.write_text("no markers\n")
+    with pytest.raises(ValueError, match="markers"):
+        readme.write({}, str(path))

@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 
 from service.client import Client
-from tests.conftest import REPO, free_port, wait_ready
+from tests.conftest import HANG_GUARD_S, REPO, free_port, wait_ready
 
 
 class JobServer:
@@ -27,23 +27,23 @@ class JobServer:
                 [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port)],
                 cwd=REPO, env=environ, stdout=fh, stderr=subprocess.STDOUT)
         wait_ready(self.url, proc=self.proc)
-        self.http = httpx.Client(base_url=self.url, timeout=60)
-        self.api = Client(self.url, timeout=60)
+        self.http = httpx.Client(base_url=self.url, timeout=HANG_GUARD_S)
+        self.api = Client(self.url, timeout=HANG_GUARD_S)
 
     def stop(self) -> None:
         self.http.close()
         self.api.close()
-        self.proc.terminate()
+        self.proc.terminate()  # a graceful stop: what the tests check after it needs it to finish
         try:
-            self.proc.wait(timeout=60)
+            self.proc.wait(timeout=HANG_GUARD_S)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
 
 
-def wait_for_job(http: httpx.Client, path: str, until, timeout_s: float, poll_s: float = 0.1) -> dict:
+def wait_for_job(http: httpx.Client, path: str, until, timeout_s: float = HANG_GUARD_S, poll_s: float = 0.1) -> dict:
     """GET ``path`` (a job's status) until ``until(status)`` holds; the status then. Fails the test
-    with the last status after ``timeout_s``."""
+    with the last status after ``timeout_s`` (a hang guard, tests.conftest.HANG_GUARD_S)."""
     deadline = time.monotonic() + timeout_s
     status: dict = {}
     while time.monotonic() < deadline:

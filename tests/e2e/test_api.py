@@ -17,7 +17,7 @@ import pytest
 from service.client import APIError, AsyncClient, Client
 from service.schemas.channel import ChannelResponse
 from service.schemas.phantoms import TissuesResponse
-from tests.conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
+from tests.conftest import HANG_GUARD_S, glb_bytes, nested_phantom_meshes, phantom_manifest
 
 pytestmark = pytest.mark.e2e
 
@@ -27,7 +27,7 @@ PROFILE = {"paths": [{"delay_s": 1.338e-9, "gain": {"re": 1e-3, "im": 0.0}}]}
 
 @pytest.fixture(scope="module")
 def api(live_url):
-    with Client(live_url, timeout=300) as client:
+    with Client(live_url, timeout=HANG_GUARD_S) as client:
         yield client
 
 
@@ -50,9 +50,9 @@ def test_operations(api, live_url):
     assert ready.status == "ready" and ready.phantoms >= 1 and ready.scenarios >= 1
     text = api.metrics()
     assert "capsule_rt_http_requests_total" in text
-    r = httpx.get(f"{live_url}/healthz", headers={"X-Request-ID": "e2e-1"})
+    r = httpx.get(f"{live_url}/healthz", headers={"X-Request-ID": "e2e-1"}, timeout=HANG_GUARD_S)
     assert r.headers["x-request-id"] == "e2e-1"
-    r = httpx.get(f"{live_url}/v1/unknown")
+    r = httpx.get(f"{live_url}/v1/unknown", timeout=HANG_GUARD_S)
     assert r.status_code == 404 and r.json()["detail"][0]["loc"] == ["path"]
 
 
@@ -140,12 +140,12 @@ def test_upload_over_the_cap_is_refused_while_streaming(live_url):
 
     try:
         r = httpx.post(f"{live_url}/v1/phantoms", content=body(),
-                       headers={"content-type": f"multipart/form-data; boundary={boundary}"}, timeout=120)
+                       headers={"content-type": f"multipart/form-data; boundary={boundary}"}, timeout=HANG_GUARD_S)
     except httpx.HTTPError:
         pytest.fail("the server should answer 413, not drop the connection")
     assert r.status_code == 413, r.text
     assert r.json()["detail"][0]["loc"] == ["body", "mesh"]
-    assert httpx.get(f"{live_url}/healthz").status_code == 200
+    assert httpx.get(f"{live_url}/healthz", timeout=HANG_GUARD_S).status_code == 200
 
 
 def test_channel_scenario_and_ranging(api):
@@ -192,7 +192,7 @@ def test_channel_and_ranging_errors(api):
 
 def test_async_client_mirrors_the_sync_one(live_url):
     async def main():
-        async with AsyncClient(live_url) as client:
+        async with AsyncClient(live_url, timeout=HANG_GUARD_S) as client:
             health, tissues, bound = await asyncio.gather(
                 client.healthz(), client.tissues(2.45e9),
                 client.bound_rss({"shadowing_db": 7.85, "path_loss_exponent": 4.26, "distance_m": 0.05})

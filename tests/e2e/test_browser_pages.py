@@ -25,7 +25,10 @@ from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from playwright.sync_api import sync_playwright
 from scipy.stats import chi2
 
-from tests.conftest import glb_bytes, nested_phantom_meshes, phantom_manifest
+from tests.conftest import HANG_GUARD_S, glb_bytes, nested_phantom_meshes, phantom_manifest
+
+#: Playwright's waits take milliseconds: the hang guard (tests.conftest), never a verdict on speed.
+GUARD_MS = HANG_GUARD_S * 1000
 
 pytestmark = [pytest.mark.e2e, pytest.mark.browser]
 
@@ -90,7 +93,8 @@ def page(browser, live_url):
     context.close()
 
 
-def wait_state(page, condition: str, errors: list[str], external: list[str], timeout_s: float = 60.0) -> dict:
+def wait_state(page, condition: str, errors: list[str], external: list[str],
+               timeout_s: float = HANG_GUARD_S) -> dict:
     """window.viewerState once ``condition`` holds; on a timeout, fail saying what the page logged."""
     try:
         page.wait_for_function(f"() => window.viewerState && ({condition})", timeout=timeout_s * 1000)
@@ -104,7 +108,7 @@ def wait_state(page, condition: str, errors: list[str], external: list[str], tim
 def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
     page, errors, external = page
     page.goto(f"{live_url}/viewer")
-    state = wait_state(page, "window.viewerState.ready", errors, external, timeout_s=30)
+    state = wait_state(page, "window.viewerState.ready", errors, external)
     assert state["phantom"] == "torso" and state["organs"] == 15 and state["sites"] == 18, state
     pixels = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
     # the torso fills a good part of the view; a blank or failed WebGL canvas has ~0 such pixels
@@ -117,7 +121,7 @@ def test_viewer_shows_the_torso_and_a_trace(page, live_url, tmp_path):
 
     assert page.input_value("#rays") == "20000"  # the page's default
     assert not page.is_enabled("#locate")  # nothing to locate from before a trace
-    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/channel", timeout=120_000) as traced:
+    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/channel", timeout=GUARD_MS) as traced:
         page.click("#trace")
     state = wait_state(page, "window.viewerState.traces === 1 && !window.viewerState.tracing "
                        "&& window.viewerState.pdp !== null", errors, external)
@@ -156,7 +160,7 @@ def check_locate(page, errors, external, channel: dict) -> None:
     page.select_option("#locate-confidence", "p95")
     page.evaluate(COUNT_PIXELS, list(BACKGROUND))  # the frame before: the fix must add to it
     # the first model-based fix builds the 12 sensors' travel-time fields (docs/localization.md, ~5-20 s)
-    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/localize", timeout=180_000) as answered:
+    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/localize", timeout=GUARD_MS) as answered:
         page.click("#locate")
     state = wait_state(page, "window.viewerState.locates === 1 && !window.viewerState.locating", errors, external)
     assert answered.value.status == 200 and state["error"] is None, (answered.value.status, state["error"])
@@ -201,7 +205,7 @@ def check_locate(page, errors, external, channel: dict) -> None:
     # again at a constant velocity and 1 sigma: the new fix replaces the old one
     page.select_option("#locate-method", "nonlinear")
     page.select_option("#locate-confidence", "sigma")
-    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/localize", timeout=60_000) as answered:
+    with page.expect_response(lambda r: urlparse(r.url).path == "/v1/localize", timeout=GUARD_MS) as answered:
         page.click("#locate")
     state = wait_state(page, "window.viewerState.locates === 2 && !window.viewerState.locating", errors, external)
     sent, fix, drawn = answered.value.request.post_data_json, answered.value.json(), state["fix"]["drawn"]
@@ -223,7 +227,7 @@ def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
     manifest = phantom_manifest(name="browser box", units="mm", sites={
         "capsule": {"kind": "capsule", "position_m": [0.0, 0.0, 0.010]},
         "side": {"kind": "sensor", "position_m": [0.099, 0.0, 0.0]}})
-    r = httpx.post(f"{live_url}/v1/phantoms", timeout=60, files={
+    r = httpx.post(f"{live_url}/v1/phantoms", timeout=HANG_GUARD_S, files={
         "mesh": ("box.glb", glb_bytes(meshes), "model/gltf-binary"),
         "manifest": ("manifest.json", json.dumps(manifest), "application/json")})
     assert r.status_code == 201, r.text
@@ -252,7 +256,7 @@ def test_viewer_works_for_an_uploaded_phantom_in_mm(page, live_url):
         assert state["receivers"][0]["receiver"] == "side" and state["paths"] == state["receivers"][0]["paths"] > 0
         assert errors == [] and external == [], (errors, external)
     finally:
-        httpx.delete(f"{live_url}/v1/phantoms/{phantom_id}", timeout=30)
+        httpx.delete(f"{live_url}/v1/phantoms/{phantom_id}", timeout=HANG_GUARD_S)
 
 
 def test_viewer_reports_a_bad_trace_on_the_page(page, live_url):
@@ -271,9 +275,9 @@ def test_viewer_reports_a_bad_trace_on_the_page(page, live_url):
 def test_swagger_ui_renders_offline(page, live_url):
     page, errors, external = page
     page.goto(f"{live_url}/docs")
-    page.wait_for_selector(".swagger-ui .info .title", timeout=30_000)
+    page.wait_for_selector(".swagger-ui .info .title", timeout=GUARD_MS)
     assert "CapsuleRT" in page.inner_text(".swagger-ui .info .title")
-    page.wait_for_function("() => document.querySelectorAll('.opblock').length >= 20", timeout=30_000)
+    page.wait_for_function("() => document.querySelectorAll('.opblock').length >= 20", timeout=GUARD_MS)
     summaries = page.locator(".opblock-summary-path").all_inner_texts()
     assert "/v1/channel" in [s.strip() for s in summaries] and any("/v1/plots/pdp" in s for s in summaries)
     assert errors == [] and external == [], (errors, external)

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import HANG_GUARD_S
+
 pytestmark = pytest.mark.e2e
 
 SCRIPT = Path(__file__).resolve().parents[2] / "docs" / "curl_examples.sh"
@@ -18,7 +20,8 @@ SCRIPT = Path(__file__).resolve().parents[2] / "docs" / "curl_examples.sh"
 @pytest.mark.skipif(shutil.which("curl") is None, reason="curl is not installed")
 def test_curl_examples_work(live_url):
     out = subprocess.run(
-        ["bash", str(SCRIPT)], env={**os.environ, "BASE_URL": live_url}, capture_output=True, text=True, timeout=300
+        ["bash", str(SCRIPT)], env={**os.environ, "BASE_URL": live_url}, capture_output=True, text=True,
+        timeout=HANG_GUARD_S
     )
     assert out.returncode == 0, out.stderr
     lines = [json.loads(line) for line in out.stdout.splitlines() if line.strip()]

@@ -14,6 +14,8 @@ from pathlib import Path
 import httpx
 import pytest
 
+from tests.conftest import HANG_GUARD_S
+
 pytestmark = pytest.mark.e2e
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "service.md"
@@ -32,7 +34,7 @@ def test_the_worked_upload_example_runs(live_url, tmp_path):
     if not os.environ.get("CAPSULE_RT_URL"):  # the suite's own keyless server; CI's server container needs it
         env.pop("CAPSULE_RT_KEY", None)
     out = subprocess.run([sys.executable, "-c", python], cwd=tmp_path, env=env, capture_output=True, text=True,
-                         timeout=300)
+                         timeout=HANG_GUARD_S)
     assert out.returncode == 0, out.stderr
     lines = out.stdout.splitlines()
     pid = lines[0].split()[0]
@@ -45,11 +47,11 @@ def test_the_worked_upload_example_runs(live_url, tmp_path):
         if shutil.which("curl") is None:
             pytest.skip("curl is not installed")
         out = subprocess.run(["bash", "-c", "set -euo pipefail\n" + shell], cwd=tmp_path, env=env,
-                             capture_output=True, text=True, timeout=120)
+                             capture_output=True, text=True, timeout=HANG_GUARD_S)
         assert out.returncode == 0, out.stderr
         again = json.loads(out.stdout)
         ids.append(again["id"])
         assert {o["name"]: o["parent"] for o in again["organs"]} == {"skin": "air", "fat": "skin", "muscle": "fat"}
     finally:
         for phantom_id in ids:
-            httpx.delete(f"{live_url}/v1/phantoms/{phantom_id}")
+            httpx.delete(f"{live_url}/v1/phantoms/{phantom_id}", timeout=HANG_GUARD_S)

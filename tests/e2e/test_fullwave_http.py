@@ -25,6 +25,7 @@ from fullwave.model import FdtdOptions
 from fullwave.run import compare
 from raytrace.body.library import get_phantom
 from raytrace.spec import ChannelSpec
+from tests.conftest import HANG_GUARD_S
 from tests.e2e.jobs import JobServer, wait_for_job
 
 pytestmark = pytest.mark.e2e
@@ -58,7 +59,8 @@ def _gprmax(run_dir: Path, input_name: str) -> int | None:
     return None
 
 
-def _catch_gprmax(http: httpx.Client, job_id: str, run_dir: Path, input_name: str, timeout_s: float = 300) -> int:
+def _catch_gprmax(http: httpx.Client, job_id: str, run_dir: Path, input_name: str,
+                  timeout_s: float = HANG_GUARD_S) -> int:
     """Wait for the job's gprMax on ``input_name`` and stop it (SIGSTOP): the job now waits for the test."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -73,7 +75,7 @@ def _catch_gprmax(http: httpx.Client, job_id: str, run_dir: Path, input_name: st
 
 
 def _wait(http: httpx.Client, job_id: str, until) -> dict:
-    return wait_for_job(http, f"/v1/fullwave/{job_id}", until, timeout_s=300.0)
+    return wait_for_job(http, f"/v1/fullwave/{job_id}", until)
 
 
 def _gone(pid: int) -> bool:
@@ -117,7 +119,7 @@ def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
     server = JobServer(data, log, SERVER_ENV)
     try:
         http = server.http
-        final = server.api.fullwave_wait(job.id, poll_s=0.2, timeout_s=600)
+        final = server.api.fullwave_wait(job.id, poll_s=0.2, timeout_s=HANG_GUARD_S)
         assert final.state == "done" and final.runs_done == 2 and final.progress == 1.0 and final.eta_s == 0
         assert final.elapsed_s > 0 and final.error is None
         assert (run_dir / "model_40.h5").stat().st_mtime_ns == first_h5  # not run again after the restart
@@ -125,6 +127,8 @@ def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
         assert [r["reused"] for r in report["runs"]] == [True, False]
         md = server.api.fullwave_report(job.id, "md")
         assert "### 4 mm cells" in md and "### 6 mm cells" in md and "FDTD discretisation" in md
+        log_text = http.get(f"/v1/fullwave/{job.id}/files/model_60.log").text  # gprMax's own log
+        assert "Output directory" in log_text and str(data.resolve()) not in log_text  # no server path (item 9)
 
         # the library on the same inputs and the same gprMax outputs (downloaded) writes the same numbers
         mine = tmp_path / "library"
@@ -168,7 +172,7 @@ def test_fullwave_jobs_over_http_survive_a_restart_and_cancel(tmp_path):
     assert not _gone(pid)  # the orphan, stopped
     server = JobServer(data, log, SERVER_ENV)
     try:
-        final = server.api.fullwave_wait(third.id, poll_s=0.2, timeout_s=600)
+        final = server.api.fullwave_wait(third.id, poll_s=0.2, timeout_s=HANG_GUARD_S)
         assert final.state == "done" and final.runs_done == 1, final
         assert _gone(pid)
     finally:

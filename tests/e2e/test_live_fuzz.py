@@ -6,19 +6,25 @@ traces one at a time) and a 5 s deadline, which its served ``/openapi.json`` sta
 requests stay cheap. Every check (``--checks all``): no 5xx, declared status codes, content
 types, headers and bodies conforming, schema-valid data accepted and schema-invalid data refused,
 OPTIONS/405 per the contract (``unsupported_method``, ``allow_header_conformance``), missing
-required headers, and responses within 10 s (``max_response_time``'s default: every computation
-stops at the server's deadline, so a slow answer is a route that ignores it). The phases: examples,
-fuzzing, stateful (links between operations: the phantoms' and sweeps' ids; ``use_after_free`` and
-``ensure_resource_availability`` run there). The server has no API keys, so ``ignored_auth`` has no
-security scheme to test; with keys the keyed writes are covered by
-tests/e2e/test_hardening.py and tests/service/test_hardening.py.
+required headers. The phases: examples, fuzzing, stateful (links between operations: the phantoms'
+and sweeps' ids; ``use_after_free`` and ``ensure_resource_availability`` run there). The server has
+no API keys, so ``ignored_auth`` has no security scheme to test; with keys the keyed writes are
+covered by tests/service/test_job_keys.py, tests/e2e/test_hardening.py and
+tests/service/test_hardening.py.
+
+No response time decides anything (issue 34, item 11: on a loaded 2-core machine a model-based fix took
+14 s and a render 26 s to answer their 504, and a 10 s limit failed the run): ``max_response_time``, which
+``--checks all`` turns on with a 10 s default limit and cannot exclude, gets the hang guard's limit, as
+``--request-timeout`` does: both only catch a hang (tests.conftest.HANG_GUARD_S). That the
+server stops work at its deadline, or when a client leaves, is tested with injected clocks and held
+work (tests/service/test_ranging_budget.py, test_track_budget.py, test_saturation.py).
 
 The failures the hooks (``tests/schemathesis_hooks.py``) forgive are the documented 422s of rules
 JSON Schema cannot state, 413s to oversized schema-invalid bodies, and the documented 503 (saturated)
 and 504 (deadline) of a bounded server; everything else fails the
 test. Examples per operation are bounded (``-n``) and the coverage phase is left out so the run fits
-CI (about 1 min); ``CAPSULE_RT_FUZZ_EXAMPLES=20 CAPSULE_RT_FUZZ_PHASES=examples,coverage,fuzzing,stateful``
-is the full audit (about 6 min on two shared cores).
+CI (about 1 min on a quiet machine); ``CAPSULE_RT_FUZZ_EXAMPLES=20
+CAPSULE_RT_FUZZ_PHASES=examples,coverage,fuzzing,stateful`` is the full audit (about 6 min on two quiet cores).
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ import sys
 import httpx
 import pytest
 
-from tests.conftest import REPO, free_port, wait_ready
+from tests.conftest import HANG_GUARD_S, REPO, free_port, wait_ready
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -76,7 +82,7 @@ def small_server(tmp_path_factory):
 
 def test_schemathesis_all_checks_on_every_operation_finds_nothing(small_server, tmp_path):
     url, log_path = small_server
-    schema = httpx.get(f"{url}/openapi.json", timeout=30).json()
+    schema = httpx.get(f"{url}/openapi.json", timeout=HANG_GUARD_S).json()
     operations = sum(1 for item in schema["paths"].values() for method in item
                      if method in ("get", "put", "post", "delete", "patch"))
     examples = os.environ.get("CAPSULE_RT_FUZZ_EXAMPLES", "5")
@@ -85,11 +91,13 @@ def test_schemathesis_all_checks_on_every_operation_finds_nothing(small_server, 
     env = {**os.environ, "SCHEMATHESIS_HOOKS": "tests.schemathesis_hooks",
            "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     cmd = [sys.executable, "-m", "schemathesis.cli", "run", f"{url}/openapi.json", "--checks", "all",
+           "--max-response-time", str(int(HANG_GUARD_S)),
            "--phases", phases, "--max-examples", examples, "--workers", "1", "--generation-deterministic",
-           "--request-timeout", "60", "--no-color", "--output-truncate", "true",
+           "--request-timeout", str(int(HANG_GUARD_S)), "--no-color", "--output-truncate", "true",
            "--report", "junit", "--report-dir", str(tmp_path)]
     # run from a scratch directory: schemathesis keeps a crash cache under ./.schemathesis
-    run = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1200)
+    # a hang guard for the whole run (a few minutes on a loaded machine), as pytest's own (pyproject.toml)
+    run = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=3 * HANG_GUARD_S)
     out = run.stdout + run.stderr
     tested = re.search(r"Tested:\s+(\d+)", out)
     # every operation was exercised (a schema that failed to load, or an operation filtered out, fails here)

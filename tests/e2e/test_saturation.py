@@ -14,20 +14,23 @@ import threading
 import httpx
 import pytest
 
+from tests.conftest import HANG_GUARD_S
+
 pytestmark = pytest.mark.e2e
 
 HEAVY = {"scenario": "torso-small-intestine", "rays": 200_000, "max_interactions": 6}
 
 
 def test_real_saturation(live_url):
-    assert "torso-small-intestine" in {s["id"] for s in httpx.get(f"{live_url}/v1/scenarios").json()["scenarios"]}
+    scenarios = httpx.get(f"{live_url}/v1/scenarios", timeout=HANG_GUARD_S).json()["scenarios"]
+    assert "torso-small-intestine" in {s["id"] for s in scenarios}
     results: list[httpx.Response] = []
     done = threading.Event()
     lock = threading.Lock()
     n = 8
 
     def fire():
-        r = httpx.post(f"{live_url}/v1/channel", json=HEAVY, timeout=600)
+        r = httpx.post(f"{live_url}/v1/channel", json=HEAVY, timeout=HANG_GUARD_S)
         with lock:
             results.append(r)
             if len(results) == n:
@@ -42,12 +45,12 @@ def test_real_saturation(live_url):
         with lock:
             refused = any(r.status_code == 503 for r in results)
         if refused:
-            health = httpx.get(f"{live_url}/healthz", timeout=30)
+            health = httpx.get(f"{live_url}/healthz", timeout=HANG_GUARD_S)
             break
         done.wait(0.05)
     health_answered_in_flight = health is not None and not done.is_set()
     for t in threads:
-        t.join(600)
+        t.join(HANG_GUARD_S)
     assert len(results) == n
     codes = sorted(r.status_code for r in results)
     assert set(codes) <= {200, 503}, codes

@@ -28,7 +28,7 @@ SERVER_ENV = {"CAPSULE_RT_SWEEP_WORKERS": "1"}
 
 
 def _wait(http: httpx.Client, sweep_id: str, until) -> dict:
-    return wait_for_job(http, f"/v1/sweeps/{sweep_id}", until, timeout_s=180.0)
+    return wait_for_job(http, f"/v1/sweeps/{sweep_id}", until)
 
 
 def test_sweep_jobs_over_http_survive_a_restart(tmp_path):

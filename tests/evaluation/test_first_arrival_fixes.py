@@ -5,8 +5,9 @@ Oracle: the sites' own positions (the capsule the trace started from). The delay
 ``delay_s`` (phase) and the earliest ``group_delay_s`` (group) of each sensor's traced paths, 1e5 rays
 and 6 interactions (the default request). Tolerance 5 mm: the grid's stated error is n_max h / c of
 each delay (4 mm of range in muscle at 4 mm cells); measured 2.0-4.8 mm (phase) and 0.7-3.7 mm
-(group, each path's group delay the phase slope of its own response). The mismatched pairs (phase delays on group fields and the reverse) err by 17-64 mm: the
-kind matters, and the test says so. ~40 s (6 traces, 24 fields)."""
+(group, each path's group delay the phase slope of its own response). The mismatched pairs
+(phase delays on group fields and the reverse) err by 17-64 mm: the kind matters, and the test
+says so. ~40 s (6 traces, 24 fields)."""
 
 from __future__ import annotations
 

@@ -170,8 +170,8 @@ _PROBE = textwrap.dedent('''
 
 
     @kernel
-    def first_hit(handle, ox, oy, oz, dx, dy, dz):
-        return embree.intersect(handle, embree.ray_hit(), ox, oy, oz, dx, dy, dz)[0]
+    def first_hit(handle, base, ox, oy, oz, dx, dy, dz):
+        return embree.intersect(handle, embree.ALL, base, embree.ray_hit(), ox, oy, oz, dx, dy, dz)[0]
 ''')
 
 _CALL_PROBE = textwrap.dedent("""
@@ -180,8 +180,8 @@ _CALL_PROBE = textwrap.dedent("""
     from raytrace.engine import embree, probe
     square = embree.EmbreeScene(np.array([[-1, -1, 0.5], [1, -1, 0.5], [1, 1, 0.5], [-1, 1, 0.5]], np.float32),
                                 np.array([[0, 1, 2], [0, 2, 3]]))
-    args = (square.handle, np.float32(0.2), np.float32(0.3), np.float32(0.0), np.float32(0.0), np.float32(0.0),
-            np.float32(1.0))
+    args = (square.handle, square.base, np.float32(0.2), np.float32(0.3), np.float32(0.0), np.float32(0.0),
+            np.float32(0.0), np.float32(1.0))
     probe.first_hit(*args)
     print(json.dumps({"prim": int(probe.first_hit(*args)), "hits": probe.first_hit.stats.cache_hits.total(),
                       "misses": probe.first_hit.stats.cache_misses.total()}))

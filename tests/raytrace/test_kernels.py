@@ -406,3 +406,34 @@ def test_per_ray_helpers_borrow_their_arrays_without_reference_counting():
     assert {"_trace_ray", "_line_search", "_smooth_normal", "_carry_differentials", "_tube_miss"} <= set(helpers)
     counting = sorted(name for name, d in helpers.items() if d.targetoptions.get("_nrt") is not False)
     assert counting == ["_grow"]
+
+
+def test_seed_clusters_are_the_components_of_the_linked_pairs():
+    """raytrace.solver.tracer._clusters (cells + union-find in a kernel) against the connected
+    components of every pair within the link, listed by a k-d tree (scipy), labels included:
+    random unit vectors in groups, links from a tenth of a degree to tens of degrees, and points
+    at exactly the link apart along an axis."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    from raytrace.solver.tracer import _clusters
+
+    def pairs_components(group, dirs, link):
+        pts = dirs.copy()
+        pts[:, 0] += 3.0 * group
+        pairs = cKDTree(pts).query_pairs(link, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(dirs),) * 2)
+        return connected_components(graph, directed=False)[1]
+
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        n = int(rng.integers(1, 400))
+        centre = rng.normal(size=3)
+        dirs = centre + rng.normal(scale=rng.uniform(0.001, 0.5), size=(n, 3))  # clumps, as candidates are
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        group = rng.integers(0, 4, n)
+        link = float(rng.uniform(0.002, 0.6))
+        np.testing.assert_array_equal(_clusters(group, dirs, link), pairs_components(group, dirs, link))
+    line = np.array([[0.0, 0.0, 1.0], [0.01, 0.0, 1.0], [0.02, 0.0, 1.0], [0.05, 0.0, 1.0]])
+    np.testing.assert_array_equal(_clusters(np.zeros(4, np.int64), line, 0.01), [0, 0, 0, 1])

@@ -304,7 +304,7 @@ def test_channel_without_antennas_or_scenario(api):
 def test_channel_work_budget_gives_503_with_advice(make_settings, monkeypatch):
     from fastapi.testclient import TestClient
 
-    import service.channel
+    import service.costs
     from raytrace.solver.footprint import Footprint
     from service.app import create_app
 
@@ -312,7 +312,7 @@ def test_channel_work_budget_gives_503_with_advice(make_settings, monkeypatch):
         # a shooting estimated over the cap is refused before any work (deterministic: 422, not 503)
         assert_field(api.post("/v1/channel", json=SMALL_CHANNEL), 422, "body", "rays")
         # an estimate that was wrong (too low): the budget checked while tracing stops it
-        monkeypatch.setattr(service.channel, "estimate", lambda spec, config: Footprint(1, 0, 0, 0, 0))
+        monkeypatch.setattr(service.costs, "trace_footprint", lambda spec, config: Footprint(1, 0, 0, 0, 0))
         r = api.post("/v1/channel", json=SMALL_CHANNEL)
         assert r.status_code == 503 and "Retry-After" in r.headers
         assert r.json()["detail"][0]["type"] == "work_budget_exceeded"

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import HANG_GUARD_S
+
 ROOT = Path(__file__).resolve().parents[2]
 DOCKER = ROOT / "docker"
 BIN = Path(sys.executable).parent
@@ -50,7 +52,7 @@ def _compose() -> str:
 
 def _run(cmd: list[str], env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     try:
-        return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120, env=env)
+        return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=HANG_GUARD_S, env=env)
     except OSError as exc:  # e.g. a binary for another architecture
         pytest.skip(f"{cmd[0]} cannot run here: {exc}")
 
@@ -179,13 +181,13 @@ def test_the_client_image_file_set_runs_its_entry_point(live_url, tmp_path):
     env["CAPSULE_RT_URL"] = live_url
     # the full entry point; CMD (-q) replaced, as `docker run IMAGE ARGS` would, by a quick subset
     cmd = [sys.executable, *entry[1:], "-q", "-k", "operations or tissues or bounds or curl_examples"]
-    out = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    out = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=HANG_GUARD_S)
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     assert "error" not in out.stdout.lower().split("passed")[-1], out.stdout[-2000:]
     assert re.search(r"\d+ passed", out.stdout), out.stdout[-2000:]
     # it collected every end-to-end module (the -k filter deselects, it does not skip collection)
     collected = subprocess.run([sys.executable, *entry[1:], "--collect-only", "-q"], cwd=tmp_path, env=env,
-                               capture_output=True, text=True, timeout=300)
+                               capture_output=True, text=True, timeout=HANG_GUARD_S)
     assert collected.returncode == 0, collected.stdout[-3000:]
     modules = {line.split("::")[0] for line in collected.stdout.splitlines() if "::" in line}
     assert modules == {f"tests/e2e/{p.name}" for p in (ROOT / "tests" / "e2e").glob("test_*.py")}

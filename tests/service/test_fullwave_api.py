@@ -186,3 +186,26 @@ def test_a_model_over_the_memory_share_is_refused_before_it_is_queued(make_setti
         assert "MiB" in r.json()["detail"][0]["msg"]
         r = c.post("/v1/fullwave", json={**TINY, "coarse_factor": 0.5, "export_only": True})
         assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "coarse_factor"], r.text
+
+
+def test_downloads_and_errors_do_not_show_the_servers_paths(client):
+    """Issue 34, item 9: gprMax writes the absolute paths of its input and output into its log, and a failed
+    run's error names its input file: downloads and statuses showed the server's data directory. The log
+    here is what gprMax 4 writes (its lines with paths), in the job's own run directory."""
+    jobs = client.app.state.fullwave
+    job = client.post("/v1/fullwave", json={**TINY, "export_only": True}).json()
+    run = jobs.root / job["id"] / "run"
+    absolute = str(run.resolve())
+    (run / "model_40.log").write_text(
+        f"Constants/variables used/available for Python scripting: {{inputfile: {absolute}/model_40.in}}\n"
+        f"--- Model 1/1, input file: model_40.in ----\nOutput directory: {absolute}\n")
+    jobs.write_state(run.parent, {**jobs.read_state(run.parent), "state": "failed",
+                                  "error": f"RuntimeError: gprMax failed on {absolute}/model_40.in (exit 1)"})
+    data_dir = str(jobs.settings.data_dir.resolve())
+    r = client.get(f"/v1/fullwave/{job['id']}/files/model_40.log")
+    assert r.status_code == 200 and data_dir not in r.text and "/tmp" not in r.text, r.text
+    assert "inputfile: ./model_40.in" in r.text and "Output directory: ." in r.text
+    status = client.get(f"/v1/fullwave/{job['id']}").json()
+    assert data_dir not in status["error"] and "gprMax failed on ./model_40.in" in status["error"], status["error"]
+    r = client.get(f"/v1/fullwave/{job['id']}/files/model_40.in")
+    assert r.status_code == 200 and r.text == (run / "model_40.in").read_text()  # nothing to redact: as written

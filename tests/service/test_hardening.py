@@ -65,9 +65,9 @@ def test_ranging_bodies_are_decoded_off_the_event_loop(api, monkeypatch):
     assert seen == ["worker thread"]
 
 
-def test_the_body_cap_stops_pulling_at_the_cap():
-    """BodyLimit on a 640 MB chunked JSON stream (no Content-Length): it pulls about the cap only."""
-    from service.middleware import BodyLimit
+def test_the_body_cap_stops_pulling_at_the_cap(make_settings):
+    """The admission gate on a 640 MB chunked JSON stream (no Content-Length): it pulls about the cap only."""
+    from service.admission import Declaration, Gate, Table
 
     pulled = {"bytes": 0}
     chunk = b" " * 65536
@@ -90,7 +90,9 @@ def test_the_body_cap_stops_pulling_at_the_cap():
             sent.append(exc)
 
     scope = {"type": "http", "method": "POST", "path": "/v1/ranging/toa", "headers": []}
-    anyio.run(BodyLimit(app, caps=[("/v1/ranging/", 1_000_000)]), scope, receive, send)
+    table = Table()
+    table.find = lambda method, path: Declaration(body=lambda s: 1_000_000, cost="test")  # type: ignore[method-assign]
+    anyio.run(Gate(app, table=lambda: table, settings=make_settings()), scope, receive, send)
     assert getattr(sent[0], "status_code", None) == 413
     assert pulled["bytes"] <= 1_000_000 + len(chunk)
 

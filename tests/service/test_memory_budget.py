@@ -20,6 +20,7 @@ from raytrace.solver.budget import Budget
 from raytrace.solver.footprint import estimate
 from raytrace.solver.tracer import trace_channel
 from raytrace.spec import Band
+from tests.conftest import HANG_GUARD_S
 from tests.service.test_api import assert_field
 
 TORSO = get_scenario("torso-stomach").spec
@@ -118,7 +119,7 @@ def test_the_largest_allowed_request_fits_the_ceiling_or_is_refused_first(tmp_pa
         lo, hi = (mid, hi) if fits else (lo, mid)
     admitted = {"scenario": "torso-stomach", "rays": lo, "max_interactions": 10, "dynamic_range_db": 300}
     run = subprocess.run([sys.executable, "-c", WORKER, str(tmp_path / "data"), str(ceiling),
-                          json.dumps([largest, admitted])], capture_output=True, text=True, timeout=600)
+                          json.dumps([largest, admitted])], capture_output=True, text=True, timeout=HANG_GUARD_S)
     assert run.returncode == 0, run.stderr[-3000:]
     refused, done = json.loads(run.stdout.strip().splitlines()[-1])
     assert refused["status"] == 422, refused
@@ -139,7 +140,7 @@ def test_channel_bodies_are_decoded_off_the_loop_while_healthz_answers(api, monk
     real = bodies.decode
 
     def slow_decode(model, body):
-        decode_saw.append(healthz_done.wait(timeout=60))  # on the loop this would block /healthz: a deadlock
+        decode_saw.append(healthz_done.wait(timeout=HANG_GUARD_S))  # on the loop this would block /healthz: a deadlock
         return real(model, body)
 
     monkeypatch.setattr(bodies, "decode", slow_decode)
@@ -150,6 +151,6 @@ def test_channel_bodies_are_decoded_off_the_loop_while_healthz_answers(api, monk
     while not decode_saw and worker.is_alive() and not healthz_done.is_set():
         if api.get("/healthz").status_code == 200:
             healthz_done.set()
-    worker.join(timeout=120)
+    worker.join(timeout=HANG_GUARD_S)
     assert healthz_done.is_set() and decode_saw == [True]
     assert result["r"].status_code == 200, result["r"].text

@@ -81,6 +81,16 @@ def test_committed_openapi_json_equals_the_app_schema():
     assert committed.endswith("}\n")
 
 
+def test_every_schema_has_a_name_of_its_own():
+    """Two models of one class name get module-qualified keys (``service__schemas__x__Name``) with the
+    same title, and a generator then drops one of them and every operation that refers to it (the
+    CI run where the design's and the ranging's ``Waveform`` removed POST /v1/ranging/toa)."""
+    schemas = json.loads((ROOT / "openapi.json").read_text())["components"]["schemas"]
+    assert [k for k in schemas if "__" in k] == []
+    titles = [s.get("title", k) for k, s in schemas.items()]
+    assert sorted(t for t in set(titles) if titles.count(t) > 1) == []
+
+
 def test_openapi_command_writes_and_checks(tmp_path, capsys):
     out = tmp_path / "openapi.json"
     assert main(["openapi", "--output", str(out)]) == 0

@@ -150,3 +150,28 @@ def test_spec_bodies_that_cannot_be_parsed_are_400_not_500(client):
                     f"{{tissue: {bomb}}}}}\n", headers={"content-type": "application/yaml"})
     assert r.status_code == 400 and r.json()["detail"][0]["loc"] == ["body"], r.text
     assert "YAML aliases" in r.json()["detail"][0]["msg"]
+
+
+@pytest.mark.parametrize("band", [{"start_hz": 400e6, "stop_hz": 420e6, "points": 10**11},
+                                  {"span_hz": 20e6, "points": 10**9},
+                                  {"start_hz": 400e6, "stop_hz": 420e6, "points": 202}])
+def test_band_points_are_bounded_before_any_frequency_is_allocated(client, monkeypatch, band):
+    """Issue 34, item 2: a sweep's channel.band.points was checked after np.linspace had allocated the band
+    (1e9 points: 8.56 GB, then a 422 after 81 s; 1e11: a 500 asking for 745 GiB). Now a 422 naming the field,
+    and no linspace of more than the limit's points ever runs."""
+    import numpy as np
+
+    real, asked = np.linspace, []
+
+    def linspace(start, stop, num=50, *args, **kwargs):
+        asked.append(int(num))
+        if num > 10**6:
+            raise MemoryError(f"a {num}-point linspace")
+        return real(start, stop, num, *args, **kwargs)
+
+    monkeypatch.setattr(np, "linspace", linspace)
+    r = client.post("/v1/sweeps", json={**SPEC, "channel": {**SPEC["channel"], "band": band}})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"] == ["body", "channel", "band", "points"], r.text
+    assert "between 2 and 201" in r.json()["detail"][0]["msg"]
+    assert max(asked, default=0) <= 201

@@ -15,6 +15,8 @@ import sys
 
 import pytest
 
+from tests.conftest import HANG_GUARD_S
+
 CHILD = r"""
 import json, resource
 import numpy as np
@@ -39,7 +41,7 @@ print(json.dumps(out))
 def _child(env_extra: dict) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
     env.update(env_extra)
-    done = subprocess.run([sys.executable, "-c", CHILD], env=env, capture_output=True, text=True, timeout=120,
+    done = subprocess.run([sys.executable, "-c", CHILD], env=env, capture_output=True, text=True, timeout=HANG_GUARD_S,
                           cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout)
