@@ -107,9 +107,9 @@ class Centreline:
         self._t_max = np.where(last, self._len - 1e-12 * max(self.length_m, 1.0), self._len)
         # the start of each later piece's first segment, as _segment finds it (the same cumulative sum: a sum
         # per piece would differ in the last bit and put the junction in the previous piece's last segment)
-        starts = np.flatnonzero(np.diff(self._piece)) + 1
+        first = np.flatnonzero(np.diff(self._piece)) + 1
         #: Arc lengths where one piece ends and the next begins (the position jumps there).
-        self.junctions_s_m: tuple[float, ...] = tuple(float(x) for x in self._s0[starts])
+        self.junctions_s_m: tuple[float, ...] = tuple(float(x) for x in self._s0[first])
 
     # ------------------------------------------------------------ queries
     def _segment(self, s: Any) -> tuple[np.ndarray, np.ndarray, tuple]:

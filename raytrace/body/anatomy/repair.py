@@ -278,6 +278,8 @@ def exact_union(shells: list[trimesh.Trimesh]) -> trimesh.Trimesh | None:
             if m.status() != manifold3d.Error.NoError:
                 return None
             union = m if union is None else union + m
+        if union is None:  # no shells
+            return None
         out = union.to_mesh()
     except Exception:  # manifold3d refuses what it cannot treat as a closed manifold: fall back
         return None
