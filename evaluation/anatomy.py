@@ -179,25 +179,47 @@ def localization_tables(records: Sequence[dict]) -> tuple[str, str]:
     return "\n".join(summary), "\n".join(sites)
 
 
+def strong_direct_sensors(phantom, capsule: str, sensors: Sequence[str], min_gain_db: float,
+                          rays: int = REACH_SETTINGS["rays"]) -> list[str]:
+    """Those of ``sensors`` whose strongest direct (refraction-only) path from ``capsule`` has a gain of at least
+    ``min_gain_db`` (one trace, 6 interactions): a link budget's cut instead of every link at the same SNR."""
+    spec = rt.ChannelSpec(Antenna(site=capsule), tuple(Antenna(site=s) for s in sensors), phantom=phantom.name,
+                          rays=rays, max_interactions=6)
+    out = []
+    for name, profile in zip(sensors, rt.trace_channel(spec, phantom).profiles):
+        gains = [p.gain_db for p in profile.paths if all(i.kind == "refraction" for i in p.interactions)]
+        if gains and max(gains) >= min_gain_db:
+            out.append(name)
+    return out
+
+
 def localization_rows(*, trials: int = 20, seed: int = 0, rays: int = REACH_SETTINGS["rays"],
-                      capsules: Sequence[str] | None = None, progress=print):
-    """(capsule names, their :class:`evaluation.localization.LocalizationEvaluation`s, the sensors of each)."""
+                      capsules: Sequence[str] | None = None, min_gain_db: float | None = None, progress=print):
+    """(capsule names, their :class:`evaluation.localization.LocalizationEvaluation`s, the sensors of each).
+    ``min_gain_db``: only the direct sensors whose direct path is at least that strong
+    (:func:`strong_direct_sensors`); a site left with fewer than 5 (joint velocity's minimum) is skipped."""
     from evaluation.localization import TABLE_METHODS, evaluate_localization
 
     phantom = abdomen_ct()
     names = list(capsules or [n for n, s in phantom.sites.items() if s.kind == "capsule"])
     reach = reach_table(phantom)["sites"]
-    rows, used = [], []
+    kept, rows, used = [], [], []
     for name in names:
         t0 = time.perf_counter()
         sensors = reach[name]["direct"]
+        if min_gain_db is not None:
+            sensors = strong_direct_sensors(phantom, name, sensors, min_gain_db, rays)
+            if len(sensors) < 5:
+                progress(f"{name}: {len(sensors)} sensors at >= {min_gain_db:g} dB, skipped")
+                continue
         rows.append(evaluate_localization(phantom, name, sensors, methods=("linear", *TABLE_METHODS), trials=trials,
                                           seed=seed, rays=rays))
+        kept.append(name)
         used.append(sensors)
         m = rows[-1].methods
         progress(f"{name}: {len(sensors)} sensors, constant velocity {m['nonlinear'].rmse_m * 1e3:.1f} mm, model-based "
                  f"{m['model_based'].rmse_m * 1e3:.1f} mm ({time.perf_counter() - t0:.0f} s)")
-    return names, rows, used
+    return kept, rows, used
 
 
 def video_pairs(phantom, *, steps: int = 40, seed: int = 0, starts: Sequence[float] = SEGMENT_STARTS,
@@ -252,6 +274,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     loc.add_argument("--seed", type=int, default=0)
     loc.add_argument("--rays", type=int, default=REACH_SETTINGS["rays"])
     loc.add_argument("--write", action="store_true", help=f"commit it as {LOCALIZATION_TABLE.name}")
+    loc.add_argument("--min-gain-db", type=float, default=None,
+                     help="use only the direct sensors whose direct path is at least this strong (a link budget's "
+                          "cut; sites left with fewer than 5 are skipped); not with --write")
     pl = sub.add_parser("path-loss", help="commit the links of a finished abdomen-ct-path-loss experiment")
     pl.add_argument("--from", dest="run_dir", required=True, help="the experiment's --out directory")
     pl.add_argument("--write", action="store_true", help=f"commit them as {PATH_LOSS_TABLE.name}")
@@ -277,13 +302,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     elif args.table == "localization":
         from raytrace.body.indexgrid import phantom_digest
 
-        names, rows, used = localization_rows(trials=args.trials, seed=args.seed, rays=args.rays)
+        if args.write and args.min_gain_db is not None:
+            ap.error("--write commits the table of every direct sensor: leave --min-gain-db out")
+        names, rows, used = localization_rows(trials=args.trials, seed=args.seed, rays=args.rays,
+                                              min_gain_db=args.min_gain_db)
         records = [localization_record(n, r) for n, r in zip(names, rows)]
         summary, sites = localization_tables(records)
         print(summary, sites, sep="\n\n")
         counts = [len(u) for u in used]
+        cut = "" if args.min_gain_db is None else f" at >= {args.min_gain_db:g} dB"
         print(f"\n{ABDOMEN_NAME}: {len(names)} capsule sites, {min(counts)}-{max(counts)} sensors each (those with a "
-              f"direct path); TOA gcc, {args.trials} trials, seed {args.seed}, {args.rays} rays; "
+              f"direct path{cut}); TOA gcc, {args.trials} trials, seed {args.seed}, {args.rays} rays; "
               f"{time.perf_counter() - t0:.0f} s")
         if args.write:
             raw = {"command": "python -m evaluation.anatomy localization --write", "phantom": ABDOMEN_NAME,

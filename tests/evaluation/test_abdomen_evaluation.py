@@ -114,3 +114,23 @@ def test_one_position_traced_afresh_gives_the_committed_links(links, tmp_path) -
     assert [g is None for g in want] == [g is None for g in rows["path_gain_db"]]
     np.testing.assert_allclose([g for g in want if g is not None], [g for g in rows["path_gain_db"] if g is not None],
                                rtol=0, atol=1e-9)
+
+
+def test_the_link_budget_cut_keeps_the_strong_direct_sensors() -> None:
+    """strong_direct_sensors against the channel traced here: a sensor is kept exactly when one of its
+    refraction-only paths is at least min_gain_db strong."""
+    import raytrace as rt
+    from evaluation.anatomy import strong_direct_sensors
+    from raytrace.spec import Antenna
+
+    phantom = abdomen_ct()
+    sensors = [n for n, s in phantom.sites.items() if s.kind == "sensor"]
+    spec = rt.ChannelSpec(Antenna(site="large_intestine_CCJ"), tuple(Antenna(site=s) for s in sensors),
+                          phantom=phantom.name, rays=20_000, max_interactions=6)
+    best = {}
+    for name, profile in zip(sensors, rt.trace_channel(spec, phantom).profiles):
+        direct = [p.gain_db for p in profile.paths if all(i.kind == "refraction" for i in p.interactions)]
+        if direct:
+            best[name] = max(direct)
+    kept = strong_direct_sensors(phantom, "large_intestine_CCJ", sensors, -100.0)
+    assert kept == [n for n, g in best.items() if g >= -100.0] and 0 < len(kept) < len(best)
