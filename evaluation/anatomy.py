@@ -2,7 +2,7 @@
 (README, docs/localization.md, docs/tracking.md, docs/vision.md: "On the CT abdomen").
 
     python -m evaluation.anatomy reach [--write]
-    python -m evaluation.anatomy localization [--trials 20 --seed 0 --rays 20000] [--write]
+    python -m evaluation.anatomy localization [--trials 20 --seed 0 --rays 20000] [--write | --min-gain-db -100]
     capsule-rt experiment abdomen-ct-path-loss --out runs/abd-pl
     python -m evaluation.anatomy path-loss --from runs/abd-pl [--write]
     python -m evaluation.anatomy video [--steps 40 --seed 0 --cache-dir DIR]
