@@ -73,7 +73,7 @@ import json
 import math
 import re
 import struct
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import trimesh
@@ -566,13 +566,120 @@ def _decode(data: bytes, *, max_bytes: int, max_triangles: int) -> dict[str, tup
 
 
 def read_meshes(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, max_triangles: int = DEFAULT_MAX_TRIANGLES,
-                binary: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
-    """Mesh nodes of a .glb (for the anatomy pipeline, ``raytrace.body.anatomy.readers``): node name ->
+                binary: bool = True, buffer: Callable[[int, str], bytes] | None = None,
+                ) -> dict[str, tuple[np.ndarray, np.ndarray, str]]:
+    """Mesh nodes of a glTF (for the anatomy pipeline, ``raytrace.body.anatomy.readers``): node name ->
     (vertices in file units with the node transforms applied, faces, node field). Same caps and checks
-    as an upload's .glb; JSON glTF (.gltf) is refused (its buffers live in other files)."""
+    as an upload's .glb. A JSON glTF (``binary=False``) is first packed into a .glb (:func:`pack_gltf`), its
+    external buffers read through ``buffer`` (index, URI -> bytes; the caller decides where a URI may lead)."""
     if not binary:
-        raise _fail("JSON glTF (.gltf) keeps its geometry in separate files: export binary glTF (.glb)", "mesh")
+        data = pack_gltf(data, buffer, max_bytes=max_bytes)
     return _decode(bytes(data), max_bytes=max_bytes, max_triangles=max_triangles)
+
+
+#: What a JSON glTF's data URI of a buffer may say before its base64 payload (glTF 2.0 section 3.6.1.1).
+_DATA_URI = re.compile(r"^data:(application/octet-stream|application/gltf-buffer)?;base64,")
+#: Keys of a JSON glTF that only materials and images use: dropped when it is packed (the reader skips
+#: materials; their images would be more files to read).
+_APPEARANCE = ("materials", "textures", "images", "samplers")
+
+
+def data_uri_bytes(uri: str, where: str) -> bytes | None:
+    """The payload of a base64 data URI (None when ``uri`` is not a data URI)."""
+    import base64
+    import binascii
+
+    if not uri.startswith("data:"):
+        return None
+    match = _DATA_URI.match(uri)
+    if match is None:
+        raise _fail("a data URI of a buffer must be base64 application/octet-stream or application/gltf-buffer",
+                    where)
+    try:
+        return base64.b64decode(uri[match.end():], validate=True)
+    except (binascii.Error, ValueError):
+        raise _fail("the data URI is not valid base64", where) from None
+
+
+def gltf_document(text: bytes) -> dict:
+    """The JSON document of a .gltf, checked to be an object."""
+    try:
+        document = json.loads(bytes(text).decode("utf-8"))
+    except RecursionError:
+        raise _fail("the glTF JSON nests too deeply to be parsed", "mesh") from None
+    except ValueError as exc:
+        raise _fail(f"not a glTF: the JSON is not valid: {_brief(str(exc))}", "mesh") from None
+    if not isinstance(document, dict):
+        raise _fail("not a glTF: the JSON must be an object", "mesh")
+    return document
+
+
+def pack_gltf(text: bytes, buffer: Callable[[int, str], bytes] | None, *, max_bytes: int) -> bytes:
+    """A JSON glTF and its buffers as one .glb, which :func:`_decode` then checks and decodes like an upload.
+
+    Each buffer's ``uri`` is a base64 data URI (decoded here) or a reference that ``buffer(index, uri)``
+    resolves (the anatomy pipeline allows only files beside the glTF, inside the manifest's directory or the
+    uploaded zip; never a URL); without ``buffer`` only data URIs are accepted. Buffers are laid one after the
+    other (each at a 4-byte boundary) into the binary chunk and every bufferView moved to its buffer's place
+    there; materials, textures, images and samplers are dropped (never read). Bytes are counted against
+    ``max_bytes`` as each buffer arrives, before the next is read."""
+    document = gltf_document(text)
+    required = document.get("extensionsRequired", [])
+    if required:
+        raise _fail(f"required glTF extension(s) {required} are not supported "
+                    "(e.g. Draco/meshopt compression): export uncompressed", "mesh.extensionsRequired")
+    buffers = _list(document, "buffers")
+    chunks: list[bytes] = []
+    starts: list[int] = []
+    total = len(text)
+    for i, entry in enumerate(buffers):
+        where = f"mesh.buffers[{i}]"
+        length = entry.get("byteLength")
+        if isinstance(length, bool) or not isinstance(length, int) or length < 0:
+            raise _fail(f"byteLength {length!r} is invalid", where)
+        uri = entry.get("uri")
+        if not isinstance(uri, str):
+            raise _fail("a buffer of a JSON glTF needs a uri (a data URI or a file beside it)", where)
+        total += length
+        if total > max_bytes:
+            raise _fail(f"the glTF and its buffers hold more than {max_bytes} bytes, the cap", where)
+        payload = data_uri_bytes(uri, f"{where}.uri")
+        if payload is None:
+            if buffer is None:
+                raise _fail("external buffers are not accepted here: embed them as data URIs", f"{where}.uri")
+            payload = buffer(i, uri)
+        if len(payload) < length:
+            raise _fail(f"buffer {i} declares {length} bytes, its data has {len(payload)}", where)
+        starts.append(sum(len(c) for c in chunks))
+        chunks.append(payload[:length] + b"\0" * (-length % 4))
+    views = _list(document, "bufferViews")
+    for k, view in enumerate(views):
+        if not buffers:
+            raise _fail("a bufferView but no buffer", f"mesh.bufferViews[{k}]")
+        index = _index(view.get("buffer", 0), len(buffers), f"mesh.bufferViews[{k}].buffer")
+        offset, size = view.get("byteOffset", 0), view.get("byteLength")
+        for value, what in ((offset, "byteOffset"), (size, "byteLength")):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise _fail(f"{what} {value!r} is invalid", f"mesh.bufferViews[{k}]")
+        if offset + size > buffers[index]["byteLength"]:
+            raise _fail("bufferView runs past the end of its buffer", f"mesh.bufferViews[{k}]")
+        view["buffer"] = 0
+        view["byteOffset"] = starts[index] + offset
+    binary = b"".join(chunks)
+    document["buffers"] = [{"byteLength": len(binary)}] if binary else []
+    for key in _APPEARANCE:
+        document.pop(key, None)
+    for mesh in _list(document, "meshes"):
+        for primitive in mesh.get("primitives", []) if isinstance(mesh.get("primitives"), list) else []:
+            if isinstance(primitive, dict):
+                primitive.pop("material", None)
+    payload = json.dumps(document, separators=(",", ":")).encode()
+    payload += b" " * (-len(payload) % 4)
+    length = 12 + 8 + len(payload) + (8 + len(binary) if binary else 0)
+    out = struct.pack("<4sII", _GLB_MAGIC, 2, length) + struct.pack("<II", len(payload), _CHUNK_JSON) + payload
+    if binary:
+        out += struct.pack("<II", len(binary), _CHUNK_BIN) + binary
+    return out
 
 
 # ================================================================ load

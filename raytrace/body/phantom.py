@@ -21,12 +21,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal, Mapping, Sequence
+from typing import Literal, Mapping, NamedTuple, Sequence
 
 import numpy as np
 import trimesh
 
-from raytrace.body.selfintersect import edge_crossings
+from raytrace.body.rays import RayScene
+from raytrace.body.selfintersect import cross_rows, edge_crossings
+from raytrace.body.topology import ClosedEdges, closed_edges
 from raytrace.errors import AmbiguousPositionError, Field, InvalidGeometryError, PhantomValidationError
 from raytrace.physics.materials import AIR, Material  # noqa: F401 (AIR re-exported for phantom users)
 
@@ -110,7 +112,6 @@ class Phantom:
     faces: np.ndarray  # (F, 3) int64 indices into vertices
     face_organ: np.ndarray  # (F,) int32 organ of each triangle
     face_normals: np.ndarray  # (F, 3) outward unit facet normals
-    vertex_normals: np.ndarray  # (V, 3) smooth normals, per organ (never blended across organs)
     description: str = ""
     metadata: dict = field(default_factory=dict)
     #: Named paths through the organs (``raytrace.body.centreline``), e.g. the GI tract.
@@ -127,7 +128,7 @@ class Phantom:
         description: str = "",
         max_triangles: int | None = None,
         check_crossings: bool = True,
-        parent: Sequence[int] | None = None,
+        checked: Surfaces | None = None,
     ) -> "Phantom":
         """Validate organs, build the containment tree and the combined mesh.
 
@@ -135,10 +136,10 @@ class Phantom:
         :class:`PhantomValidationError` naming the organ and the defect; nothing
         is returned half-built. ``check_crossings=False`` skips the edge test of
         :func:`_check_crossings` (for phantoms validated before, e.g. an upload a
-        sweep worker reloads); the containment tree is built either way, unless
-        ``parent`` gives it: the tree of these very organs from a build that passed
-        every check (a built phantom reloaded from its own cache, e.g.
-        ``raytrace.body.abdomen``); then the organs are not validated again either.
+        sweep worker reloads); the containment tree is built either way. ``checked``: what
+        :func:`surface_crossings` answered for these organs' meshes (the same objects, in order) when
+        the caller tested them: if no two crossed, its triangle table, checks and Embree scene are
+        taken as they are instead of being made again.
         """
         organs = tuple(organs)
         if not organs:
@@ -151,40 +152,32 @@ class Phantom:
             raise PhantomValidationError(
                 f"{total} triangles exceed the cap of {max_triangles}", field="mesh"
             )
-        if parent is None:
-            for organ in organs:
-                _validate_organ_mesh(organ)
-        elif check_crossings or len(parent) != len(organs):
-            raise PhantomValidationError("a known containment tree (parent) needs one entry per organ and "
-                                         "check_crossings=False: it is for phantoms validated before", field="organs")
-
-        offsets = np.cumsum([0] + [len(o.mesh.vertices) for o in organs])
-        vertices = np.concatenate([np.asarray(o.mesh.vertices, float) for o in organs])
-        faces = np.concatenate(
-            [np.asarray(o.mesh.faces, np.int64) + offsets[i] for i, o in enumerate(organs)]
-        )
-        face_organ = np.concatenate(
-            [np.full(len(o.mesh.faces), i, np.int32) for i, o in enumerate(organs)]
-        )
-        face_normals = np.concatenate([np.asarray(o.mesh.face_normals, float) for o in organs])
-        vertex_normals = np.concatenate(
-            [np.asarray(o.mesh.vertex_normals, float) for o in organs]
-        )
+        for organ in organs:
+            if organ.crease_angle_deg is not None and not 0.0 <= float(organ.crease_angle_deg) <= 180.0:
+                raise PhantomValidationError(
+                    f"crease_angle_deg must be in [0, 180] deg, got {organ.crease_angle_deg}",
+                    field=f"organs.{organ.name}.crease_angle_deg")
+        meshes = tuple(o.mesh for o in organs)
+        reuse = checked is not None and checked.scene is not None and not checked.crossings and \
+            len(checked.meshes) == len(meshes) and all(a is b for a, b in zip(checked.meshes, meshes))
+        surfaces = checked if reuse and checked is not None else check_surfaces(meshes, names)
         phantom = cls(
             name=name,
             organs=organs,
             parent=np.full(len(organs), AIR_INDEX, dtype=np.int64),
             sites={},
-            vertices=vertices,
-            faces=faces,
-            face_organ=face_organ,
-            face_normals=face_normals,
-            vertex_normals=vertex_normals,
+            vertices=surfaces.vertices,
+            faces=surfaces.faces,
+            face_organ=surfaces.face_organ,
+            face_normals=surfaces.face_normals,
             description=description,
         )
-        if check_crossings:
-            _check_crossings(phantom)
-        phantom.parent = _containment_tree(phantom) if parent is None else np.asarray(parent, np.int64)
+        if reuse:
+            phantom.__dict__["intersector"] = surfaces.scene
+        elif check_crossings:
+            _check_crossings(phantom, surfaces.edges)
+        phantom.__dict__.update(volumes_m3=surfaces.volumes, areas_m2=surfaces.areas)  # the cached properties
+        phantom.parent = _containment_tree(phantom, surfaces.volumes)
         for site_name, (kind, position) in (sites or {}).items():
             if kind not in ("capsule", "sensor"):
                 raise PhantomValidationError(
@@ -211,16 +204,30 @@ class Phantom:
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
 
     @cached_property
+    def volumes_m3(self) -> np.ndarray:
+        """(n_organs,) the volume each organ's surface encloses (its own, children included)."""
+        return _volumes_and_areas(self.vertices, self.faces, self.face_organ, len(self.organs))[0]
+
+    @cached_property
+    def areas_m2(self) -> np.ndarray:
+        """(n_organs,) each organ's surface area."""
+        return _volumes_and_areas(self.vertices, self.faces, self.face_organ, len(self.organs))[1]
+
+    @cached_property
     def mesh(self) -> trimesh.Trimesh:
         """All organs as one mesh (no merging, no processing): triangle i is ``faces[i]``."""
         return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
 
     @cached_property
-    def intersector(self):
-        """Embree (embreex) ray intersector over every triangle, built once per phantom."""
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
+    def intersector(self) -> RayScene:
+        """The Embree scene of every triangle (:class:`raytrace.body.rays.RayScene`), built once per phantom:
+        its checks, medium lookups and containment tree cast through it."""
+        return RayScene(self.vertices, self.faces, self.face_normals)
 
-        return RayMeshIntersector(self.mesh)
+    @cached_property
+    def vertex_normals(self) -> np.ndarray:
+        """(V, 3) smooth normals, per organ (never blended across organs): trimesh's, computed when asked."""
+        return np.concatenate([np.asarray(o.mesh.vertex_normals, float) for o in self.organs])
 
     def organ_index(self, name: str) -> int:
         for i, organ in enumerate(self.organs):
@@ -346,58 +353,133 @@ class Phantom:
 
     def _probe(self, points: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n = len(points)
-        dirs = np.broadcast_to(direction, (n, 3))
-        tri, ray, loc = self.intersector.intersects_id(
-            points, dirs, multiple_hits=False, return_locations=True
-        )
+        tri, distance = self.intersector.first_hits(points, np.broadcast_to(direction, (n, 3)))
         medium = np.full(n, AIR_INDEX, dtype=np.int64)
-        distance = np.full(n, np.inf)
-        if len(tri):
-            leaving = np.einsum("ij,j->i", self.face_normals[tri], direction) > 0.0
-            medium[ray] = np.where(leaving, self.face_organ[tri], self.parent[self.face_organ[tri]])
-            distance[ray] = np.linalg.norm(loc - points[ray], axis=1)
+        hit = tri >= 0
+        if hit.any():
+            t = tri[hit]
+            leaving = np.einsum("ij,j->i", self.face_normals[t], direction) > 0.0
+            medium[hit] = np.where(leaving, self.face_organ[t], self.parent[self.face_organ[t]])
         return medium, distance
 
 
 # ------------------------------------------------------------------ helpers
-def _validate_organ_mesh(organ: Organ) -> None:
-    mesh = organ.mesh
-    where = f"organs.{organ.name}"
-    if organ.crease_angle_deg is not None and not 0.0 <= float(organ.crease_angle_deg) <= 180.0:
-        raise PhantomValidationError(f"crease_angle_deg must be in [0, 180] deg, got {organ.crease_angle_deg}",
-                                     field=f"{where}.crease_angle_deg")
-    if len(mesh.faces) < 4:
-        raise PhantomValidationError("mesh has fewer than 4 triangles", field=where)
-    if not np.isfinite(np.asarray(mesh.vertices)).all():
-        raise PhantomValidationError("mesh has non-finite vertex coordinates", field=where)
-    if np.any(mesh.area_faces <= 0.0):
-        raise PhantomValidationError("mesh has degenerate (zero-area) triangles", field=where)
-    if not mesh.is_watertight:
-        raise PhantomValidationError("mesh is not watertight (closed)", field=where)
-    if not mesh.is_winding_consistent:
-        raise PhantomValidationError("mesh triangles are not consistently oriented", field=where)
-    if mesh.volume <= 0.0:
-        raise PhantomValidationError(
-            "mesh is oriented inwards (negative volume); normals must point outwards",
-            field=where,
-        )
+class Surfaces(NamedTuple):
+    """Closed surfaces as one triangle table (:func:`check_surfaces`)."""
+
+    meshes: tuple  # the trimesh meshes, in order (their identity says what was checked)
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_organ: np.ndarray  # (F,) int32: the surface of each triangle
+    face_normals: np.ndarray  # (F, 3) unit, as trimesh's ``face_normals``
+    volumes: np.ndarray  # (n,) m^3
+    areas: np.ndarray  # (n,) m^2
+    edges: ClosedEdges
+    scene: RayScene | None = None  # built by :func:`surface_crossings`
+    crossings: frozenset = frozenset()  # pairs (i, j), i <= j, of surfaces that cross ((i, i): i crosses itself)
 
 
-def _check_crossings(phantom: "Phantom") -> None:
+def check_surfaces(meshes: Sequence[trimesh.Trimesh], names: Sequence[str],
+                   known: Sequence[ClosedEdges | None] | None = None) -> Surfaces:
+    """Refuse a surface that is not closed, consistently and outward wound, of non-degenerate triangles,
+    naming it (``organs.<name>``); the surfaces as one triangle table, their unit facet normals (trimesh's
+    ``face_normals``, computed the same way over all triangles at once, and also for triangles under its
+    TOL_ZERO), volumes and edges
+    (:func:`raytrace.body.topology.closed_edges`, for the crossing test). ``known``: each surface's closed
+    edges when the caller has them (the anatomy build's repairs), else None: those are taken, offset into
+    the table, instead of sorting every half-edge again; the surfaces' own vertices then never share one."""
+    meshes = tuple(meshes)
+    for mesh, name in zip(meshes, names):
+        where = f"organs.{name}"
+        if len(mesh.faces) < 4:
+            raise PhantomValidationError("mesh has fewer than 4 triangles", field=where)
+        if not np.isfinite(np.asarray(mesh.vertices)).all():
+            raise PhantomValidationError("mesh has non-finite vertex coordinates", field=where)
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
+    counts = [len(m.faces) for m in meshes]
+    vertices = np.concatenate([np.asarray(m.vertices, float) for m in meshes])
+    faces = np.concatenate([np.asarray(m.faces, np.int64) + offsets[i] for i, m in enumerate(meshes)])
+    face_organ = np.repeat(np.arange(len(meshes), dtype=np.int32), counts)
+    v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
+    cross = cross_rows(v1 - v0, v2 - v1)  # trimesh.triangles.cross
+    norm = np.sqrt(np.dot(cross * cross, [1.0, 1.0, 1.0]))  # trimesh.util.unitize, bit for bit
+    # only a triangle of exactly zero area has no normal (as the phantom's check has always been): trimesh
+    # gives no normal below TOL_ZERO (1e-12 m^2 of |cross|), but marching cubes leaves corner triangles of
+    # ~0.5 um^2 where a surface passes a hair off a grid node, whose float64 normals are well defined
+    bad = np.flatnonzero(~(norm > 0.0))
+    if len(bad):
+        raise PhantomValidationError("mesh has degenerate (zero-area) triangles",
+                                     field=f"organs.{names[face_organ[bad[0]]]}")
+    face_normals = cross * (1.0 / norm).reshape((-1, 1))
+    edges = closed_edges(faces) if known is None else _joined_edges(meshes, known, offsets)
+    if edges is None:  # find the surface and say what is wrong with it
+        for mesh, name in zip(meshes, names):
+            if closed_edges(np.asarray(mesh.faces, np.int64)) is None:
+                where = f"organs.{name}"
+                if not mesh.is_watertight:
+                    raise PhantomValidationError("mesh is not watertight (closed)", field=where)
+                raise PhantomValidationError("mesh triangles are not consistently oriented", field=where)
+        raise PhantomValidationError("the organs' surfaces share vertices", field="organs")
+    # the divergence theorem: sum of v0 . ((v1 - v0) x (v2 - v1)) / 6 = v0 . (v1 x v2) / 6 per organ
+    volumes = np.bincount(face_organ, np.einsum("ij,ij->i", v0, cross), len(meshes)) / 6.0
+    inward = np.flatnonzero(volumes <= 0.0)
+    if len(inward):
+        raise PhantomValidationError("mesh is oriented inwards (negative volume); normals must point outwards",
+                                     field=f"organs.{names[inward[0]]}")
+    areas = np.bincount(face_organ, norm, len(meshes)) / 2.0
+    return Surfaces(meshes, vertices, faces, face_organ, face_normals, volumes, areas, edges)
+
+
+def _joined_edges(meshes: Sequence[trimesh.Trimesh], known: Sequence[ClosedEdges | None],
+                  offsets: np.ndarray) -> ClosedEdges | None:
+    """The surfaces' closed edges as one table (``known`` where given, else sorted here), vertex and triangle
+    indices offset as in :func:`check_surfaces`'s table; None if a surface is not closed."""
+    parts, face_base = [], 0
+    for mesh, edges in zip(meshes, known):
+        if edges is None:
+            edges = closed_edges(np.asarray(mesh.faces, np.int64))
+            if edges is None:
+                return None
+        parts.append((edges.edges + offsets[len(parts)], edges.face + face_base, edges.twin + face_base))
+        face_base += len(mesh.faces)
+    return ClosedEdges(*(np.concatenate([part[k] for part in parts]) for k in range(3)))
+
+
+def _volumes_and_areas(vertices: np.ndarray, faces: np.ndarray, face_organ: np.ndarray,
+                       n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per surface: the enclosed volume (divergence theorem, sum of v0 . (v1 - v0) x (v2 - v1) / 6) and the
+    area (half the cross products' lengths)."""
+    v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
+    cross = cross_rows(v1 - v0, v2 - v1)
+    return (np.bincount(face_organ, np.einsum("ij,ij->i", v0, cross), n) / 6.0,
+            np.bincount(face_organ, np.sqrt(np.einsum("ij,ij->i", cross, cross)), n) / 2.0)
+
+
+def surface_crossings(surfaces: Surfaces) -> Surfaces:
+    """``surfaces`` with their Embree scene and the pairs of them that cross (every edge of every surface
+    cast once as a segment, :func:`raytrace.body.selfintersect.edge_crossings`): what
+    :meth:`Phantom.build` tests, for a caller that resolves crossings before building (the anatomy
+    pipeline) and hands the result on, so that neither the scene nor the test is made twice."""
+    scene = RayScene(surfaces.vertices, surfaces.faces, surfaces.face_normals)
+    edge, tri, _ = edge_crossings(surfaces.vertices, surfaces.faces, surfaces.edges, surfaces.face_normals, scene)
+    a = surfaces.face_organ[surfaces.edges.face[edge]].tolist()
+    b = surfaces.face_organ[tri].tolist()
+    return surfaces._replace(scene=scene, crossings=frozenset((min(i, j), max(i, j)) for i, j in zip(a, b)))
+
+
+def _check_crossings(phantom: "Phantom", edges: ClosedEdges) -> None:
     """Refuse any two triangles that cross, of one organ (it passes through itself) or of two (they cross):
-    every edge of every organ cast once through the one Embree scene of all triangles (:attr:`Phantom.intersector`,
-    the scene every medium lookup uses), :func:`raytrace.body.selfintersect.edge_crossings`. The cost is the
-    scene's BVH build plus about 1.5 rays per triangle (docs/phantoms.md, "Scale")."""
-    offsets = np.cumsum([0] + [len(o.mesh.vertices) for o in phantom.organs])
-    per_organ = [np.asarray(o.mesh.edges_unique, np.int64) for o in phantom.organs]
-    pairs = np.concatenate([e + offsets[i] for i, e in enumerate(per_organ)])
-    owner = np.concatenate([np.full(len(e), i, np.int32) for i, e in enumerate(per_organ)])
-    edge, tri, loc = edge_crossings(phantom.vertices, pairs, phantom.intersector)
+    every edge of every organ cast once as a segment through the one Embree scene of all triangles
+    (:attr:`Phantom.intersector`, the scene every medium lookup uses),
+    :func:`raytrace.body.selfintersect.edge_crossings`. The cost is the scene's BVH build plus about 1.5
+    short segments per triangle (docs/phantoms.md, "Scale")."""
+    edge, tri, loc = edge_crossings(phantom.vertices, phantom.faces, edges, phantom.face_normals,
+                                    phantom.intersector)
     if not len(edge):
         return
     k = 0
     count = len(edge)
-    edge_organ, hit_organ = int(owner[edge[k]]), int(phantom.face_organ[tri[k]])
+    edge_organ, hit_organ = int(phantom.face_organ[edges.face[edge[k]]]), int(phantom.face_organ[tri[k]])
     where = np.round(loc[k], 4).tolist()
     if edge_organ == hit_organ:
         name = phantom.organs[edge_organ].name
@@ -412,14 +494,13 @@ def _check_crossings(phantom: "Phantom") -> None:
         "must nest or be disjoint, never touch", field=f"organs.{inner}")
 
 
-def _containment_tree(phantom: "Phantom") -> np.ndarray:
+def _containment_tree(phantom: "Phantom", volumes: np.ndarray) -> np.ndarray:
     """Parent organ of every organ (-1 for air). Surfaces that do not cross (:func:`_check_crossings`)
     leave each organ wholly inside or wholly outside each other one, so one point of its surface decides:
     the centroid of its first triangle, whose ray (a fixed oblique direction) through the one scene of all
     triangles crosses each organ containing it an odd number of times (every hit counted, the ray re-cast
     just past each). The parent is the smallest-volume container."""
     n = len(phantom.organs)
-    volumes = np.array([o.mesh.volume for o in phantom.organs])
     first_face = np.cumsum([0] + [len(o.mesh.faces) for o in phantom.organs])[:-1]
     points = phantom.vertices[phantom.faces[first_face]].mean(axis=1)
     direction = _PROBE_DIRECTIONS[0]
@@ -430,12 +511,13 @@ def _containment_tree(phantom: "Phantom") -> np.ndarray:
     for _ in range(4 * len(phantom.faces) + 8):
         if not len(alive):
             break
-        tri, ray, loc = phantom.intersector.intersects_id(origins[alive], np.broadcast_to(direction, (len(alive), 3)),
-                                                          multiple_hits=False, return_locations=True)
-        hit_rays = alive[ray]
-        organs_hit = phantom.face_organ[tri]
+        tri, distance = phantom.intersector.first_hits(origins[alive], np.broadcast_to(direction, (len(alive), 3)))
+        hit = tri >= 0
+        hit_rays = alive[hit]
+        organs_hit = phantom.face_organ[tri[hit]]
         np.add.at(counts, (hit_rays, organs_hit), 1)
-        origins[hit_rays] = loc + 1e-6 * scale * direction  # past the hit by more than float32 resolves
+        # past the hit by more than float32 resolves
+        origins[hit_rays] += (distance[hit] + 1e-6 * scale)[:, None] * direction
         alive = hit_rays
     inside = counts % 2 == 1
     np.fill_diagonal(inside, False)

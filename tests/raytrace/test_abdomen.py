@@ -197,15 +197,3 @@ def test_the_cache_key_follows_every_source_file(tmp_path, monkeypatch) -> None:
     finally:
         abdomen.source_key.cache_clear()
 
-
-def test_a_known_containment_tree_is_only_for_validated_phantoms(phantom) -> None:
-    """Phantom.build(parent=...) skips the checks only as the cache uses it: one entry per organ and
-    check_crossings=False; anything else is refused naming ``organs``."""
-    from raytrace.body.phantom import Phantom, PhantomValidationError
-
-    organs = phantom.organs
-    for kwargs in ({"parent": list(phantom.parent)[:-1], "check_crossings": False},
-                   {"parent": list(phantom.parent), "check_crossings": True}):
-        with pytest.raises(PhantomValidationError) as info:
-            Phantom.build("x", organs, **kwargs)
-        assert info.value.field == "organs"

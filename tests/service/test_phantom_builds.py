@@ -127,3 +127,24 @@ def test_broken_archives_are_refused_before_the_job_naming_the_entry(client, tmp
     r = client.post("/v1/phantoms", files={"archive": ("a.zip", b"PK"), "mesh": ("m.glb", b"glTF")})
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "mesh"]
     assert client.get("/v1/phantoms/builds").json()["builds"] == []
+
+
+def test_a_json_gltf_with_its_buffer_files_in_the_archive_builds(client, tmp_path) -> None:
+    """trimesh's JSON glTF (buffers in files beside it) inside the zip: built; its organ the written sphere
+    (320 triangles). Without a buffer file the archive is refused before the job, naming the organ."""
+    from tests.raytrace.anatomy.files import write_gltf
+
+    written = write_gltf(tmp_path / "organ.gltf", sphere(20.0, subdivisions=2))
+    entries = {p.name: p.read_bytes() for p in written}
+    manifest = {**MANIFEST, "organs": {"organ": {"file": "organ.gltf", "tissue": "liver"}}}
+    r = client.post("/v1/phantoms", files={"archive": ("a.zip", archive(tmp_path, manifest, entries))})
+    assert r.status_code == 202, r.text
+    status = wait(client, r.json()["id"])
+    assert status["state"] == "done", status
+    assert status["report"]["organs"][1]["triangles"] == 320
+    entries.pop("gltf_buffer_0.bin")
+    r = client.post("/v1/phantoms", files={"archive": ("a.zip", archive(tmp_path, manifest, entries))})
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"][0]
+    assert detail["loc"][:5] == ["body", "archive", "manifest", "organs", "organ"], detail
+    assert "organ.gltf" in detail["msg"] and "no such file" in detail["msg"], detail

@@ -35,14 +35,15 @@ from raytrace.body.anatomy import tissuemap
 from raytrace.body.anatomy.decimate import decimate
 from raytrace.body.anatomy.manifest import BuildManifest, Options, load_manifest
 from raytrace.body.anatomy.overlap import clip_inside, crossing_pairs, resolve_overlaps
-from raytrace.body.anatomy.readers import read_surface
+from raytrace.body.anatomy.readers import gltf_buffer_files, read_surface, suffix_of
 from raytrace.body.anatomy.repair import repair_surface, union_of
 from raytrace.body.anatomy.sensors import belt_positions
 from raytrace.body.anatomy.tracts import build_tract, read_points
 from raytrace.body.anatomy.volume import LabelVolume, label_surface, open_volume
 from raytrace.body.anatomy.wall import generate_wall
 from raytrace.body.centreline import GI_TRACT, Centreline
-from raytrace.body.phantom import AIR_INDEX, Organ, Phantom, Site
+from raytrace.body.phantom import AIR_INDEX, Organ, Phantom, Site, Surfaces
+from raytrace.body.topology import ClosedEdges
 from raytrace.errors import Field, InvalidGeometryError, PhantomValidationError
 from raytrace.physics.materials import Material
 
@@ -79,6 +80,8 @@ class _Context:
     progress: Progress
     volume: LabelVolume | None = None
     timings: dict[str, float] = field(default_factory=dict)
+    #: id of a surface as its repairs left it -> its closed edges (handed to the phantom's checks)
+    edges: dict[int, ClosedEdges] = field(default_factory=dict)
 
 
 def _fail(reason: str, where: Field) -> PhantomValidationError:
@@ -111,6 +114,9 @@ def _plan(ctx: _Context) -> dict[str, Any]:
         if size > limits.max_file_bytes:
             raise _fail(f"{name} is {size} bytes, over the cap of {limits.max_file_bytes} bytes per file", where)
         total += size
+        if suffix_of(name) == ".gltf":  # its buffer files count too (and an upload must hold them)
+            for buffer in gltf_buffer_files(path, ctx.root, where, max_bytes=limits.max_file_bytes):
+                total += buffer.stat().st_size
     if total > limits.max_total_bytes:
         raise _fail(f"the files hold {total} bytes, over the cap of {limits.max_total_bytes}", "manifest")
     voxels = 0
@@ -164,7 +170,7 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
         for i, f in enumerate(files):
             fw = (*where, i) if isinstance(where, tuple) and len(files) > 1 else where
             v, t = read_surface(_resolve(ctx, f, fw), fw, max_bytes=ctx.limits.max_file_bytes,
-                                max_triangles=triangles_left[0])
+                                max_triangles=triangles_left[0], root=ctx.root)
             triangles_left[0] -= len(t)
             all_v.append(v)
             all_f.append(t + base)
@@ -178,14 +184,17 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
                               max_cells=ctx.limits.max_grid_cells, check_crossings=False, pieces=counts)
     mesh = repaired.mesh
     notes += repaired.repairs
-    if len(mesh.faces) > budget:
+    if repaired.edges is not None:
+        ctx.edges[id(mesh)] = repaired.edges
+    if len(mesh.faces) > budget and not repaired.remeshed:  # a remeshed surface was decimated from its voxels
         before = len(mesh.faces)
         mesh, error = decimate(mesh, budget, options.decimation_error_m)
         if len(mesh.faces) < before:
-            notes.append(f"decimated {before} -> {len(mesh.faces)} triangles (within {error * 1e3:.3g} mm)")
+            over = f", over the budget of {budget}: no fewer kept it closed" if len(mesh.faces) > budget else ""
+            notes.append(f"decimated {before} -> {len(mesh.faces)} triangles (within {error * 1e3:.3g} mm{over})")
         else:
-            notes.append(f"kept {before} triangles, over the budget of {budget}: every decimation tried pinched "
-                         "the surface (edges shared by more than two triangles)")
+            notes.append(f"kept {before} triangles, over the budget of {budget}: no decimation within "
+                         f"decimation_error_m kept the surface closed and two-manifold")
     return mesh, notes, source, repaired.pieces
 
 
@@ -244,27 +253,39 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     ctx.timings["surfaces_s"] = time.perf_counter() - clock
     ctx.progress(step / n_steps, "resolving overlaps between organs")
     names = list(organ_meshes)
-    everything = [organ_meshes[n] for n in names] + ([body_mesh] if body_mesh is not None else [])
-    crossing = crossing_pairs(everything)
+    # the body first, then the organs: the order of the phantom when the body has no generated layers, so
+    # that the scene and checks made here serve Phantom.build too when nothing changes in between
+    offset = 1 if body_mesh is not None else 0
+    labels = ([m.body.name] if m.body is not None else []) + names  # type: ignore[union-attr]
+    everything = ([body_mesh] if body_mesh is not None else []) + [organ_meshes[n] for n in names]
+    try:
+        checked: Surfaces | None = crossing_pairs(everything, labels, [ctx.edges.get(id(x)) for x in everything])
+    except PhantomValidationError as exc:
+        raise _fail(exc.reason, _manifest_field(exc.field, fields, m)) from None
+    assert checked is not None
+    crossing = checked.crossings
     for i, j in sorted(crossing):  # surfaces crossing themselves after their repairs: voxel union (step 5)
         if i != j:
             continue
-        label = names[i] if i < len(names) else m.body.name  # type: ignore[union-attr]
-        where = fields.get(label, ("manifest", "body", "surface"))
-        mesh, note = union_of(everything[i], where, label, options, budget=options.max_triangles_per_surface,
+        label = labels[i]
+        surface_field: Field = fields.get(label, ("manifest", "body", "surface"))
+        mesh, note = union_of(everything[i], surface_field, label, options, budget=options.max_triangles_per_surface,
                               max_cells=limits.max_grid_cells, pieces=organ_pieces.get(label))
-        if i < len(names):
+        if i >= offset:
             organ_meshes[label] = mesh
             organ_notes[label].append(note)
         else:
             body_mesh = mesh
             body_notes.append(note)  # type: ignore[union-attr]
+    organ_crossing: set[tuple[int, int]] | None
+    body_crossing: set[int] = set()
     if any(i == j for i, j in crossing):
-        crossing = None  # the remeshed surfaces are new: let the overlap step test again
+        organ_crossing, checked = None, None  # the remeshed surfaces are new: let the overlap step test again
     else:
-        crossing = {(i, j) for i, j in crossing if j < len(names)}
+        organ_crossing = {(i - offset, j - offset) for i, j in crossing if i >= offset}
+        body_crossing = {j - offset for i, j in crossing if i < offset}
     organ_meshes, overlap_notes = resolve_overlaps(organ_meshes, fields, options.overlap_tolerance_m,
-                                                   options.clearance_m, crossing)
+                                                   options.clearance_m, organ_crossing)
     for name, notes in overlap_notes.items():
         organ_notes[name] += notes
     step += 1
@@ -274,7 +295,8 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
         assert body_mesh is not None
         first_material = m.body.layers[0].material if m.body.layers else m.body.fill
         organs.append(Organ(m.body.name, first_material, body_mesh))
-        _check_inside_body(organ_meshes, body_mesh, fields, m.body.name, options)
+        _check_inside_body(organ_meshes, body_mesh, fields, m.body.name, options,
+                           None if checked is None else body_crossing)
         if len(m.body.layers) >= 1:
             ctx.progress(step / n_steps, "generating the body wall")
             t0 = time.perf_counter()
@@ -315,39 +337,36 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     t0 = time.perf_counter()
     sensors = _sensor_positions(m, body_mesh)
     try:
-        phantom = Phantom.build(m.name, organs, sites={n: ("sensor", p) for n, p in sensors.items()},
+        phantom = Phantom.build(m.name, organs, sites={n: ("sensor", p.tolist()) for n, p in sensors.items()},
                                 description=m.description or f"Built from {len(organs)} surfaces by the anatomy "
-                                "pipeline (docs/phantoms.md).", max_triangles=limits.max_output_triangles)
+                                "pipeline (docs/phantoms.md).", max_triangles=limits.max_output_triangles,
+                                checked=checked)
     except PhantomValidationError as exc:
-        field_ = exc.field
-        if isinstance(field_, str) and field_.startswith("organs."):
-            field_ = ("manifest", "organs", field_.split(".", 1)[1])
-        elif isinstance(field_, str) and field_.startswith("sites."):
-            field_ = ("manifest", "sensors", field_.split(".", 1)[1])
-        raise PhantomValidationError(exc.reason, field=field_) from None
+        raise PhantomValidationError(exc.reason, field=_manifest_field(exc.field, fields, m)) from None
     ctx.timings["phantom_build_s"] = time.perf_counter() - t0
     sensor_report = _check_sensors(phantom, sensors, m)
     tracts_report = []
     built_tracts = {}
-    for spec in m.tracts.values():
-        points = read_points(_resolve(ctx, spec.file, ("manifest", "tracts", spec.name, "file")),
-                             ("manifest", "tracts", spec.name, "file"))
-        tract = build_tract(spec, points, _to_metres(m)[0], phantom, options.tract_clearance_m)
-        phantom.centrelines[spec.name] = tract.centreline
-        built_tracts[spec.name] = tract
+    for tract_spec in m.tracts.values():
+        points = read_points(_resolve(ctx, tract_spec.file, ("manifest", "tracts", tract_spec.name, "file")),
+                             ("manifest", "tracts", tract_spec.name, "file"))
+        tract = build_tract(tract_spec, points, _to_metres(m)[0], phantom, options.tract_clearance_m)
+        phantom.centrelines[tract_spec.name] = tract.centreline
+        built_tracts[tract_spec.name] = tract
         for mark, point in tract.landmark_points_m.items():
-            site = f"{spec.name}_{mark}"
+            site = f"{tract_spec.name}_{mark}"
             try:
-                medium = phantom.antenna_medium(point, field=("manifest", "tracts", spec.name, "landmarks", mark))
+                medium = phantom.antenna_medium(point, field=("manifest", "tracts", tract_spec.name, "landmarks", mark))
             except InvalidGeometryError as exc:
                 raise PhantomValidationError(exc.reason, field=exc.field) from None
-            if phantom.medium_name(medium) != spec.organ:
-                raise _fail(f"landmark {mark!r} lies in {phantom.medium_name(medium)!r}, not in {spec.organ!r}",
-                            ("manifest", "tracts", spec.name, "landmarks", mark))
-            phantom.sites[site] = Site(site, "capsule", np.asarray(point, float), spec.organ)
-        tracts_report.append({"name": spec.name, "organ": spec.organ, "length_mm": tract.centreline.length_m * 1e3,
+            if phantom.medium_name(medium) != tract_spec.organ:
+                raise _fail(f"landmark {mark!r} lies in {phantom.medium_name(medium)!r}, not in {tract_spec.organ!r}",
+                            ("manifest", "tracts", tract_spec.name, "landmarks", mark))
+            phantom.sites[site] = Site(site, "capsule", np.asarray(point, float), tract_spec.organ)
+        tracts_report.append({"name": tract_spec.name, "organ": tract_spec.organ,
+                              "length_mm": tract.centreline.length_m * 1e3,
                               "points": int(sum(len(p.points_m) for p in tract.centreline.pieces)),
-                              "reverse": spec.reverse,
+                              "reverse": tract_spec.reverse,
                               "landmarks_s_mm": {k: v * 1e3 for k, v in tract.landmarks_s_m.items()},
                               "notes": tract.notes})
     phantom.metadata.update({"source": "anatomy", "tracts": {t["name"]: t["landmarks_s_mm"] for t in tracts_report}})
@@ -384,6 +403,20 @@ def _journey(m: BuildManifest, phantom: Phantom, tracts: dict) -> dict | None:
     return journey
 
 
+def _manifest_field(field_: Field | None, fields: dict[str, Field], m: BuildManifest) -> Field:
+    """The manifest entry a phantom check's field (``organs.<name>``, ``sites.<name>``) is about."""
+    if field_ is None:
+        return "manifest"
+    if isinstance(field_, str) and field_.startswith("organs."):
+        name = field_.split(".", 1)[1]
+        if m.body is not None and name == m.body.name:
+            return ("manifest", "body", "surface")
+        return fields.get(name, ("manifest", "organs", name))
+    if isinstance(field_, str) and field_.startswith("sites."):
+        return ("manifest", "sensors", field_.split(".", 1)[1])
+    return field_
+
+
 def _inset(mesh: trimesh.Trimesh, distance_m: float) -> trimesh.Trimesh:
     moved = mesh.copy()
     moved.vertices = mesh.vertices - distance_m * mesh.vertex_normals
@@ -391,12 +424,16 @@ def _inset(mesh: trimesh.Trimesh, distance_m: float) -> trimesh.Trimesh:
 
 
 def _check_inside_body(organs: dict[str, trimesh.Trimesh], body: trimesh.Trimesh, fields: dict[str, Field],
-                       body_name: str, options: Options) -> None:
-    """An organ may graze the body surface (clipped later), but not cross it deeper than the tolerance."""
+                       body_name: str, options: Options, crossing: set[int] | None = None) -> None:
+    """An organ may graze the body surface (clipped later), but not cross it deeper than the tolerance.
+    ``crossing``: the organs (by position) whose surfaces cross the body's, when known: every other one lies
+    wholly inside or wholly outside the body, which one vertex tells."""
     from raytrace.body.anatomy.grid import SurfaceDistance
 
     distance = None
-    for name, mesh in organs.items():
+    for k, (name, mesh) in enumerate(organs.items()):
+        if crossing is not None and k not in crossing and body.contains(mesh.vertices[:1]).all():
+            continue
         outside = ~body.contains(mesh.vertices)
         if not outside.any():
             continue
@@ -451,7 +488,7 @@ def _report(m, phantom, organ_notes, organ_source, body_notes, layers, tracts, s
         parent = int(phantom.parent[i])
         organs.append({
             "name": organ.name, "medium": organ.material.label, "triangles": int(len(organ.mesh.faces)),
-            "volume_ml": float(organ.mesh.volume) * 1e6, "area_cm2": float(organ.mesh.area) * 1e4,
+            "volume_ml": float(phantom.volumes_m3[i]) * 1e6, "area_cm2": float(phantom.areas_m2[i]) * 1e4,
             "parent": "air" if parent == AIR_INDEX else phantom.organs[parent].name,
             "source": organ_source.get(organ.name, "generated" if organ.name != (m.body.name if m.body else None)
                                        else ", ".join(m.body.files) or f"label {m.body.label}"),

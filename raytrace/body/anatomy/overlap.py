@@ -25,23 +25,31 @@ import numpy as np
 import trimesh
 
 from raytrace.body.anatomy.grid import SurfaceDistance
+from raytrace.body.phantom import Surfaces, check_surfaces, surface_crossings
+from raytrace.body.topology import ClosedEdges
 from raytrace.errors import Field, PhantomValidationError
 
 __all__ = ["clip_inside", "intersect", "resolve_overlaps", "subtract"]
 
 
 def _manifold(mesh: trimesh.Trimesh, origin: np.ndarray):
+    """manifold3d's solid of a closed surface, in float64 about ``origin`` (float32 would merge the vertices
+    nanometres apart that marching cubes leaves, into triangles of no area)."""
     import manifold3d
 
-    m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices - origin, np.float32),
-                                            tri_verts=np.asarray(mesh.faces, np.uint32)))
-    return m
+    return manifold3d.Manifold(manifold3d.Mesh64(np.ascontiguousarray(mesh.vertices - origin, np.float64),
+                                                 np.ascontiguousarray(mesh.faces, np.uint64)))
 
 
 def _mesh(m, origin: np.ndarray) -> trimesh.Trimesh:
-    out = m.to_mesh()
-    verts = np.asarray(out.vert_properties, float)[:, :3] + origin
-    return trimesh.Trimesh(verts, np.asarray(out.tri_verts, np.int64), process=True, validate=False)
+    """The surface of a manifold3d solid as it indexes it: never welded by position (trimesh's ``process``
+    joins vertices closer than 1e-8 without regard to the triangles around them, which can leave an edge
+    shared by four triangles)."""
+    out = m.to_mesh64()
+    verts = np.array(out.vert_properties, np.float64)[:, :3] + origin
+    mesh = trimesh.Trimesh(verts, np.array(out.tri_verts, np.int64), process=False, validate=False)
+    mesh.remove_unreferenced_vertices()
+    return mesh
 
 
 def _offset(mesh: trimesh.Trimesh, distance_m: float) -> trimesh.Trimesh:
@@ -60,18 +68,42 @@ def subtract(a: trimesh.Trimesh, b: trimesh.Trimesh) -> trimesh.Trimesh:
     return _mesh(_manifold(a, origin) - _manifold(b, origin), origin)
 
 
-def _touching(a: trimesh.Trimesh, b: trimesh.Trimesh, clearance_m: float) -> bool:
-    """Whether the surfaces of two neighbouring organs come closer than ``clearance_m`` (manifold3d's
-    ``min_gap``). A pair whose bounding boxes nest is left to the phantom's own checks: one organ is then
-    most likely inside the other, and giving way would hollow the outer one."""
-    lo_a, hi_a = a.bounds
-    lo_b, hi_b = b.bounds
-    if np.any(hi_a + clearance_m < lo_b) or np.any(hi_b + clearance_m < lo_a):
-        return False
-    if (np.all(lo_a <= lo_b) and np.all(hi_b <= hi_a)) or (np.all(lo_b <= lo_a) and np.all(hi_a <= hi_b)):
-        return False
-    origin = a.bounds.mean(axis=0)
-    return float(_manifold(a, origin).min_gap(_manifold(b, origin), clearance_m)) < clearance_m
+def _box(mesh: trimesh.Trimesh) -> np.ndarray:
+    """(2, 3) bounds of a mesh's vertices (numpy's; trimesh's property hashes the arrays to validate its cache)."""
+    vertices = np.asarray(mesh.vertices)
+    return np.stack([vertices.min(axis=0), vertices.max(axis=0)])
+
+
+class _Gaps:
+    """min_gap between organs (manifold3d), each organ's manifold and bounds made once (in float32 about one
+    origin, the organs' common centre: a body's extent keeps a float32 ulp below 0.1 um)."""
+
+    def __init__(self, meshes: dict[str, trimesh.Trimesh]) -> None:
+        self.bounds = {id(m): _box(m) for m in meshes.values()}
+        every = np.array(list(self.bounds.values())) if self.bounds else np.zeros((1, 2, 3))
+        self.origin = 0.5 * (every[:, 0].min(axis=0) + every[:, 1].max(axis=0))
+        self.manifolds: dict[int, object] = {}
+
+    def _bounds(self, mesh: trimesh.Trimesh) -> np.ndarray:
+        if id(mesh) not in self.bounds:
+            self.bounds[id(mesh)] = _box(mesh)
+        return self.bounds[id(mesh)]
+
+    def _manifold(self, mesh: trimesh.Trimesh):
+        if id(mesh) not in self.manifolds:
+            self.manifolds[id(mesh)] = _manifold(mesh, self.origin)
+        return self.manifolds[id(mesh)]
+
+    def touching(self, a: trimesh.Trimesh, b: trimesh.Trimesh, clearance_m: float) -> bool:
+        """Whether the surfaces of two neighbouring organs come closer than ``clearance_m`` (manifold3d's
+        ``min_gap``). A pair whose bounding boxes nest is left to the phantom's own checks: one organ is then
+        most likely inside the other, and giving way would hollow the outer one."""
+        (lo_a, hi_a), (lo_b, hi_b) = self._bounds(a), self._bounds(b)
+        if np.any(hi_a + clearance_m < lo_b) or np.any(hi_b + clearance_m < lo_a):
+            return False
+        if (np.all(lo_a <= lo_b) and np.all(hi_b <= hi_a)) or (np.all(lo_b <= lo_a) and np.all(hi_a <= hi_b)):
+            return False
+        return float(self._manifold(a).min_gap(self._manifold(b), clearance_m)) < clearance_m
 
 
 def _drop_specks(mesh: trimesh.Trimesh, min_volume: float) -> trimesh.Trimesh:
@@ -98,13 +130,14 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
     meshes = dict(organs)
     notes: dict[str, list[str]] = {n: [] for n in names}
     if crossing is None:
-        crossing = crossing_pairs([meshes[n] for n in names])
+        crossing = set(crossing_pairs([meshes[n] for n in names], names).crossings)
+    gaps = _Gaps(meshes)
     for i, first in enumerate(names):
         for j in range(i + 1, len(names)):
             second = names[j]
             a, b = meshes[first], meshes[second]
             if (i, j) not in crossing:
-                if _touching(a, b, clearance_m):  # surfaces closer than the clearance, e.g. shared caps of cut pieces
+                if gaps.touching(a, b, clearance_m):  # closer than the clearance, e.g. shared caps of cut pieces
                     moved = _drop_specks(subtract(b, _offset(a, clearance_m)), 1e-9)
                     if len(moved.faces):
                         removed = float(b.volume - moved.volume)
@@ -148,26 +181,15 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
     return meshes, notes
 
 
-def crossing_pairs(meshes: list[trimesh.Trimesh]) -> set[tuple[int, int]]:
-    """Pairs ``(i, j)``, ``i <= j``, of surfaces that cross (``(i, i)``: surface i crosses itself): every edge
-    cast once through one Embree scene of all of them (:func:`raytrace.body.selfintersect.edge_crossings`), so
-    that only crossing pairs pay for a boolean."""
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
-
-    from raytrace.body.selfintersect import edge_crossings
-
-    if not meshes:
-        return set()
-    union = trimesh.util.concatenate(meshes)
-    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
-    edges = np.concatenate([np.asarray(m.edges_unique, np.int64) + offsets[k] for k, m in enumerate(meshes)])
-    owner = np.concatenate([np.full(len(m.edges_unique), k) for k, m in enumerate(meshes)])
-    face_owner = np.concatenate([np.full(len(m.faces), k) for k, m in enumerate(meshes)])
-    edge, tri, _ = edge_crossings(np.asarray(union.vertices, float), edges, RayMeshIntersector(union))
-    out = set()
-    for e, t in zip(owner[edge].tolist(), face_owner[tri].tolist()):
-        out.add((min(e, t), max(e, t)))
-    return out
+def crossing_pairs(meshes: list[trimesh.Trimesh], names: list[str] | None = None,
+                   known: list[ClosedEdges | None] | None = None) -> Surfaces:
+    """The surfaces checked and tested for crossings (:func:`raytrace.body.phantom.surface_crossings`): its
+    ``crossings`` are the pairs ``(i, j)``, ``i <= j``, of surfaces that cross (``(i, i)``: surface i crosses
+    itself), every edge cast once as a segment through one Embree scene of all of them, so that only
+    crossing pairs pay for a boolean; the anatomy build hands the result on to :meth:`Phantom.build`.
+    ``known``: the surfaces' closed edges where the caller has them (:func:`check_surfaces`)."""
+    names = names or [f"surface{k}" for k in range(len(meshes))]
+    return surface_crossings(check_surfaces(meshes, names, known))
 
 
 def clip_inside(organ: trimesh.Trimesh, container: trimesh.Trimesh, what: str) -> tuple[trimesh.Trimesh, str | None]:

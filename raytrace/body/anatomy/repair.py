@@ -37,7 +37,8 @@ import trimesh
 
 from raytrace.body.anatomy.grid import Grid, inside_mask, surface_from_field
 from raytrace.body.anatomy.manifest import Options
-from raytrace.body.selfintersect import edge_crossings
+from raytrace.body.selfintersect import cross_rows
+from raytrace.body.topology import ClosedEdges, closed_edges
 from raytrace.errors import Field, PhantomValidationError
 
 __all__ = ["Repaired", "boundary_loops", "exact_union", "repair_surface", "voxel_union"]
@@ -54,6 +55,12 @@ class Repaired:
     #: The organ's files as closed surfaces, when there are several and each is closed on its own (for the
     #: union of step 5, also when the build later finds the joined surface crossing itself).
     pieces: list[trimesh.Trimesh] = field(default_factory=list)
+    #: remeshed on a voxel grid and decimated there (its error measured from the marching-cubes surface): a
+    #: second decimation would add its error to the first one's
+    remeshed: bool = False
+    #: the closed edges of ``mesh`` as repaired (None when remeshed): the build hands them to the phantom's
+    #: checks (:func:`raytrace.body.phantom.check_surfaces`) instead of sorting the half-edges again
+    edges: ClosedEdges | None = None
 
 
 def _fail(reason: str, where: Field) -> PhantomValidationError:
@@ -64,14 +71,44 @@ def _mm(x: float) -> str:
     return f"{x * 1e3:.3g} mm"
 
 
+#: The sweep direction of :func:`close_pairs`: no coordinate axis (grids of vertices line up along those).
+_SWEEP = np.array([0.5773502691896258, 0.5345224838248488, 0.6172133998483676])
+
+
+def close_pairs(points: np.ndarray, distance: float) -> np.ndarray:
+    """Every pair ``i < j`` of points at most ``distance`` apart, (K, 2). Points that close have projections
+    on any direction at most that far apart, so after one sort of the projections on :data:`_SWEEP` only the
+    neighbours within ``distance`` in that order are candidates, each then measured (a sweep: no false
+    negative, and on a mesh a handful of candidates, where a k-d tree builds a hierarchy of every point).
+    When the candidates would be many (a distance wide against the points' spacing), a k-d tree answers."""
+    projection = points @ _SWEEP
+    order = np.argsort(projection, kind="stable")
+    ordered = projection[order]
+    span = np.searchsorted(ordered, ordered + distance, side="right") - np.arange(len(ordered)) - 1
+    first = np.flatnonzero(span > 0)
+    if not len(first):
+        return np.zeros((0, 2), np.int64)
+    counts = span[first]
+    if int(counts.sum()) > 8 * len(points) + 1000:  # a distance wide against the points' spacing: a k-d tree
+        from scipy.spatial import cKDTree
+
+        return cKDTree(points).query_pairs(distance, output_type="ndarray").astype(np.int64)
+    i = np.repeat(first, counts)
+    j = i + 1 + (np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts))
+    a, b = order[i], order[j]
+    near = np.einsum("ij,ij->i", points[a] - points[b], points[a] - points[b]) <= distance * distance
+    a, b = a[near], b[near]
+    return np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+
+
 def weld(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """Merge every group of vertices linked by distances of at most ``weld_m`` (pairs from a k-d tree,
-    groups as connected components); answers the new arrays and how many vertices merged away."""
+    """Merge every group of vertices linked by distances of at most ``weld_m`` (pairs from
+    :func:`close_pairs`, groups as connected components); answers the new arrays and how many vertices
+    merged away."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
 
-    pairs = cKDTree(vertices).query_pairs(weld_m, output_type="ndarray")
+    pairs = close_pairs(vertices, weld_m)
     if not len(pairs):
         return vertices, faces, 0
     n = len(vertices)
@@ -91,7 +128,12 @@ def clean_faces(vertices: np.ndarray, faces: np.ndarray, weld_m: float) -> tuple
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     degenerate = repeated | (area <= weld_m**2)
     faces = faces[~degenerate]
-    key = _keys(np.sort(faces, axis=1))
+    low, high = np.minimum(faces[:, 0], faces[:, 1]), np.maximum(faces[:, 0], faces[:, 1])
+    key = _keys(np.stack([np.minimum(low, faces[:, 2]), np.maximum(low, np.minimum(high, faces[:, 2])),
+                          np.maximum(high, faces[:, 2])], axis=1))  # each row sorted
+    ordered = np.sort(key)
+    if not np.any(ordered[1:] == ordered[:-1]):  # no triangle twice: nothing more to remove
+        return faces, int(degenerate.sum()), 0, 0
     _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
     inverse = inverse.ravel()
     # the winding of a face: its rotation that starts at its smallest vertex, as a key
@@ -197,15 +239,12 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
     if walls:
         repairs.append(f"removed {walls} triangles given twice with opposite windings (the walls between pieces "
                        "that share a cap: the pieces joined into one surface)")
-    vertices_used = np.unique(faces)
-    if len(vertices_used) < len(vertices):
-        remap = np.full(len(vertices), -1, np.int64)
-        remap[vertices_used] = np.arange(len(vertices_used))
-        vertices, faces = vertices[vertices_used], remap[faces]
+    vertices, faces = _drop_unused(vertices, faces)
     if len(faces) < 4:
         raise _fail(f"{label}: fewer than 4 triangles are left after removing degenerate ones", where)
     filled, capped = 0, 0
-    for loop in boundary_loops(faces):
+    edges = closed_edges(faces)  # closed and consistently wound (most files): no holes, nothing to turn
+    for loop in boundary_loops(faces) if edges is None else []:
         points = vertices[loop]
         off, span = _planarity(points)
         if span <= options.max_hole_m:
@@ -224,24 +263,35 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
         repairs.append(f"filled {filled} hole(s) up to {_mm(options.max_hole_m)} across")
     if capped:
         repairs.append(f"capped {capped} planar cut(s)")
-    mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
-    mesh.remove_unreferenced_vertices()
-    needs_union = _non_manifold(mesh.faces) or (check_crossings and crosses_itself(mesh))
+    needs_union = edges is None and _non_manifold(faces)
     if not needs_union:
-        consistent = mesh.is_winding_consistent
-        inward = consistent and mesh.volume < 0
-        trimesh.repair.fix_normals(mesh, multibody=True)
-        if not (mesh.is_watertight and mesh.is_winding_consistent):
-            needs_union = True
-        elif inward:
-            repairs.append("turned the surface outward (it was wound inward)")
-        elif not consistent:
-            repairs.append("made the triangles' winding consistent and outward")
+        if edges is None:
+            edges = closed_edges(faces)
+        if edges is None:  # wound inconsistently: trimesh turns each shell's triangles one way
+            mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
+            trimesh.repair.fix_normals(mesh, multibody=True)
+            faces = np.asarray(mesh.faces, np.int64)
+            edges = closed_edges(faces)
+            needs_union = edges is None
+            if edges is not None:
+                repairs.append("made the triangles' winding consistent and outward")
+        if edges is not None:
+            faces, turned, flip = _outward(vertices, faces, edges)
+            if flip is not None:  # a turned triangle holds its edges' other half-edges: face and twin swap
+                swap = flip[edges.face]
+                edges = ClosedEdges(edges.edges, np.where(swap, edges.twin, edges.face),
+                                    np.where(swap, edges.face, edges.twin))
+                repairs.append("turned the surface outward (it was wound inward)" if turned == "all" else
+                               f"turned {turned} of its shells outward (they were wound inward)")
+    mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
+    if not needs_union and check_crossings:
+        needs_union = crosses_itself(mesh)
+    remeshed = False
     if needs_union:
-        mesh, note = _union(closed or _closed_shells(mesh), where, label, options, budget=budget,
-                            max_cells=max_cells, files=bool(closed))
+        mesh, note, remeshed = _union(closed or _closed_shells(mesh), where, label, options, budget=budget,
+                                      max_cells=max_cells, files=bool(closed))
         repairs.append(note)
-    return Repaired(mesh, repairs, closed)
+    return Repaired(mesh, repairs, closed, remeshed=remeshed, edges=None if needs_union else edges)
 
 
 def _closed_files(vertices: np.ndarray, faces: np.ndarray, pieces: "list[int] | None") -> list[trimesh.Trimesh]:
@@ -301,25 +351,56 @@ def exact_union(shells: list[trimesh.Trimesh]) -> trimesh.Trimesh | None:
 
 
 def _union(shells: list[trimesh.Trimesh], where: Field, label: str, options: Options, *, budget: int,
-           max_cells: int, files: bool) -> tuple[trimesh.Trimesh, str]:
-    """Step 5: the exact union of the shells when it is clean, else the voxel remeshing."""
+           max_cells: int, files: bool) -> tuple[trimesh.Trimesh, str, bool]:
+    """Step 5: the exact union of the shells when it is clean, else the voxel remeshing; and whether it was
+    remeshed (then already decimated from its voxels: Repaired.remeshed)."""
     if len(shells) >= 2:
         joined = exact_union(shells)
         if joined is not None:
             what = "files, each closed," if files else "closed pieces"
             return joined, (f"joined its {len(shells)} {what} by an exact boolean union (manifold3d): "
-                            f"{len(joined.faces)} triangles, {joined.volume * 1e6:.4g} mL")
-    return voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells)
+                            f"{len(joined.faces)} triangles, {joined.volume * 1e6:.4g} mL"), False
+    return (*voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells), True)
+
+
+def _drop_unused(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices some triangle uses (in their order) and the faces renumbered."""
+    used = np.bincount(faces.ravel(), minlength=len(vertices)) > 0
+    if used.all():
+        return vertices, faces
+    remap = np.cumsum(used) - 1
+    return vertices[used], remap[faces]
+
+
+def _outward(vertices: np.ndarray, faces: np.ndarray,
+             edges: ClosedEdges) -> tuple[np.ndarray, str | int, np.ndarray | None]:
+    """Closed, consistently wound ``faces`` with every shell (connected through its edges) wound outward
+    (positive volume, by the divergence theorem); ``"all"``, the number of shells turned, or 0; and which
+    triangles were turned (None when none)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
+    signed = np.einsum("ij,ij->i", v0, cross_rows(v1, v2))
+    n = len(vertices)
+    count, shell = connected_components(coo_matrix((np.ones(len(edges.edges)), (edges.edges[:, 0], edges.edges[:, 1])),
+                                                   shape=(n, n)), directed=False)
+    face_shell = shell[faces[:, 0]]
+    inward = np.bincount(face_shell, weights=signed, minlength=count) < 0
+    if not inward.any():
+        return faces, 0, None
+    flip = inward[face_shell]
+    faces = faces.copy()
+    faces[flip] = faces[flip][:, ::-1]
+    return faces, "all" if inward.all() else int(inward.sum()), flip
 
 
 def crosses_itself(mesh: trimesh.Trimesh) -> bool:
-    """Whether an edge of the surface crosses one of its triangles (one Embree ray per edge,
-    :func:`raytrace.body.selfintersect.edge_crossings`)."""
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
+    """Whether an edge of the closed surface crosses one of its triangles (one Embree segment per edge,
+    :func:`raytrace.body.phantom.surface_crossings`)."""
+    from raytrace.body.phantom import check_surfaces, surface_crossings
 
-    edge, _, _ = edge_crossings(np.asarray(mesh.vertices, float), np.asarray(mesh.edges_unique, np.int64),
-                                RayMeshIntersector(mesh))
-    return len(edge) > 0
+    return bool(surface_crossings(check_surfaces([mesh], ["surface"])).crossings)
 
 
 def union_of(mesh: trimesh.Trimesh, where: Field, label: str, options: Options, *, budget: int,
@@ -328,8 +409,8 @@ def union_of(mesh: trimesh.Trimesh, where: Field, label: str, options: Options, 
     decimated to ``budget`` like every remeshed surface."""
     from raytrace.body.anatomy.decimate import decimate
 
-    out, note = _union(pieces or _closed_shells(mesh), where, label, options, budget=budget, max_cells=max_cells,
-                       files=bool(pieces))
+    out, note, _ = _union(pieces or _closed_shells(mesh), where, label, options, budget=budget, max_cells=max_cells,
+                          files=bool(pieces))
     if len(out.faces) > budget:  # an exact union keeps the pieces' triangles (the voxel union decimated already)
         out, error = decimate(out, budget, options.decimation_error_m)
         note += f", decimated to {len(out.faces)} triangles within {_mm(error)}"
@@ -388,7 +469,8 @@ def voxel_union(shells: list[trimesh.Trimesh], where: Field, label: str, options
         keep = [p for p in parts if abs(p.volume) >= 8 * h**3]
         mesh = trimesh.util.concatenate(keep) if keep else mesh
     mesh, error = decimate(mesh, budget, options.decimation_error_m)
-    decimated = (f"decimated to {len(mesh.faces)} triangles, within {_mm(error)}" if error > 0 or
+    over = f", over the budget of {budget}: no fewer kept it closed" if len(mesh.faces) > budget else ""
+    decimated = (f"decimated to {len(mesh.faces)} triangles, within {_mm(error)}{over}" if error > 0 or
                  len(mesh.faces) <= budget else f"{len(mesh.faces)} triangles: no decimation kept it closed")
     note = (f"remeshed the union of {len(shells)} closed piece(s) on a {_mm(h)} voxel grid (smoothing "
             f"{options.smoothing_voxels:g} voxel, {decimated}); voxel volume {raw_volume * 1e6:.4g} mL")

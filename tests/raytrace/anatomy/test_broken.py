@@ -117,3 +117,41 @@ def test_the_cli_exits_2_naming_the_organ(tmp_path, capsys) -> None:
     assert main(["phantom", "build", str(path), "--out", str(tmp_path / "out"), "-q"]) == 0
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["manifest.json", "phantom.glb", "report.json",
                                                                    "report.md"]
+
+
+def test_a_gltf_buffer_outside_the_manifests_directory_or_a_url(tmp_path) -> None:
+    """A JSON glTF (trimesh's writer) whose buffer names a file outside the manifest's directory, an absolute
+    path, a URL or a missing file: refused naming the organ, the file and the buffer; nothing is fetched."""
+    import json
+
+    from tests.raytrace.anatomy.files import write_gltf
+
+    case = tmp_path / "case"
+    case.mkdir()
+    manifest = base(case)
+    manifest["organs"]["organ"]["file"] = "organ.gltf"
+    written = write_gltf(case / "organ.gltf", sphere(20.0, subdivisions=2))
+    buffer_file = next(p for p in written if p.name == "gltf_buffer_0.bin")  # trimesh's name of buffer 0
+    outside = tmp_path / buffer_file.name
+    outside.write_bytes(buffer_file.read_bytes())
+    document = json.loads((case / "organ.gltf").read_text())
+    for uri, words in ((f"../{buffer_file.name}", ("outside the manifest's directory",)),
+                       (str(outside), ("absolute",)),
+                       ("http://example.invalid/organ.bin", ("URLs",)),
+                       ("missing.bin", ("no such file",))):
+        document["buffers"][0]["uri"] = uri
+        (case / "organ.gltf").write_text(json.dumps(document))
+        refused(case, manifest, "manifest.organs.organ", "organ.gltf", "buffer 0", *words)
+
+
+def test_an_xml_vtk_with_a_document_type_is_refused(tmp_path) -> None:
+    """No entity expansion: a .vtp declaring entities is refused before its XML is parsed."""
+    from tests.raytrace.anatomy.files import write_vtp
+
+    manifest = base(tmp_path)
+    write_vtp(tmp_path / "organ.vtp", sphere(20.0, subdivisions=2))
+    text = (tmp_path / "organ.vtp").read_text()
+    head = '<?xml version="1.0"?>\n<!DOCTYPE VTKFile [<!ENTITY a "aaaaaaaaaa">]>\n'
+    (tmp_path / "organ.vtp").write_text(head + text.split("\n", 1)[1])
+    manifest["organs"]["organ"]["file"] = "organ.vtp"
+    refused(tmp_path, manifest, "manifest.organs.organ", "organ.vtp", "document type")

@@ -1,6 +1,6 @@
-"""Every input format builds the same phantom: surfaces the test writes (meshio, trimesh, its own
-POLYDATA writer) read back by the pipeline, volumes against the divergence-theorem volume of the
-written mesh and the sphere's closed form."""
+"""Every input format builds the same phantom: surfaces the test writes (meshio, trimesh, its own legacy
+POLYDATA and XML PolyData writers: no library the project may use writes those) read back by the pipeline,
+volumes against the divergence-theorem volume of the written mesh and the sphere's closed form."""
 
 from __future__ import annotations
 
@@ -12,7 +12,9 @@ import pytest
 from raytrace.body.anatomy import build_phantom
 from tests.raytrace.anatomy.files import polyhedron_volume, sphere, write_surface
 
-FORMATS = ["organ.vtk", "organ_ug.vtk", "organ.vtu", "organ.stl", "organ.ply", "organ.obj", "organ.off", "organ.glb"]
+FORMATS = ["organ.vtk", "organ_ug.vtk", "organ.vtu", "organ_v22.vtu", "organ_ascii.vtp", "organ_binary.vtp",
+           "organ_appended.vtp", "organ_zlib.vtp", "organ_vtk9.vtp", "organ.stl", "organ.ply", "organ.obj",
+           "organ.off", "organ.glb", "organ.gltf", "organ_embed.gltf"]
 
 
 @pytest.mark.parametrize("filename", FORMATS)
@@ -30,7 +32,7 @@ def test_every_format_builds_with_the_written_volume(tmp_path, filename) -> None
     got = phantom.organs[1].mesh.volume
     # Oracle 1: the written mesh's own volume (divergence theorem in the test), mm^3 -> m^3; the
     # pipeline may only merge duplicate vertices (STL stores three per triangle), so it is exact up to the
-    # files' float precision (STL and GLB store float32: 1e-6 relative).
+    # files' float precision (STL, glTF and binary VTP store float32: 1e-6 relative).
     want = polyhedron_volume(organ.vertices, organ.faces) * 1e-9
     assert got == pytest.approx(want, rel=2e-6)
     # Oracle 2: the closed form; a 1280-face icosphere inscribed in the sphere holds 1.3 % less.

@@ -84,3 +84,19 @@ def test_a_shallow_overlap_between_organs_is_clipped_and_reported(tmp_path) -> N
     b = phantom.organs[2].mesh
     assert b.vertices[:, 0].min() > 0.0003 - 1e-6 - 0.001  # b now stops about where a begins (a's facets sag)
     assert b.volume < sphere(20.0, subdivisions=3).volume * 1e-9
+
+
+def test_the_repaired_edges_handed_to_the_phantoms_checks_are_the_surfaces_own() -> None:
+    """A surface turned outward by the repairs keeps edges that describe its turned triangles: each edge
+    (a, b), a < b, once, ``face`` holding the half-edge a->b and ``twin`` b->a (read off the triangles here)."""
+    inward = trimesh.creation.icosphere(2, radius=0.02)
+    inward.invert()
+    repaired = repair_surface(inward.vertices, inward.faces, "organs.x", "x", Options(), budget=10**6,
+                              max_cells=10**8, check_crossings=False)
+    assert any("turned" in r for r in repaired.repairs) and repaired.edges is not None
+    faces = np.asarray(repaired.mesh.faces)
+    holder = {(int(f[k]), int(f[(k + 1) % 3])): i for i, f in enumerate(faces) for k in range(3)}
+    pairs = repaired.edges.edges.tolist()
+    assert len(pairs) == len(holder) // 2 and len({tuple(p) for p in pairs}) == len(pairs)
+    for (a, b), face, twin in zip(pairs, repaired.edges.face.tolist(), repaired.edges.twin.tolist()):
+        assert a < b and holder[(a, b)] == face and holder[(b, a)] == twin
