@@ -69,7 +69,7 @@ def test_one_site_evaluated_afresh_gives_the_committed_numbers(table) -> None:
 
 # ----------------------------------------------------------------------------------------------- path loss
 #: The fitted model the README and docs/sweeps.md show for the CT abdomen (PL(d0) [dB], n, sigma [dB], links).
-README_FIT = (17.56, 11.38, 21.46, 1691)
+README_FIT = (18.10, 11.44, 23.24, 1715)
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +92,7 @@ def test_the_committed_path_loss_links_give_the_published_fit(links) -> None:
     fit = linregress(x, loss)
     sigma = np.sqrt(np.sum((loss - fit.intercept - fit.slope * x) ** 2) / (keep.sum() - 2))
     assert (round(fit.intercept, 2), round(fit.slope, 2), round(float(sigma), 2), int(keep.sum())) == README_FIT
-    assert "| fitted to the CT abdomen, 402 MHz | 17.56 | 11.38 | 21.46 |" in (REPO / "docs/sweeps.md").read_text()
+    assert "| fitted to the CT abdomen, 402 MHz | 18.10 | 11.44 | 23.24 |" in (REPO / "docs/sweeps.md").read_text()
 
 
 @pytest.mark.slow
