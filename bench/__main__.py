@@ -26,6 +26,7 @@ import gc
 import json
 import os
 import platform
+import sys
 import time
 
 import numpy as np
@@ -141,18 +142,37 @@ def rows(report: dict) -> list[tuple[str, str, str]]:
                 row(f"  {label} = {x}", f"{p['trace_s']:.3f} s {p['peak_rss_mb']:.0f} MB")
     for k, v in report["estimators"].items():
         row(k.replace("_", " "), f"{v:.3e}")
-    localization.print_rows(report["localization"], _row)
+    localization.print_rows(report["localization"], row)
     if "sweeps" in report:
-        sweeps_bench.print_rows(report["sweeps"], _row)
+        sweeps_bench.print_rows(report["sweeps"], row)
     if "sweeps_cluster" in report:
-        sweeps_cluster.print_rows(report["sweeps_cluster"], _row)
+        sweeps_cluster.print_rows(report["sweeps_cluster"], row)
     if "scene_build" in report:
-        scene_build.print_rows(report["scene_build"], _row)
+        scene_build.print_rows(report["scene_build"], row)
+    for r in report.get("sionna_room", []):
+        found = (f"; oracle paths found {r['capsule_found']} / {r['sionna_found']} of {r['oracle_paths']}"
+                 if "oracle_paths" in r else "")
+        row(f"vs Sionna RT: {r['scene']}, depth {r['depth']}, {r['receivers']} rx: CPU / wall ratio, paths",
+            f"{r['cpu_ratio']:.2f} / {r['ratio']:.2f}; {r['capsule_paths']} / {r['sionna_paths']}{found}",
+            "target CPU <= 1")
     if "vision" in report:
         vs = report["vision"]["speed"]
         row("vision: 512 x 512 pair, rotation + scale, p50 [ms]", f"{vs['pair_512_both_s'] * 1e3:.0f}", "target < 100")
         row("vision: render one 256 x 256 frame, p50 [ms]", f"{vs['render_256_s'] * 1e3:.0f}", "target < 50")
     row("load average at the start / end", f"{report['load_start']:.1f} / {report['load_end']:.1f}")
+    return out
+
+
+def _argv_without_out(argv: list[str]) -> list[str]:
+    """The options of this run as the README names them (``--out`` and its file left out)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--out":
+            skip = True
+        elif not a.startswith("--out="):
+            out.append(a)
     return out
 
 
@@ -181,7 +201,8 @@ def main() -> None:
     rays = 20_000 if args.quick else 100_000
     repeat = 3 if args.quick else 10
     report = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
-                          "platform": platform.platform()}, "quick": args.quick}
+                          "platform": platform.platform()}, "quick": args.quick,
+              "argv": _argv_without_out(sys.argv[1:])}
 
     phantom = scenes.torso()
     origin = phantom.sites[scenes.capsule_site(phantom)].position_m
@@ -216,6 +237,15 @@ def main() -> None:
                                                 phantom_breakdown=not args.quick)
     if not args.skip_vision:
         report["vision"] = vision.run(args.quick)
+    sionna_status = None
+    if args.sionna:  # its own table and JSON (bench/results/sionna_room.json); its ratios join the report
+        from bench import sionna_room
+
+        sionna_out = os.path.join(os.path.dirname(args.out), "sionna_room.json")
+        sionna_status = sionna_room.main((["--repeat", "3"] if args.quick else []) + ["--out", sionna_out])
+        if not sionna_status:
+            with open(sionna_out) as fh:
+                report["sionna_room"] = json.load(fh)["rows"]
     report["load_end"] = os.getloadavg()[0]
 
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
@@ -234,12 +264,8 @@ def main() -> None:
     if not args.quick and not args.no_readme:
         readme.write(report, os.path.join(ROOT, "README.md"))
         print("README.md, PERFORMANCE: the table between its bench markers rewritten")
-    if args.sionna:  # after the table: its own table, its own JSON (bench/results/sionna_room.json)
-        from bench import sionna_room
-
-        status = sionna_room.main(["--repeat", "3"] if args.quick else [])
-        if status:
-            print("CapsuleRT vs Sionna RT: not run (see the reason above)")
+    if sionna_status:
+        print("CapsuleRT vs Sionna RT: not run (see the reason above)")
 
 
 if __name__ == "__main__":

@@ -18,7 +18,9 @@ def table(report: dict) -> str:
 
     m, c, t = report["machine"], report["ceiling"], report["tracer"]
     when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    head = (f"Last `make bench` run: {when}, {m['cpus']} CPUs ({m['platform']}, Python {m['python']}), load average "
+    argv = " ".join(report.get("argv", []))
+    command = f"`make bench BENCH_ARGS='{argv}'` (`python -m bench {argv}`)" if argv else "`make bench`"
+    head = (f"Last run: {command}, {when}, {m['cpus']} CPUs ({m['platform']}, Python {m['python']}), load average "
             f"{report['load_start']:.1f} at the start and {report['load_end']:.1f} at the end (other work on the "
             f"machine: compare the CPU-time ratios, not the wall times, across runs). Default torso "
             f"({c['triangles']} triangles), capsule `small_intestine_1`, the {t['receivers']} sensor sites, "

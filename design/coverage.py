@@ -43,8 +43,11 @@ from design.checks import boolean, integer, mapping, number, vector
 from design.errors import DesignInputError
 from design.model import link_model
 from design.positions import Positions, check_positions_spec, resolve_positions
+from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.link import LinkBudget, make_link
+from estimators.profile import PathProfile
+from estimators.toa import estimate_toa
 from estimators.waveforms import ToneBurst
 from raytrace import Antenna, Budget, ChannelSpec, TracerConfig, trace_channel
 from raytrace.body.phantom import Phantom
@@ -64,7 +67,7 @@ SCHEMA = pa.schema([
     ("candidate_x_m", pa.float64()), ("candidate_y_m", pa.float64()), ("candidate_z_m", pa.float64()),
     ("distance_m", pa.float64()), ("paths", pa.int32()), ("direct_path", pa.bool_()),
     ("path_gain_db", pa.float64()), ("rx_power_dbm", pa.float64()), ("snr_db", pa.float64()),
-    ("first_delay_s", pa.float64()), ("first_group_delay_s", pa.float64()),
+    ("first_delay_s", pa.float64()), ("first_group_delay_s", pa.float64()), ("ranging_delay_s", pa.float64()),
     ("eikonal_delay_s", pa.float64()),
     ("gradient_x_s_per_m", pa.float64()), ("gradient_y_s_per_m", pa.float64()), ("gradient_z_s_per_m", pa.float64()),
 ])
@@ -222,6 +225,18 @@ def make_plan(spec: dict, phantom: Phantom, limits: Limits = LIMITS, config: Tra
     return Plan(spec["phantom"], positions, candidates, per_trace)
 
 
+def ranging_delay_s(paths, frequency_hz: float, waveform: ToneBurst, velocity_m_per_s_: float) -> float:
+    """The delay TOA (GCC) measures on a link without noise: the estimate of
+    :func:`estimators.toa.estimate_toa` on the link's traced paths, back to seconds. A phase delay
+    (docs/localization.md, "Delay kinds") that carries the ranging's multipath bias, which the
+    first traced arrival does not (docs/design.md, "Coverage")."""
+    est = estimate_toa(PathProfile.from_traced(paths, frequency_hz), method="gcc", waveform=waveform, snr_db=None,
+                       trials=1, seed=0, return_estimates=True)[0]
+    if est.estimates_m is None:  # asked for: return_estimates
+        raise AssertionError("estimate_toa returned no estimates")
+    return float(est.estimates_m[0]) / velocity_m_per_s_
+
+
 # ------------------------------------------------------------------------------ one position
 @dataclass(frozen=True)
 class PositionTask:
@@ -255,6 +270,9 @@ def _position_columns(task: PositionTask, phantom: Phantom | None) -> dict[str, 
     gain = np.full(C, np.nan)
     first = np.full(C, np.nan)
     group = np.full(C, np.nan)
+    ranging = np.full(C, np.nan)
+    waveform = waveform_of(spec)
+    v = velocity_m_per_s(DEFAULT_RELATIVE_PERMITTIVITY)
     k = plan.receivers_per_trace
     for lo in range(0, C, k):
         chunk = cands[lo:lo + k]
@@ -271,6 +289,7 @@ def _position_columns(task: PositionTask, phantom: Phantom | None) -> dict[str, 
                 gain[c] = prof.path_gain_db
                 first[c] = prof.paths[0].delay_s
                 group[c] = prof.paths[0].group_delay_s
+                ranging[c] = ranging_delay_s(prof.paths, spec["frequency_hz"], waveform, v)
     model = link_model(phantom, x[None, :], cands, spec["frequency_hz"], spec["cell_size_m"])
     rx = link.transmit_power_dbm + gain
     snr = rx - noise_dbm
@@ -289,7 +308,7 @@ def _position_columns(task: PositionTask, phantom: Phantom | None) -> dict[str, 
         "candidate_z_m": cands[:, 2].tolist(), "distance_m": np.linalg.norm(cands - x, axis=1).tolist(),
         "paths": paths.tolist(), "direct_path": direct.tolist(), "path_gain_db": opt(gain),
         "rx_power_dbm": opt(rx), "snr_db": opt(snr), "first_delay_s": opt(first), "first_group_delay_s": opt(group),
-        "eikonal_delay_s": model["eikonal_delay_s"][0].tolist(),
+        "ranging_delay_s": opt(ranging), "eikonal_delay_s": model["eikonal_delay_s"][0].tolist(),
         "gradient_x_s_per_m": grad[:, 0].tolist(), "gradient_y_s_per_m": grad[:, 1].tolist(),
         "gradient_z_s_per_m": grad[:, 2].tolist(),
     }
@@ -463,6 +482,10 @@ def link_arrays(table: pa.Table, positions: int, candidates: int) -> dict[str, n
     grad = np.stack([col(f"gradient_{k}_s_per_m") for k in "xyz"], axis=2)
     return {"paths": col("paths", 0.0), "direct_path": col("direct_path", 0.0).astype(bool),
             "snr_db": col("snr_db"), "rx_power_dbm": col("rx_power_dbm"), "path_gain_db": col("path_gain_db"),
-            "first_delay_s": col("first_delay_s"), "eikonal_delay_s": col("eikonal_delay_s"), "gradient_s_per_m": grad}
+            "first_delay_s": col("first_delay_s"),
+            # coverages before the column: the first arrival (no ranging bias)
+            "ranging_delay_s": col("ranging_delay_s") if "ranging_delay_s" in table.column_names
+            else col("first_delay_s"),
+            "eikonal_delay_s": col("eikonal_delay_s"), "gradient_s_per_m": grad}
 
 

@@ -20,7 +20,7 @@ the ceil(0.9 P)-th smallest). The search minimises the pair (uncovered positions
 the prior-regularised b_p) lexicographically: first cover the whole tract, then lower the bound.
 
 With ``mismatch`` (the layout's ``model_error: bias``) the criterion also carries the delay model's
-own error: each link's mismatch m_pc (its traced first arrival minus its eikonal delay, over sigma_pc)
+own error: each link's mismatch m_pc (its noiseless ranging delay minus its eikonal delay, over sigma_pc)
 biases the weighted fix by dx_p = F_p^-1 sum_c u_pc m_pc to first order, and b_p becomes
 sqrt(trace(F_p^-1) + |dx_p|^2), a mean-square error rather than a bound.
 

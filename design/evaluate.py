@@ -24,8 +24,9 @@ import numpy as np
 from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.link import LinkBudget
-from estimators.localization import TravelTimeFields, model_based_fix, travel_time_crlb
+from estimators.localization import TravelTimeFields, model_based_fix, rss_fix, rss_position_crlb, travel_time_crlb
 from estimators.profile import PathProfile
+from estimators.rss import CM2_MODELS, PathLossModel
 from estimators.toa import estimate_toa
 from evaluation.fields import sensor_fields
 from raytrace import Antenna, ChannelSpec, trace_channel
@@ -38,7 +39,8 @@ SIGMA_FLOOR_S = 1e-18
 
 def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[str, np.ndarray], *, coverage: dict,
                      snr_db: float | None, min_snr_db: float | None, require_direct_path: bool, trials: int = 20,
-                     seed: int = 0, rays: int = 100_000, max_interactions: int = 6,
+                     seed: int = 0, rays: int = 100_000, max_interactions: int = 6, ranging: str = "toa",
+                     rss_model: str = "cm2_deep_tissue",
                      check: Callable[[int], None] | None = None) -> dict[str, dict]:
     """Per layout name: ``rmse_m`` (P,) (NaN where no fix), ``bound_m`` (P,) (inf where fewer than 4
     usable sensors), ``usable`` (P,) counts, ``errors_m`` (P, trials). ``coverage`` is the coverage's
@@ -50,15 +52,20 @@ def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[st
     link = LinkBudget(**coverage["link"])
     noise_dbm = link.noise_power_dbm(noise_bandwidth_hz(coverage))
     names = list(layouts)
-    union, index = [], {}
+    points: list[np.ndarray] = []
+    index: dict[tuple, int] = {}
     for name in names:
         for p in np.asarray(layouts[name], float):
             key = tuple(np.round(p, 12))
             if key not in index:
-                index[key] = len(union)
-                union.append(p)
-    union = np.asarray(union)
+                index[key] = len(points)
+                points.append(p)
+    union = np.asarray(points)
     members = {name: [index[tuple(np.round(p, 12))] for p in np.asarray(layouts[name], float)] for name in names}
+    if ranging == "rss":
+        return _evaluate_rss(phantom, positions_m, union, members, coverage=coverage, snr_db=snr_db,
+                             min_snr_db=min_snr_db, require_direct_path=require_direct_path, trials=trials, seed=seed,
+                             rays=rays, max_interactions=max_interactions, model=CM2_MODELS[rss_model], check=check)
     fields = {name: sensor_fields(phantom, union[members[name]], f, coverage["cell_size_m"], delay_kind="phase")  # GCC
               for name in names}
     v = velocity_m_per_s(DEFAULT_RELATIVE_PERMITTIVITY)
@@ -105,6 +112,60 @@ def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[st
             for t in range(trials):
                 try:
                     fix = model_based_fix(ff, delays[t], sigma)
+                except EstimatorInputError:
+                    continue
+                out[name]["errors_m"][p, t] = float(np.linalg.norm(fix.position_m - x))
+            e = out[name]["errors_m"][p]
+            if np.isfinite(e).any():
+                out[name]["rmse_m"][p] = float(np.sqrt(np.nanmean(e**2)))
+    return out
+
+
+def _usable(prof, require_direct_path: bool, snr_db, min_snr_db, link: LinkBudget, noise_dbm: float) -> bool:
+    if not prof.paths:
+        return False
+    if require_direct_path and not any(all(i.kind == "refraction" for i in q.interactions) for q in prof.paths):
+        return False
+    snr = snr_db if snr_db is not None else link.transmit_power_dbm + prof.path_gain_db - noise_dbm
+    return not ((min_snr_db is not None and snr < min_snr_db) or snr < SNR_FLOOR_DB)
+
+
+def _evaluate_rss(phantom: Phantom, positions_m, union: np.ndarray, members: dict[str, list[int]], *, coverage: dict,
+                  snr_db, min_snr_db, require_direct_path: bool, trials: int, seed: int, rays: int,
+                  max_interactions: int, model: PathLossModel, check) -> dict[str, dict]:
+    """:func:`evaluate_layouts` with RSS: path loss -path_gain_db of the trace plus N(0, sigma_dB^2)
+    shadowing per trial (seeded per position and sensor as the TOA noise is), the RSS fix."""
+    from design.coverage import noise_bandwidth_hz
+
+    link = LinkBudget(**coverage["link"])
+    noise_dbm = link.noise_power_dbm(noise_bandwidth_hz(coverage))
+    P = len(positions_m)
+    out = {name: {"rmse_m": np.full(P, np.nan), "bound_m": np.full(P, np.inf), "usable": np.zeros(P, int),
+                  "errors_m": np.full((P, trials), np.nan)} for name in members}
+    pol = coverage["channel"]["capsule_polarization"]
+    for p, x in enumerate(np.asarray(positions_m, float)):
+        if check is not None:
+            check(p)
+        spec = ChannelSpec(Antenna(position_m=x, polarization=pol),
+                           tuple(Antenna(position_m=s, name=f"s{k}") for k, s in enumerate(union)),
+                           phantom=phantom.name, frequency_hz=coverage["frequency_hz"], rays=rays,
+                           max_interactions=max_interactions, near_field=coverage["channel"]["near_field"])
+        result = trace_channel(spec, phantom)
+        losses: dict[int, np.ndarray] = {}
+        for k, prof in enumerate(result.profiles):
+            if _usable(prof, require_direct_path, snr_db, min_snr_db, link, noise_dbm):
+                rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(p, k)))
+                losses[k] = -prof.path_gain_db + rng.normal(0.0, model.shadowing_db, trials)
+        for name, idx in members.items():
+            rows = [k for k in idx if k in losses]
+            out[name]["usable"][p] = len(rows)
+            if len(rows) < 4:
+                continue
+            sensors = union[rows]
+            out[name]["bound_m"][p] = rss_position_crlb(sensors, x, model.exponent, model.shadowing_db).rms_m
+            for t in range(trials):
+                try:
+                    fix = rss_fix(sensors, [losses[k][t] for k in rows], model)
                 except EstimatorInputError:
                     continue
                 out[name]["errors_m"][p, t] = float(np.linalg.norm(fix.position_m - x))

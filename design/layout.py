@@ -5,6 +5,10 @@ The spec (JSON; only ``sensors`` is required)::
     {"sensors": 8,
      "criterion": "p90",                  # or "mean" (design.criterion)
      "model_error": "none",               # or "bias": the delay model's own error too (design.criterion)
+     "ranging": "toa",                    # or "rss": the RSS position bound of the CM2 path-loss model
+     "rss_model": "cm2_deep_tissue",      # or "cm2_near_surface" (ranging rss)
+     "max_model_error_s": null,           # links whose measured delay departs more from the model are not
+                                          # usable; null: the travel-time grid's stated error n_max h / c
      "snr_db": null,                      # null: each link's SNR from the coverage's link budget; a number: every link
      "min_snr_db": null,                  # links below are not detected
      "require_direct_path": true,
@@ -36,8 +40,11 @@ from design.coverage import Plan, link_arrays, waveform_of
 from design.criterion import STATISTICS, Problem, statistic, toa_sigma_s
 from design.errors import DesignInputError
 from design.optimize import Constraints, search
+from estimators.rss import CM2_MODELS
 
 MAX_SENSORS = 64
+#: The ranging whose position bound is the criterion (docs/design.md, "The criterion").
+RANGINGS = ("toa", "rss")
 MAX_RESTARTS = 32
 MAX_PASSES = 200
 #: Search work bound: candidate scorings x positions (each a few 3x3 operations).
@@ -49,7 +56,8 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     ``max_rays`` / ``max_interactions``: the caps of the evaluation's traces (a server's settings)."""
     data = mapping(data if data is not None else {}, "", {"sensors", "criterion", "snr_db", "min_snr_db",
                                                          "require_direct_path", "min_sensors", "constraints",
-                                                         "model_error",
+                                                         "model_error", "max_model_error_s", "ranging",
+                                                         "rss_model",
                                                          "search", "evaluate", "coverage"})
     if "sensors" not in data:
         raise DesignInputError("is required: how many sensors to place", "sensors")
@@ -81,8 +89,9 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     if any(c is not None for c in counts):
         if any(c is None for c in counts):
             raise DesignInputError("give a count for every belt or for none", "constraints.belts")
-        if sum(counts) != n:
-            raise DesignInputError(f"the belts' counts add up to {sum(counts)}, not to sensors = {n}",
+        total = sum(int(c or 0) for c in counts)
+        if total != n:
+            raise DesignInputError(f"the belts' counts add up to {total}, not to sensors = {n}",
                                    "constraints.belts")
     keep_out = []
     raw = cons.get("keep_out") or []
@@ -114,8 +123,19 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     model_error = data.get("model_error", "none")
     if model_error not in ("none", "bias"):
         raise DesignInputError("must be none or bias", "model_error")
+    tol = data.get("max_model_error_s")
+    tol = None if tol is None else number(tol, "max_model_error_s", lo=0.0, hi=1e-6)
+    ranging = data.get("ranging", "toa")
+    if ranging not in RANGINGS:
+        raise DesignInputError(f"must be one of {', '.join(RANGINGS)}", "ranging")
+    rss_model = data.get("rss_model", "cm2_deep_tissue")
+    if rss_model not in CM2_MODELS:
+        raise DesignInputError(f"must be one of {', '.join(CM2_MODELS)}", "rss_model")
+    if ranging == "rss" and model_error != "none":
+        raise DesignInputError("the delay model's error is a TOA term: none with ranging rss", "model_error")
     return {
         "sensors": n, "criterion": kind, "snr_db": snr, "min_snr_db": min_snr, "model_error": model_error,
+        "max_model_error_s": tol, "ranging": ranging, "rss_model": rss_model,
         "require_direct_path": boolean(data.get("require_direct_path", True), "require_direct_path"),
         "min_sensors": integer(data.get("min_sensors", 4), "min_sensors", lo=1, hi=MAX_SENSORS),
         "constraints": {"axis": axis.tolist(), "belts": belts, "keep_out": keep_out,
@@ -128,12 +148,25 @@ def normalise_layout(data: Any, *, max_rays: int = 1_000_000, max_interactions: 
     }
 
 
+def model_tolerance_s(layout: dict, grid_error_s: float) -> float:
+    """The largest |measured delay - model delay| of a usable link: ``max_model_error_s``, or the
+    travel-time grid's stated error when null (docs/design.md, "The criterion")."""
+    tol = layout.get("max_model_error_s")
+    return float(grid_error_s if tol is None else tol)
+
+
 def problem_of(layout: dict, coverage: dict, plan: Plan, arrays: dict[str, np.ndarray], prior_m: float,
-               grid_error_s: float = 0.0) -> Problem:
-    """The criterion's :class:`Problem` from a coverage's link arrays (design.criterion docstring). With
-    ``model_error: bias`` each link's sigma also holds the travel-time grid's error as a uniform error
-    (``grid_error_s`` / sqrt 3, the model-based fix's own weighting) and its mismatch
-    (traced first arrival - eikonal delay) enters as a linearised bias."""
+               grid_error_s: float) -> Problem:
+    """The criterion's :class:`Problem` from a coverage's link arrays (design.criterion docstring).
+
+    A link is usable when it has a path (a refraction-only one with ``require_direct_path``), its SNR
+    is at least ``min_snr_db`` and its *model mismatch* m = ranging delay - eikonal delay (what TOA
+    measures without noise minus what the travel-time model predicts) is at most
+    :func:`model_tolerance_s` in magnitude: a link the model cannot explain within its own stated
+    accuracy biases the model-based fix, whatever its bound (docs/design.md, "Why the bound alone
+    misled the search"). With ``model_error: bias`` each link's sigma also holds the grid's error as
+    a uniform error (``grid_error_s`` / sqrt 3, the model-based fix's own weighting) and m enters
+    as a linearised bias."""
     usable = arrays["paths"] > 0
     if layout["require_direct_path"]:
         usable &= arrays["direct_path"]
@@ -141,14 +174,40 @@ def problem_of(layout: dict, coverage: dict, plan: Plan, arrays: dict[str, np.nd
     snr = np.where(np.isfinite(snr), snr, -np.inf)
     if layout["min_snr_db"] is not None:
         usable &= snr >= layout["min_snr_db"]
+    if layout.get("ranging", "toa") == "rss":
+        return Problem(rss_info(layout, plan, usable), usable, layout["criterion"], layout["min_sensors"], prior_m)
+    e = arrays["ranging_delay_s"] - arrays["eikonal_delay_s"]
+    with np.errstate(invalid="ignore"):
+        usable &= np.abs(np.nan_to_num(e, nan=np.inf)) <= model_tolerance_s(layout, grid_error_s)
     sigma = toa_sigma_s(np.where(usable, snr, 0.0), waveform_of(coverage))
     mismatch = None
     if layout.get("model_error", "none") == "bias":
         sigma = np.sqrt(sigma**2 + grid_error_s**2 / 3.0)
-        e = np.nan_to_num(arrays["first_delay_s"] - arrays["eikonal_delay_s"])
-        mismatch = np.where(usable, e / sigma, 0.0)
+        mismatch = np.where(usable, np.nan_to_num(e) / sigma, 0.0)
     info = np.where(usable[:, :, None], arrays["gradient_s_per_m"] / sigma[:, :, None], 0.0)
     return Problem(info, usable, layout["criterion"], layout["min_sensors"], prior_m, mismatch)
+
+
+def rss_info(layout: dict, plan: Plan, usable: np.ndarray) -> np.ndarray:
+    """(P, C, 3) information vectors of RSS ranging under the CM2 path-loss model (exponent eta,
+    log-normal shadowing sigma_dB): u_pc = 10 eta / (ln 10 sigma_dB d_pc) e_pc, e_pc the unit vector
+    from the candidate to the capsule and d_pc their distance (docs/science.md, the RSS bound;
+    :func:`estimators.localization.rss_position_crlb`'s rows); zero where the link is not usable.
+    Distance-based: it needs no delay model, so the model-mismatch rule does not apply."""
+    model = CM2_MODELS[layout["rss_model"]]
+    d = plan.positions.positions_m[:, None, :] - plan.candidates.positions_m[None, :, :]
+    r = np.linalg.norm(d, axis=2)
+    k = 10.0 * model.exponent / (np.log(10.0) * model.shadowing_db)
+    return np.where(usable[:, :, None], k * d / np.maximum(r, 1e-9)[:, :, None] ** 2, 0.0)
+
+
+def stated_grid_error_s(phantom, coverage: dict) -> float:
+    """The travel-time fields' stated error n_max h / c (docs/localization.md), n_max the largest
+    phase index of the phantom's organs at the coverage's carrier, h its cell."""
+    from evaluation.fields import organ_indices
+
+    n_max = float(np.max(organ_indices(phantom, coverage["frequency_hz"], "phase")))
+    return n_max * coverage["cell_size_m"] / 299_792_458.0
 
 
 def constraints_of(layout: dict, candidates_m: np.ndarray, is_site: np.ndarray) -> tuple[Constraints, np.ndarray]:
@@ -226,10 +285,7 @@ def run_layout(layout: dict, record: dict, plan: Plan, table, phantom, *,
     arrays = link_arrays(table, P, C)
     lo, hi = (np.asarray(b, float) for b in phantom.bounds_m)
     prior = float(np.linalg.norm(hi - lo))
-    from evaluation.fields import organ_indices
-
-    n_max = float(np.max(organ_indices(phantom, coverage["frequency_hz"], "phase")))
-    grid_error = n_max * coverage["cell_size_m"] / 299_792_458.0  # the fields' stated error (docs/localization.md)
+    grid_error = stated_grid_error_s(phantom, coverage)
     problem = problem_of(layout, coverage, plan, arrays, prior, grid_error)
     cands = plan.candidates.positions_m
     is_site = np.array([bool(s) for s in plan.candidates.site])
@@ -262,6 +318,8 @@ def run_layout(layout: dict, record: dict, plan: Plan, table, phantom, *,
         "sensors": [{"position_m": cands[c].tolist(), "candidate_index": int(c), "belt": int(belt_of[c])
                      if belt_of[c] >= 0 else None} for c in found.subset],
         "criterion": layout["criterion"], "criterion_m": best["criterion_m"], "uncovered_positions": best["uncovered"],
+        "ranging": layout["ranging"],
+        "model_tolerance_s": model_tolerance_s(layout, grid_error) if layout["ranging"] == "toa" else None,
         "baseline_criterion_m": None if baseline is None else baseline["criterion_m"],
         "baseline_sensors": None if baseline is None else [
             {"position_m": cands[c].tolist(), "candidate_index": int(c), "site": plan.candidates.site[c]}
@@ -288,6 +346,7 @@ def run_layout(layout: dict, record: dict, plan: Plan, table, phantom, *,
         res = evaluate_layouts(phantom, plan.positions.positions_m, layouts, coverage=coverage,
                                snr_db=layout["snr_db"], min_snr_db=layout["min_snr_db"],
                                require_direct_path=layout["require_direct_path"], trials=ev["trials"],
+                               ranging=layout["ranging"], rss_model=layout["rss_model"],
                                seed=ev["seed"], rays=ev["rays"], max_interactions=ev["max_interactions"],
                                check=None if check is None else (lambda p: check(f"evaluate {p + 1}/{P}")))
         out["evaluation"] = {"trials": ev["trials"], "seed": ev["seed"], "rays": ev["rays"],
@@ -323,7 +382,8 @@ def report_markdown(result: dict, layout: dict) -> str:
     def f(v, d=3):
         return "-" if v is None else f"{v * mm:.{d}f}"
 
-    lines = [f"# Layout: {len(result['sensors'])} sensors, criterion {result['criterion']} of the position bound",
+    lines = [f"# Layout: {len(result['sensors'])} sensors, criterion {result['criterion']} of the "
+             f"{result.get('ranging', 'toa').upper()} position bound",
              "",
              f"criterion: optimized {f(result['criterion_m'])} mm, built-in sites "
              f"{f(result['baseline_criterion_m'])} mm"
@@ -333,7 +393,8 @@ def report_markdown(result: dict, layout: dict) -> str:
     head = "| organ | bound, optimized [mm] | bound, built-in [mm] |"
     sep = "|---|---|---|"
     if ev is not None:
-        head += " model-based RMSE, optimized [mm] | model-based RMSE, built-in [mm] |"
+        fix = "RSS" if result.get("ranging") == "rss" else "model-based"
+        head += f" {fix} RMSE, optimized [mm] | {fix} RMSE, built-in [mm] |"
         sep += "---|---|"
     lines += [head, sep]
     for o, row in result["per_organ"].items():
@@ -345,10 +406,13 @@ def report_markdown(result: dict, layout: dict) -> str:
     if ev is not None:
         lines.append(f"| **whole tract** | {f(result['criterion_m'])} | {f(result['baseline_criterion_m'])} | "
                      f"**{f(ev['rmse_m'], 1)}** | **{f((bev or {}).get('rmse_m'), 1)}** |")
-        lines += ["", f"Bounds with the sensors' own travel-time fields ({result['criterion']}): optimized "
+        own = ("over the links the evaluation's traces found usable" if result.get("ranging") == "rss"
+               else "with the sensors' own travel-time fields")
+        lines += ["", f"Bounds {own} ({result['criterion']}): optimized "
                       f"{f(ev['exact_bound_criterion_m'])} mm, built-in "
                       f"{f((bev or {}).get('exact_bound_criterion_m'))} mm; "
-                      f"model-based fixes: {ev['trials']} trials per position, seed {ev['seed']}, {ev['rays']} rays."]
+                      f"{'RSS' if result.get('ranging') == 'rss' else 'model-based'} fixes: {ev['trials']} trials "
+                      f"per position, seed {ev['seed']}, {ev['rays']} rays."]
     lines += ["", "Sensors (optimized): " + "; ".join(
         "[" + ", ".join(f"{v:.4f}" for v in s["position_m"]) + "]" for s in result["sensors"])]
     if result.get("baseline_sensors"):

@@ -81,22 +81,3 @@ def generator(seed: Any, field: str = "seed") -> np.random.Generator:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or int(seed) < 0:
         raise EstimatorInputError(f"must be a non-negative integer or a numpy Generator, got {seed!r}", field)
     return np.random.default_rng(int(seed))
-
-
-class MonteCarloInputs:
-    """The validated inputs every Monte Carlo estimator shares."""
-
-    __slots__ = ("snr_db", "trials", "rng", "relative_permittivity", "velocity_m_per_s", "true_distance_m")
-
-    def __init__(self, snr_db_value: Any, trials: Any, seed: Any, relative_permittivity_value: Any,
-                 true_distance_m: Any, from_link: bool = False) -> None:
-        from .constants import velocity_m_per_s
-
-        self.snr_db = (snr_db(snr_db_value, "link", LINK_SNR_FLOOR_DB) if from_link
-                       else snr_db(snr_db_value))
-        self.trials = trials_count(trials)
-        self.rng = generator(seed)
-        self.relative_permittivity = relative_permittivity(relative_permittivity_value)
-        self.velocity_m_per_s = velocity_m_per_s(self.relative_permittivity)
-        self.true_distance_m = (None if true_distance_m is None
-                                else finite_float(true_distance_m, "true_distance_m", nonnegative=True))

@@ -52,7 +52,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ._checks import Check, MonteCarloInputs, checkpoint, finite_float
+from ._checks import Check, checkpoint, finite_float
+from ._montecarlo import MonteCarloInputs
 from .bounds import multitone_crlb, pdoa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError

@@ -71,7 +71,8 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.fft
 
-from ._checks import Check, MonteCarloInputs, checkpoint
+from ._checks import Check, checkpoint
+from ._montecarlo import MonteCarloInputs
 from .bounds import waveform_toa_crlb
 from .constants import DEFAULT_RELATIVE_PERMITTIVITY
 from .errors import EstimatorInputError

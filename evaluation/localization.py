@@ -37,15 +37,16 @@ import raytrace as rt
 from estimators.constants import DEFAULT_RELATIVE_PERMITTIVITY, velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.localization import (
+    METHODS,
+    POSITION_METHODS,
+    Measurements,
     check_delay_kind,
     joint_velocity_crlb,
-    joint_velocity_fix,
-    linear_fix,
+    locate,
     measured_delay_kind,
     model_based_fix,
-    nonlinear_fix,
+    position_method,
     range_crlb,
-    rss_fix,
     rss_position_crlb,
     travel_time_crlb,
 )
@@ -59,8 +60,8 @@ from evaluation.fields import DEFAULT_CELL_SIZE_M, sensor_fields
 from raytrace import Budget, Phantom
 
 RANGING = (*TOA_METHODS, "pdoa", "rss")
-POSITION_METHODS = ("linear", "nonlinear", "joint_velocity", "model_based", "rss")
-DELAY_METHODS = ("linear", "nonlinear", "joint_velocity", "model_based")
+#: The default methods of a delay ranging: every registered one that does not need path losses.
+DELAY_METHODS = tuple(m for m in POSITION_METHODS if METHODS[m].measures != "path_loss_db")
 #: PDOA band when none is given: the thesis' 400-420 MHz, 21 tones.
 DEFAULT_PDOA_BAND = {"start_hz": 400e6, "stop_hz": 420e6, "points": 21}
 #: Floor of a per-range sigma used as a weight [m] (noiseless ranging reports 0).
@@ -129,12 +130,11 @@ def _methods(methods, ranging: str) -> tuple[str, ...]:
         return ("rss",) if ranging == "rss" else DELAY_METHODS
     methods = tuple(methods)
     for i, m in enumerate(methods):
-        if m not in POSITION_METHODS:
-            raise EstimatorInputError(f"unknown method {m!r} ({' | '.join(POSITION_METHODS)})", f"methods[{i}]")
-        if ranging == "rss" and m in ("joint_velocity", "model_based"):
+        measures = position_method(m, f"methods[{i}]").measures  # the registry (estimators.localization.methods)
+        if ranging == "rss" and measures == "delays_s":
             raise EstimatorInputError(f"{m} needs delays; RSS ranging gives distances only", f"methods[{i}]")
-        if ranging != "rss" and m == "rss":
-            raise EstimatorInputError("the rss method needs ranging='rss'", f"methods[{i}]")
+        if ranging != "rss" and measures == "path_loss_db":
+            raise EstimatorInputError(f"the {m} method needs ranging='rss'", f"methods[{i}]")
     if not methods:
         raise EstimatorInputError("give at least one method", "methods")
     return methods
@@ -249,17 +249,12 @@ def evaluate_localization(phantom: Phantom, capsule: Any, sensors: Sequence[Any]
         for t in range(trials):
             check()
             try:
-                if m == "linear":
-                    fix = linear_fix(sens, ranges[t], sigma)
-                elif m == "nonlinear":
-                    fix = nonlinear_fix(sens, ranges[t], sigma)
-                elif m == "joint_velocity":
-                    fix = joint_velocity_fix(sens, delays[t], sigma_s)
+                fix = locate(m, Measurements(
+                    sensors_m=sens, ranges_m=ranges[t], sigma_m=sigma, sigma_s=sigma_s, fields=fields, model=model,
+                    delays_s=None if delays is None else delays[t], loss=loss if METHODS[m].needs_fields else None,
+                    path_loss_db=None if model is None else model.path_loss_db(ranges[t])))
+                if fix.velocity_m_per_s is not None:
                     velocities.append(fix.velocity_m_per_s)
-                elif m == "model_based":
-                    fix = model_based_fix(fields, delays[t], sigma_s, loss=loss)
-                else:
-                    fix = rss_fix(sens, model.path_loss_db(ranges[t]), model)
             except EstimatorInputError:
                 continue
             est[t] = fix.position_m

@@ -75,6 +75,7 @@ from evaluation.error_models import (
     visual_error_model,
 )
 from evaluation.fields import DEFAULT_CELL_SIZE_M
+from tracking import TRACKERS as FILTER_TRACKS
 from tracking import (
     ConsistencyBand,
     Journey,
@@ -86,12 +87,12 @@ from tracking import (
     TrackingInputError,
     VisualMotion,
     average_band,
-    kalman_track,
-    particle_track,
     simulate_journey,
 )
 
-TRACKERS = ("rf", "video", "fused", "fused_pf")
+#: The journey's trackers and the filter (tracking.TRACKERS) each runs.
+FILTERS = {"rf": "kalman", "video": "kalman", "fused": "kalman", "fused_pf": "particle"}
+TRACKERS = tuple(FILTERS)
 #: Visual measurements: "rendered" (frames rendered along the journey, MI estimates) or "model"
 #: (the measured error model of rendered frames on this phantom).
 VISUAL_SOURCES = ("rendered", "model")
@@ -288,7 +289,7 @@ def evaluate_tracking(journey: JourneySpec | None = None, trackers: Sequence[str
                                            rf_min_spacing_m=rf_model.decorrelation_m))
             obs = [Observation(float(truth.t_s[k]), fixes[k] if use_rf else None, visual[k] if use_vis else None)
                    for k in range(spec.steps)]
-            track = (particle_track if name == "fused_pf" else kalman_track)(line, obs, cfg, name=name)
+            track = FILTER_TRACKS[FILTERS[name]](line, obs, cfg, name=name)
             if run == 0:
                 tracks[name] = track
             errors[name]["along"].append(track.s_m - truth.s_m)

@@ -35,11 +35,36 @@ from starlette.exceptions import HTTPException
 from starlette.responses import JSONResponse
 
 from service.errors import Unprocessable, error_body
+from service.limits import CEILINGS
 from service.settings import Settings
 
 WRITES = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 
 Loc = tuple[str | int, ...]
+
+
+# ----------------------------------------------------------------------------------- request knobs
+def lower_or_refuse(value: int | None, setting: str, settings: Settings, loc: Loc, *, default: int) -> int:
+    """The one rule for a request knob that a setting of :data:`service.limits.CEILINGS` caps: a value
+    given above this server's limit is a 422 naming ``loc`` (never silently lowered); an absent one
+    takes ``default`` lowered to the limit (the served schema's default says the same:
+    :meth:`service.limits.Limits.lower_schema`)."""
+    if setting not in CEILINGS:
+        raise ValueError(f"{setting!r} is not a limit setting")
+    cap = int(getattr(settings, setting))
+    if value is None:
+        return min(default, cap)
+    if value > cap:
+        raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=["body", *loc])
+    return value
+
+
+def trace_knobs(rays: int | None, max_interactions: int | None, settings: Settings, *, default_rays: int,
+                default_interactions: int) -> tuple[int, int]:
+    """The rays and interactions of an evaluation's traces (:func:`lower_or_refuse` on each)."""
+    return (lower_or_refuse(rays, "max_rays", settings, ("rays",), default=default_rays),
+            lower_or_refuse(max_interactions, "max_interactions", settings, ("max_interactions",),
+                            default=default_interactions))
 
 
 # ------------------------------------------------------------------------------------------- cost

@@ -24,6 +24,7 @@ from service.design_jobs import CoverageJobs, DesignEngine, LayoutJobs
 from service.errors import install_error_handlers
 from service.fullwave_jobs import FullwaveJobs
 from service.jobs import JobRunner
+from service.limits import Limits
 from service.logs import configure_logging
 from service.metrics import Metrics
 from service.middleware import AllowedMethods, RequestContextMiddleware
@@ -165,34 +166,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     return app
 
 
-#: Where the schema carries a limit that a setting may lower: (component, property, keyword, setting).
-_LIMITS = [
-    ("ChannelRequest", "rays", "maximum", "max_rays"),
-    ("ChannelRequest", "max_interactions", "maximum", "max_interactions"),
-    ("ChannelRequest", "receivers", "maxItems", "max_receivers"),
-    ("Band", "points", "maximum", "max_band_points"),
-    ("PdoaRequest", "frequencies_hz", "maxItems", "max_band_points"),
-    *((name, "trials", "maximum", "max_trials") for name in ("ToaRequest", "PdoaRequest", "RssRequest")),
-    ("LocalizeEvaluateRequest", "rays", "maximum", "max_rays"),
-    ("LocalizeEvaluateRequest", "max_interactions", "maximum", "max_interactions"),
-    ("LocalizeEvaluateRequest", "sensors", "maxItems", "max_receivers"),
-    ("LocalizeEvaluateRequest", "trials", "maximum", "max_trials"),
-    ("EvaluateRequest", "rays", "maximum", "max_rays"),  # POST /v1/track/evaluate
-    ("EvaluateRequest", "max_interactions", "maximum", "max_interactions"),
-    ("FullwaveRequest", "rays", "maximum", "max_rays"),
-    ("FullwaveRequest", "max_interactions", "maximum", "max_interactions"),
-    ("FullwaveRequest", "receivers", "maxItems", "max_receivers"),
-    ("CoverageChannel", "rays", "maximum", "max_rays"),  # POST /v1/design/coverage
-    ("CoverageChannel", "max_interactions", "maximum", "max_interactions"),
-    ("Evaluate", "rays", "maximum", "max_rays"),  # POST /v1/design/layout's end-to-end evaluation
-    ("Evaluate", "max_interactions", "maximum", "max_interactions"),
-]
-
-
 def _document(app: FastAPI, settings: Settings, table: Table) -> None:
     """The served OpenAPI document says what this server enforces: the manifest's schema is
     added to the components (the multipart part is JSON text, so no route references the
-    model); limits lowered by settings replace the schema's ceilings (examples follow); with
+    model); limits lowered by settings replace the schema's ceilings (examples follow;
+    service.limits); with
     API keys configured, the operations they guard (service.admission: uploads, jobs, deletes)
     declare the key."""
     from service.schemas.phantoms import Manifest
@@ -201,16 +179,12 @@ def _document(app: FastAPI, settings: Settings, table: Table) -> None:
 
     def openapi() -> dict:
         if app.openapi_schema is None:
-            schema = generate()
+            schema = copy.deepcopy(generate())  # route-level dicts (the sweep spec's) are shared by every app
             model = Manifest.model_json_schema(ref_template="#/components/schemas/{model}")
             components = schema.setdefault("components", {}).setdefault("schemas", {})
             components.update(model.pop("$defs", {}))
             components["Manifest"] = model
-            for name, prop, keyword, setting in _LIMITS:
-                _lower(components[name], prop, keyword, getattr(settings, setting))
-            for content in schema["paths"]["/v1/sweeps"]["post"]["requestBody"]["content"].values():
-                content["schema"] = copy.deepcopy(content["schema"])  # the route's dict is shared by every app
-                _lower_sweep(content["schema"], settings)
+            Limits.of(settings).lower_schema(schema)  # every bound a setting lowers (service.limits)
             if settings.api_keys:
                 schema["components"]["securitySchemes"] = {
                     "ApiKey": {"type": "apiKey", "in": "header", "name": API_KEY_HEADER}}
@@ -222,35 +196,6 @@ def _document(app: FastAPI, settings: Settings, table: Table) -> None:
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
-
-
-def _lower_sweep(spec: dict, settings: Settings) -> None:
-    """The sweep spec's limits that settings lower (its channel knobs and trials), example included."""
-    channel = spec["properties"]["channel"]["properties"]
-    for key, value in (("rays", settings.max_rays), ("max_interactions", settings.max_interactions)):
-        channel[key]["maximum"] = min(channel[key]["maximum"], value)
-        spec["example"]["channel"][key] = min(spec["example"]["channel"][key], value)
-    trials = spec["properties"]["trials"]
-    trials["maximum"] = min(trials["maximum"], settings.max_trials)
-    trials["default"] = min(trials["default"], settings.max_trials)
-    spec["example"]["trials"] = min(spec["example"]["trials"], settings.max_trials)
-
-
-def _lower(component: dict, prop: str, keyword: str, value: int) -> None:
-    """Lower ``keyword`` of ``component.properties[prop]`` (or of its ``anyOf`` branches) to
-    ``value``, and clamp the property's default and the component's examples to it."""
-    spec = component["properties"][prop]
-    for branch in [spec, *spec.get("anyOf", [])]:
-        if keyword in branch and branch[keyword] > value:
-            branch[keyword] = value
-    if isinstance(spec.get("default"), int) and spec["default"] > value:
-        spec["default"] = value
-    for example in component.get("examples", []):
-        current = example.get(prop)
-        if isinstance(current, int) and current > value:
-            example[prop] = value
-        elif isinstance(current, list) and len(current) > value:
-            example[prop] = current[:value]
 
 
 def _default_app() -> FastAPI:

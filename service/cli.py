@@ -24,7 +24,6 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
-from plots import cli as plots_cli
 from service.local import error_json, local_registry, run_file_request
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -86,7 +85,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 def run_channel_request(payload: dict) -> dict[str, Any]:
     """Run one POST /v1/channel body locally (no HTTP); returns the response dict."""
     from raytrace import Budget, trace_channel
-    from service import channel as ops
+    from service.operations import channel as ops
     from service.schemas.channel import ChannelRequest, ChannelResponse
 
     registry, settings = local_registry()
@@ -211,7 +210,7 @@ _KIND = {"reflection": "R", "refraction": "T", "total_internal_reflection": "TIR
 
 
 def _demo_case(title: str, payload: dict) -> None:
-    from service import ranging
+    from service.operations import ranging
     from service.schemas.ranging import PdoaRequest, ToaRequest
     from service.settings import Settings
 
@@ -282,7 +281,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: Commands whose parsers import the plotting or the sweep packages (matplotlib, the tracer) to list
+#: their choices. When another command runs, or ``capsule-rt --help``, they are listed by name and
+#: help only, so that ``--help`` loads neither numba nor matplotlib (tests/service/test_light_imports.py).
+DEFERRED = ("plot", "experiment")
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``capsule-rt`` parser; ``command``: the one about to run (the :data:`DEFERRED` parsers are
+    built in full only for themselves); None builds every parser in full."""
     p = argparse.ArgumentParser(prog="capsule-rt", description="CapsuleRT in-body channel emulator.")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", help="what to do")
     s = sub.add_parser("serve", help="run the HTTP API (uvicorn)")
@@ -307,10 +314,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where to write it (default: openapi.json at the repository root)")
     o.add_argument("--check", action="store_true", help="exit 1 if the file differs instead of writing it")
     o.set_defaults(func=_cmd_openapi)
-    plots_cli.add_parser(sub)
+    if command is None or command == "plot":
+        from plots import cli as plots_cli
+
+        plots_cli.add_parser(sub)
+    else:
+        sub.add_parser("plot", help="draw a figure from a JSON file (the kinds: capsule-rt plot --help)")
     from service import sweep_cli
 
-    sweep_cli.add_parsers(sub)
+    sweep_cli.add_parsers(sub, experiment=command is None or command == "experiment")
     f = sub.add_parser("fullwave", help="export a channel request to gprMax, run it and compare with the tracer")
     f.add_argument("file", help="JSON file with a POST /v1/channel body (ChannelSpec)")
     f.add_argument("--out", required=True, help="directory for the gprMax inputs, outputs and report.{json,md}")
@@ -338,7 +350,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in argv if not a.startswith("-")), "")
+    args = build_parser(None if command in DEFERRED else command).parse_args(argv)
     return int(args.func(args) or 0)
 
 

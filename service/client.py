@@ -26,9 +26,9 @@ from typing import Any, Generic, TypeVar
 import httpx
 from pydantic import BaseModel
 
-from service.routes import localize as loc
-from service.routes import vision as v
 from service.schemas import Health, Readiness
+from service.schemas import localize as loc
+from service.schemas import vision as v
 from service.schemas.channel import ChannelRequest, ChannelResponse
 from service.schemas.fullwave import FullwaveList, FullwaveRequest, FullwaveStatus
 from service.schemas.phantoms import (

@@ -37,9 +37,9 @@ from fullwave.run import compare, export, gprmax_available, input_stem
 from raytrace.errors import BudgetExceededError, CapsuleRTError
 from raytrace.spec import ChannelSpec
 from service.admission import Cost, Work, admit
-from service.channel import to_spec
 from service.errors import Conflict, NotFound, NotInstalled, Unprocessable
 from service.jobs import CANCEL_FILE, JobKind, JobRunner
+from service.operations.channel import to_spec
 from service.registry import Registry
 from service.schemas.channel import ChannelRequest
 from service.schemas.fullwave import CHANNEL_FIELDS

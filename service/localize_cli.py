@@ -17,11 +17,12 @@ __all__ = ["add_parsers", "run_localize_request"]
 def run_localize_request(payload: dict, *, evaluate: bool = False) -> dict[str, Any]:
     """Run one POST /v1/localize (or /v1/localize/evaluate) body locally (no HTTP); the response dict."""
     from raytrace import Budget
-    from service.routes import localize as loc
+    from service.operations import localize as op
+    from service.schemas import localize as loc
 
     registry, settings = local_registry()
-    model, run, response = ((loc.LocalizeEvaluateRequest, loc.evaluate, loc.LocalizeEvaluateResponse) if evaluate
-                            else (loc.LocalizeRequest, loc.localize, loc.LocalizeResponse))
+    model, run, response = ((loc.LocalizeEvaluateRequest, op.evaluate, loc.LocalizeEvaluateResponse) if evaluate
+                            else (loc.LocalizeRequest, op.localize, loc.LocalizeResponse))
     req = model.model_validate(payload)
     budget = Budget(deadline_s=settings.request_deadline_s, max_ray_segments=settings.max_ray_segments)
     return json.loads(response.model_validate(run(req, registry, settings, budget)).model_dump_json())

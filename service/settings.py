@@ -1,9 +1,10 @@
 """Service configuration: one pydantic-settings class, read from ``CAPSULE_RT_*`` env vars.
 
 Every limit the API enforces lives here so an operator can tighten it. The
-request schema (``openapi.json``) carries the hard ceilings (the defaults
+request schema (``openapi.json``) carries the hard ceilings (service.limits, the defaults
 below); a setting can lower a limit, never raise it above its schema ceiling
-(requests beyond the setting get a 422 that names the field and the limit).
+(requests beyond the setting get a 422 that names the field and the limit:
+service.admission.lower_or_refuse).
 """
 
 from __future__ import annotations
@@ -15,14 +16,7 @@ from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from raytrace.solver.config import TracerConfig
-
-# Hard ceilings, also used as the schema's ``le`` bounds (see service.schemas).
-MAX_RAYS = 1_000_000
-MAX_INTERACTIONS = 10
-MAX_RECEIVERS = 64
-MAX_BAND_POINTS = 201
-MAX_TRIALS = 10_000
-MAX_PROFILE_PATHS = 10_000
+from service.limits import MAX_BAND_POINTS, MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, MAX_TRIALS  # the ceilings
 
 #: Shortest accepted API key (characters): a key is a bearer secret, not a password.
 MIN_API_KEY_CHARS = 16
@@ -188,22 +182,6 @@ class Settings(BaseSettings):
         "(CORS). Empty: none; writes carrying an `Origin` that is neither one of these nor the server's own "
         "(HOST, PORT) are refused (403): scheme, host and port all count, the request's Host header never does.",
     )
-
-    def trace_knobs(self, rays: int | None, max_interactions: int | None, *, default_rays: int,
-                    default_interactions: int) -> tuple[int, int]:
-        """The rays and interactions of an evaluation's traces: the request's, or its defaults lowered
-        to this server's limits; a request above a limit is a 422 naming ``body.rays`` /
-        ``body.max_interactions``."""
-        from service.errors import Unprocessable
-
-        rays = rays if rays is not None else min(default_rays, self.max_rays)
-        interactions = max_interactions if max_interactions is not None else min(default_interactions,
-                                                                                 self.max_interactions)
-        for name, value, cap in (("rays", rays, self.max_rays), ("max_interactions", interactions,
-                                                                 self.max_interactions)):
-            if value > cap:
-                raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=["body", name])
-        return rays, interactions
 
     @property
     def compute_memory_share_bytes(self) -> int:

@@ -144,10 +144,12 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     return int(status)
 
 
-def add_parsers(sub) -> None:
-    """Register ``sweep`` and ``experiment`` on ``capsule-rt``'s subparsers."""
-    from sweeps.experiments import EXPERIMENTS
+EXPERIMENT_HELP = "run one of the thesis' experiments and report ours beside its numbers"
 
+
+def add_parsers(sub, experiment: bool = True) -> None:
+    """Register ``sweep`` and ``experiment`` on ``capsule-rt``'s subparsers (``experiment`` False:
+    the latter by name only, without importing the sweeps to list its choices)."""
     s = sub.add_parser("sweep", help="run a sweep (positions x receivers x frequencies) with progress and a summary",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     s.add_argument("spec", nargs="?", help="sweep spec: a .yaml/.json file or a built-in name (see --list)")
@@ -161,7 +163,12 @@ def add_parsers(sub) -> None:
     s.add_argument("--export", default="", help="also write results.csv and/or results.json (e.g. csv,json)")
     s.add_argument("--list", action="store_true", help="list the built-in specs and exit")
     s.set_defaults(func=_cmd_sweep)
-    e = sub.add_parser("experiment", help="run one of the thesis' experiments and report ours beside its numbers")
+    if not experiment:
+        sub.add_parser("experiment", help=EXPERIMENT_HELP)
+        return
+    from sweeps.experiments import EXPERIMENTS
+
+    e = sub.add_parser("experiment", help=EXPERIMENT_HELP)
     e.add_argument("name", choices=sorted(EXPERIMENTS), help="experiment: " + "; ".join(
         f"{n}: {x.description}" for n, x in EXPERIMENTS.items()))
     e.add_argument("--out", "-o", required=True, help="output directory (one sub-directory per sweep, report.md)")

@@ -6,8 +6,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from raytrace.errors import CapsuleRTError
-from raytrace.solver.budget import Budget
 from service.local import local_registry, run_file_request
 
 
@@ -35,7 +33,10 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print(json.dumps({"detail": [{"loc": ["file"], "msg": "give a POST /v1/track body, or --evaluate",
                                       "type": "missing"}]}), file=sys.stderr)
         return 2
-    from service.routes.tracking import TrackRequest, run_track
+    from raytrace.errors import CapsuleRTError
+    from raytrace.solver.budget import Budget
+    from service.operations.tracking import run_track
+    from service.schemas.tracking import TrackRequest
 
     out = run_file_request(args.file, lambda body: run_track(TrackRequest.model_validate(body), local_registry()[0],
                                                              Budget()), (CapsuleRTError,))

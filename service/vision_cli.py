@@ -19,7 +19,7 @@ def _vision_render_seq(args: argparse.Namespace) -> int:
     sequence.json (the settings and every frame's exact pose) in ``--out``."""
     from raytrace.errors import CapsuleRTError
     from service.errors import ServiceError
-    from service.routes.vision import SensorIn
+    from service.schemas.vision import SensorIn
     from vision.camera import FisheyeCamera
     from vision.errors import VisionInputError
     from vision.mucosa import texture_for
@@ -74,7 +74,8 @@ def _vision_motion_seq(args: argparse.Namespace) -> int:
     geometry) and the errors against the ground truth."""
     from pydantic import ValidationError
 
-    from service.routes.vision import MotionOptions, advance_of, estimate_pair, frame_from_png
+    from service.operations.vision import advance_of, estimate_pair, frame_from_png
+    from service.schemas.vision import MotionOptions
     from vision.camera import FisheyeCamera, Pose
     from vision.errors import VisionInputError
     from vision.mucosa import texture_for

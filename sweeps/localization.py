@@ -27,35 +27,13 @@ Spec form::
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-import numpy as np
-
 from raytrace.errors import InputError
+from sweeps.base import LocalizationInputs, SweepSpecError, method_columns
 
 __all__ = ["LocalizationInputs", "Localizer", "available", "register", "unregister", "validate"]
-
-
-@dataclass(frozen=True)
-class LocalizationInputs:
-    """What a localizer sees for one capsule position and one carrier (arrays over receivers).
-
-    ``ranges_m`` is the ranging method's mean distance per receiver (NaN where it has none),
-    ``path_loss_db`` the traced path loss, ``sigma_m`` the method's spread over trials;
-    ``receivers_m`` the receiver positions. ``centreline`` (or None) lets a localizer
-    constrain its estimate to the tract; ``phantom`` (or None) is the traced phantom (the
-    model-based localizer builds its travel-time fields through it)."""
-
-    frequency_hz: float
-    receivers_m: np.ndarray
-    ranges_m: np.ndarray
-    sigma_m: np.ndarray
-    path_loss_db: np.ndarray
-    relative_permittivity: float
-    centreline: Any = None
-    extra: dict = field(default_factory=dict)
-    phantom: Any = None
 
 
 @dataclass(frozen=True)
@@ -96,12 +74,13 @@ def _load_builtins() -> None:
     global _builtins_loaded
     if not _builtins_loaded:
         _builtins_loaded = True
-        import sweeps.localizers  # noqa: F401 (registers the built-ins; imported here: it imports this module)
+        from sweeps.localizers import BUILTINS  # imported when first needed: it loads the position estimators
+
+        for name, fn, check, description in BUILTINS:
+            _REGISTRY.setdefault(name, Localizer(name, fn, check, description))
 
 
 def _fail(reason: str, where: str) -> InputError:
-    from sweeps.spec import SweepSpecError
-
     return SweepSpecError(reason, field=where)
 
 
@@ -109,8 +88,6 @@ def validate(value: Any, ranging: Mapping, where: str = "localization") -> dict 
     """The normalised ``localization`` entry of a spec (None when absent)."""
     if value is None:
         return None
-    from sweeps.spec import method_columns
-
     if not isinstance(value, Mapping) or set(value) - {"methods"}:
         raise _fail('expected {"methods": [{"name": ..., "ranges_from": ...}, ...]}', where)
     methods = value.get("methods")

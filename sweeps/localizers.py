@@ -34,14 +34,12 @@ from estimators.constants import velocity_m_per_s
 from estimators.errors import EstimatorInputError
 from estimators.localization import (
     DELAY_KINDS,
+    Measurements,
     check_delay_kind,
-    linear_fix,
+    locate,
     measured_delay_kind,
-    model_based_fix,
-    nonlinear_fix,
-    rss_fix,
 )
-from sweeps.localization import LocalizationInputs, register
+from sweeps.base import LocalizationInputs, SweepSpecError, rss_model
 
 __all__: list[str] = []
 
@@ -49,8 +47,6 @@ _LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 
 def _fail(reason: str, field: str):
-    from sweeps.spec import SweepSpecError
-
     return SweepSpecError(reason, field=field)
 
 
@@ -62,22 +58,20 @@ def _usable(values: np.ndarray, what: str) -> np.ndarray:
     return ok
 
 
-def _ranges(fix):
+def _ranges(name: str):
     def localize(inputs: LocalizationInputs, options: dict[str, Any]):
         ok = _usable(inputs.ranges_m, "a range")
         sigma = inputs.sigma_m[ok]
         weights = sigma if np.all(np.isfinite(sigma) & (sigma > 0)) else None
-        kwargs = {"loss": options["loss"]} if "loss" in options else {}
-        return fix(inputs.receivers_m[ok], inputs.ranges_m[ok], weights, **kwargs).position_m
+        return locate(name, Measurements(sensors_m=inputs.receivers_m[ok], ranges_m=inputs.ranges_m[ok],
+                                         sigma_m=weights, loss=options.get("loss"))).position_m
     return localize
 
 
 def _rss(inputs: LocalizationInputs, options: dict[str, Any]):
-    from sweeps.spec import rss_model
-
     ok = _usable(inputs.path_loss_db, "a path")
-    return rss_fix(inputs.receivers_m[ok], inputs.path_loss_db[ok],
-                   model=rss_model(options.get("model", "cm2_deep_tissue"), "model")).position_m
+    return locate("rss", Measurements(sensors_m=inputs.receivers_m[ok], path_loss_db=inputs.path_loss_db[ok],
+                                      model=rss_model(options.get("model", "cm2_deep_tissue"), "model"))).position_m
 
 
 #: Cell edge of the model-based localizer's travel-time grids [m] (as evaluation.fields').
@@ -104,8 +98,8 @@ def _model_based(inputs: LocalizationInputs, options: dict[str, Any]):
                                 field="receivers")
     sigma = inputs.sigma_m[ok]
     sigma_s = sigma / v if np.all(np.isfinite(sigma) & (sigma > 0)) else None
-    kwargs = {"loss": options["loss"]} if "loss" in options else {}
-    return model_based_fix(fields, inputs.ranges_m[ok] / v, sigma_s, **kwargs).position_m
+    return locate("model_based", Measurements(fields=fields, delays_s=inputs.ranges_m[ok] / v, sigma_s=sigma_s,
+                                              loss=options.get("loss"))).position_m
 
 
 def _validate_model_based(options: dict, where: str) -> dict:
@@ -134,8 +128,6 @@ def _validate_ranges(allowed: set[str]):
 
 
 def _validate_rss(options: dict, where: str) -> dict:
-    from sweeps.spec import rss_model
-
     extra = sorted(set(options) - {"model"})
     if extra:
         raise _fail(f"unknown option(s) {', '.join(extra)}; allowed: model", f"{where}.{extra[0]}")
@@ -143,11 +135,14 @@ def _validate_rss(options: dict, where: str) -> dict:
     return options
 
 
-register("linear", _ranges(linear_fix), validate=_validate_ranges({"ranges_from"}),
-         description="closed-form least squares on the ranges")
-register("nonlinear", _ranges(nonlinear_fix), validate=_validate_ranges({"ranges_from", "loss"}),
-         description="weighted nonlinear least squares on the ranges")
-register("rss", _rss, validate=_validate_rss, description="path losses through a path-loss model, multilaterated")
-register("model_based", _model_based, validate=_validate_model_based,
-         description="the ranging's delays on travel-time fields through the phantom, built for the delays' kind "
-                     f"(delay_kind: {' | '.join(DELAY_KINDS)}; default the kind ranges_from measures)")
+#: The built-in localizers as (name, fn, validate, description); sweeps.localization registers them
+#: when its registry is first read (this module does not import it: no cycle).
+BUILTINS = (
+    ("linear", _ranges("linear"), _validate_ranges({"ranges_from"}), "closed-form least squares on the ranges"),
+    ("nonlinear", _ranges("nonlinear"), _validate_ranges({"ranges_from", "loss"}),
+     "weighted nonlinear least squares on the ranges"),
+    ("rss", _rss, _validate_rss, "path losses through a path-loss model, multilaterated"),
+    ("model_based", _model_based, _validate_model_based,
+     "the ranging's delays on travel-time fields through the phantom, built for the delays' kind "
+     f"(delay_kind: {' | '.join(DELAY_KINDS)}; default the kind ranges_from measures)"),
+)

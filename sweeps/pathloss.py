@@ -61,6 +61,6 @@ def model_dict(model: PathLossModel) -> dict:
 
 def load_model(path: str | Path) -> PathLossModel:
     """A model written by ``capsule-rt experiment torso-path-loss`` (``path_loss_model.json``)."""
-    from sweeps.spec import rss_model
+    from sweeps.base import rss_model
 
     return rss_model(json.loads(Path(path).read_text()), field="model")

@@ -39,19 +39,19 @@ import copy
 import dataclasses
 import hashlib
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from estimators.errors import EstimatorInputError
-from estimators.rss import CM2_MODELS, REFERENCE_DISTANCE_M, PathLossModel
+from estimators.pdoa import METHODS as PDOA_METHODS
 from estimators.toa import METHODS as TOA_METHODS
 from estimators.toa import make_waveform
 from raytrace.body.centreline import GI_TRACT
-from raytrace.errors import CapsuleRTError, InputError
+from raytrace.errors import CapsuleRTError
 from raytrace.spec import PATTERNS, Antenna, Band, ChannelSpec
 from sweeps import localization
+from sweeps.base import SweepSpecError, _fail, _mapping, _number, method_columns, rss_model
 
 __all__ = [
     "LIMITS",
@@ -64,13 +64,8 @@ __all__ = [
     "method_columns",
 ]
 
-PDOA_METHODS = ("two_tone", "regression")
 #: Largest seed: what a JSON number holds exactly (the HTTP schema's maximum too).
 MAX_SEED = 2**53 - 1
-
-
-class SweepSpecError(InputError):
-    """A sweep spec that cannot run; ``field`` is the dotted path of the bad value."""
 
 
 @dataclass(frozen=True)
@@ -103,21 +98,6 @@ _CHANNEL = {"max_interactions", "rays", "dynamic_range_db", "band", "homogeneous
             "capsule_polarization", "capsule_pattern"}
 
 
-def _fail(reason: str, field: str) -> SweepSpecError:
-    return SweepSpecError(reason, field=field)
-
-
-def _mapping(value: Any, field: str, allowed: set[str] | None = None) -> Mapping:
-    if not isinstance(value, Mapping):
-        raise _fail(f"expected an object, got {type(value).__name__}", field)
-    if allowed is not None:
-        unknown = sorted(set(value) - allowed)
-        if unknown:
-            raise _fail(f"unknown field(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}",
-                        f"{field}.{unknown[0]}" if field else unknown[0])
-    return value
-
-
 def _list(value: Any, field: str, max_len: int, what: str) -> list:
     if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Sequence):
         raise _fail(f"expected a list of {what}", field)
@@ -126,19 +106,6 @@ def _list(value: Any, field: str, max_len: int, what: str) -> list:
     if len(value) > max_len:
         raise _fail(f"{len(value)} {what} exceed the limit of {max_len}", field)
     return list(value)
-
-
-def _number(value: Any, field: str, *, positive: bool = False, nonnegative: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _fail(f"must be a number, got {value!r}", field)
-    x = float(value)
-    if not math.isfinite(x):
-        raise _fail(f"must be finite, got {value!r}", field)
-    if positive and x <= 0:
-        raise _fail(f"must be > 0, got {x:g}", field)
-    if nonnegative and x < 0:
-        raise _fail(f"must be >= 0, got {x:g}", field)
-    return x
 
 
 def _integral(value: Any) -> Any:
@@ -285,29 +252,6 @@ def _snr(value: Any, field: str) -> float | None:
     return snr
 
 
-def rss_model(value: Any, field: str = "ranging.rss.model") -> PathLossModel:
-    """A path-loss model from a CM2 name or a fitted model's mapping."""
-    if isinstance(value, str):
-        if value not in CM2_MODELS:
-            raise _fail(f"unknown model {value!r} ({' | '.join(CM2_MODELS)} or a fitted model object)", field)
-        return CM2_MODELS[value]
-    value = _mapping(value, field, {"name", "path_loss_d0_db", "exponent", "shadowing_db", "reference_distance_m"})
-    for key in ("path_loss_d0_db", "exponent", "shadowing_db"):
-        if key not in value:
-            raise _fail("required", f"{field}.{key}")
-    name = value.get("name", "fitted")
-    if not isinstance(name, str) or not name:
-        raise _fail("a name is a non-empty string", f"{field}.name")
-    return PathLossModel(
-        name=name,
-        path_loss_d0_db=_number(value["path_loss_d0_db"], f"{field}.path_loss_d0_db"),
-        exponent=_number(value["exponent"], f"{field}.exponent", positive=True),
-        shadowing_db=_number(value["shadowing_db"], f"{field}.shadowing_db", nonnegative=True),
-        reference_distance_m=_number(value.get("reference_distance_m", REFERENCE_DISTANCE_M),
-                                     f"{field}.reference_distance_m", positive=True),
-    )
-
-
 def _ranging(value: Any, frequencies: tuple[float, ...], limits: Limits) -> dict:
     field = "ranging"
     value = _mapping({} if value is None else value, field, {"relative_permittivity", "toa", "pdoa", "rss"})
@@ -361,15 +305,6 @@ def _ranging(value: Any, frequencies: tuple[float, ...], limits: Limits) -> dict
         if not isinstance(shadowing, bool):
             raise _fail(f"must be true or false, got {shadowing!r}", f"{where}.shadowing")
         out["rss"] = {"model": copy.deepcopy(model), "shadowing": shadowing}
-    return out
-
-
-def method_columns(ranging: Mapping) -> list[str]:
-    """The ranging methods of a normalised ranging dict, as table column prefixes, in order."""
-    out = [f"toa_{m}" for m in ranging.get("toa", {}).get("methods", [])]
-    out += [f"pdoa_{m}" for m in ranging.get("pdoa", {}).get("methods", [])]
-    if "rss" in ranging:
-        out.append("rss")
     return out
 
 

@@ -230,6 +230,7 @@ class EmbreeScene:
         keep = stop > start  # an empty run is not a geometry
         start, stop, masks = start[keep], stop[keep], np.asarray(geometry.mask, np.uint32)[keep]
         self._vertices, self._faces = vertices, faces  # Embree reads them (shared buffers)
+        self._robust, self._geometry = bool(robust), Geometry(start, stop, masks)
         self.base = np.ascontiguousarray(start, np.int64)
         self.triangles = int((stop - start).sum())
         self.faces = len(faces)
@@ -255,6 +256,12 @@ class EmbreeScene:
         error = lib.rtcGetDeviceError(device)
         if error:
             raise RuntimeError(f"Embree failed to build the scene (error {error})")
+
+    def __reduce__(self):
+        """Pickled as what builds it, and built again when loaded: the handle is a pointer into
+        this process (a phantom pickled with its scene of every face and loaded in another
+        process, as the scene bench's children load it, crashed on its first cast)."""
+        return EmbreeScene, (self._vertices, self._faces, self._robust, self._geometry)
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, mask: int = ALL) -> Hits:
         """First hits of a batch of float32 rays (:class:`~raytrace.engine.records.Hits`:

@@ -56,8 +56,6 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from raytrace.body.phantom import AIR_INDEX, Phantom
 from raytrace.engine.embree import ALL, EmbreeScene, Geometry, buffers
@@ -474,54 +472,112 @@ def corner_normals(vertices: np.ndarray, faces: np.ndarray, face_normals: np.nda
     tube sees by ~4 %), normalised. Without any crease round a vertex that is the vertex
     normal; a face alone in its group (every neighbour across a crease) keeps its facet normal
     exactly. An edge shared by other than two faces (not in a phantom: meshes are closed) joins
-    nothing."""
-    faces = np.asarray(faces, np.int64)
+    nothing.
+
+    Computed by one compiled pass (:func:`_corner_normals`, half-edges bucketed by vertex and
+    union-find, no (F, 3, 3) temporaries): the numpy expressions it replaced, bit for bit
+    (tests/raytrace/test_scene_build.py), at ~1/10 of their time and memory on 1 M triangles
+    (docs/performance-log.md, session 12)."""
+    faces = np.ascontiguousarray(faces, np.int64)
     nf = len(faces)
     if nf == 0:
         return np.zeros((0, 3, 3))
-    fn = np.asarray(face_normals, float)
-    crease = np.broadcast_to(np.asarray(crease_deg, float), (nf,))
-    v = vertices[faces]  # (F, 3, 3)
-    weights = np.empty((nf, 3, 3))
-    for i in range(3):
-        e1 = v[:, (i + 1) % 3] - v[:, i]
-        e2 = v[:, (i + 2) % 3] - v[:, i]
-        weights[:, i] = np.cross(e1, e2) / (np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2))[:, None]
-    # half-edges: face f, corner i -> corner i + 1; an edge is the sorted vertex pair
-    hf = np.repeat(np.arange(nf), 3)
-    hc = np.tile(np.arange(3), nf)
-    a, b = faces[hf, hc], faces[hf, (hc + 1) % 3]
-    key = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
-    order = np.lexsort((key[:, 1], key[:, 0]))
-    k = key[order]
-    same = np.all(k[1:] == k[:-1], axis=1)
-    starts = np.flatnonzero(np.concatenate([[True], ~same]))
-    counts = np.diff(np.concatenate([starts, [len(k)]]))
-    runs = np.repeat(counts, counts)  # how many half-edges carry each one's edge (two: manifold)
-    pair = same & (runs[:-1] == 2)
-    h1, h2 = order[:-1][pair], order[1:][pair]
-    f1, f2 = hf[h1], hf[h2]
-    limit = np.cos(np.radians(np.minimum(crease[f1], crease[f2])))
-    smooth = np.einsum("ij,ij->i", fn[f1], fn[f2]) >= limit
-    h1, h2, f1, f2 = h1[smooth], h2[smooth], f1[smooth], f2[smooth]
-    # the corners of f1 and f2 at the edge's two vertices (vertex a of h1, then its b)
-    c1a, c1b = hc[h1], (hc[h1] + 1) % 3
-    va, vb = faces[f1, c1a], faces[f1, c1b]
-    c2a = np.argmax(faces[f2] == va[:, None], axis=1)
-    c2b = np.argmax(faces[f2] == vb[:, None], axis=1)
-    node1 = np.concatenate([3 * f1 + c1a, 3 * f1 + c1b])
-    node2 = np.concatenate([3 * f2 + c2a, 3 * f2 + c2b])
-    graph = coo_matrix((np.ones(len(node1), np.int8), (node1, node2)), shape=(3 * nf, 3 * nf))
-    _, label = connected_components(graph, directed=False)
-    acc = np.zeros((label.max() + 1, 3))
-    flat = weights.reshape(-1, 3)
-    for j in range(3):
-        acc[:, j] = np.bincount(label, weights=flat[:, j], minlength=len(acc))
-    norm = np.linalg.norm(acc, axis=1, keepdims=True)
-    out = (acc / np.where(norm > 0.0, norm, 1.0))[label].reshape(nf, 3, 3)
-    alone = np.bincount(label, minlength=len(acc))[label].reshape(nf, 3) == 1
-    degenerate = (norm[label, 0] <= 0.0).reshape(nf, 3)
-    return np.where((alone | degenerate)[..., None], fn[:, None, :], out)
+    fn = np.ascontiguousarray(face_normals, np.float64)
+    crease = np.ascontiguousarray(np.broadcast_to(np.asarray(crease_deg, float), (nf,)))
+    # cos of each face's crease angle as numpy computes it (the kernel picks the smaller angle's)
+    limit = np.cos(np.radians(crease))
+    vertices = np.ascontiguousarray(vertices, np.float64)
+    out = np.empty((nf, 3, 3))
+    _corner_normals(vertices, faces, fn, crease, limit, out)
+    return out
+
+
+@kernel
+def _corner_normals(vertices, faces, fn, crease, limit, out):
+    """:func:`corner_normals` into ``out`` (F, 3, 3), with the arithmetic of the numpy expressions
+    it replaced in their order: numpy's cross product (``a1 b2 - a2 b1``, ...), einsum's three-term
+    sums ``(x0 y0 + x2 y2) + x1 y1``, the group sums in corner order (as ``np.bincount``), the norm
+    ``sqrt((x^2 + y^2) + z^2)`` (``np.linalg.norm``). The edges: half-edges (face ``f``, corner
+    ``c`` -> ``c + 1``) bucketed by their smaller vertex in half-edge order, so that of the two
+    half-edges of an edge the lower index is the first, as numpy's stable sort of the edge keys
+    had it; an edge of exactly two half-edges across no crease joins the two faces' corners at
+    each of its ends (union-find)."""
+    nf = faces.shape[0]
+    nv = vertices.shape[0]
+    nh = 3 * nf
+    start = np.zeros(nv + 1, np.int64)
+    for h in range(nh):
+        f, c = h // 3, h % 3
+        start[min(faces[f, c], faces[f, (c + 1) % 3]) + 1] += 1
+    for v in range(nv):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    bucket = np.empty(nh, np.int64)
+    for h in range(nh):
+        f, c = h // 3, h % 3
+        lo = min(faces[f, c], faces[f, (c + 1) % 3])
+        bucket[fill[lo]] = h
+        fill[lo] += 1
+    parent = np.arange(nh)
+    for lo in range(nv):
+        for p in range(start[lo], start[lo + 1]):
+            h1 = bucket[p]
+            f1, c1 = h1 // 3, h1 % 3
+            hi1 = max(faces[f1, c1], faces[f1, (c1 + 1) % 3])
+            partner, same = -1, 1
+            for q in range(start[lo], start[lo + 1]):
+                h2 = bucket[q]
+                if h2 != h1 and max(faces[h2 // 3, h2 % 3], faces[h2 // 3, (h2 % 3 + 1) % 3]) == hi1:
+                    same += 1
+                    partner = h2
+            if same != 2 or partner < h1:  # each manifold edge once, from its lower half-edge
+                continue
+            f2 = partner // 3
+            cos = (fn[f1, 0] * fn[f2, 0] + fn[f1, 2] * fn[f2, 2]) + fn[f1, 1] * fn[f2, 1]
+            if not cos >= (limit[f1] if crease[f1] <= crease[f2] else limit[f2]):
+                continue
+            for end in range(2):
+                corner = (c1 + end) % 3
+                v = faces[f1, corner]
+                other = 0
+                while other < 2 and faces[f2, other] != v:  # the first corner of f2 at v (argmax)
+                    other += 1
+                a, b = 3 * f1 + corner, 3 * f2 + other
+                while parent[a] != a:
+                    parent[a] = parent[parent[a]]
+                    a = parent[a]
+                while parent[b] != b:
+                    parent[b] = parent[parent[b]]
+                    b = parent[b]
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    acc = np.zeros((nh, 3))
+    size = np.zeros(nh, np.int64)
+    root = np.empty(nh, np.int64)
+    for h in range(nh):
+        r = h
+        while parent[r] != r:
+            r = parent[r]
+        root[h] = r
+        f, i = h // 3, h % 3
+        j, k = faces[f, i], faces[f, (i + 1) % 3]
+        m = faces[f, (i + 2) % 3]
+        a0, a1, a2 = vertices[k, 0] - vertices[j, 0], vertices[k, 1] - vertices[j, 1], vertices[k, 2] - vertices[j, 2]
+        b0, b1, b2 = vertices[m, 0] - vertices[j, 0], vertices[m, 1] - vertices[j, 1], vertices[m, 2] - vertices[j, 2]
+        scale = ((a0 * a0 + a2 * a2) + a1 * a1) * ((b0 * b0 + b2 * b2) + b1 * b1)
+        acc[r, 0] += (a1 * b2 - a2 * b1) / scale
+        acc[r, 1] += (a2 * b0 - a0 * b2) / scale
+        acc[r, 2] += (a0 * b1 - a1 * b0) / scale
+        size[r] += 1
+    for h in range(nh):
+        f, i, r = h // 3, h % 3, root[h]
+        norm = math.sqrt((acc[r, 0] * acc[r, 0] + acc[r, 1] * acc[r, 1]) + acc[r, 2] * acc[r, 2])
+        if size[r] == 1 or not norm > 0.0:
+            for q in range(3):
+                out[f, i, q] = fn[f, q]
+        else:
+            for q in range(3):
+                out[f, i, q] = acc[r, q] / norm
 
 
 _CACHE: dict[tuple, tuple[weakref.ref, TracerScene]] = {}

@@ -7,12 +7,12 @@ import json
 from fastapi import APIRouter, Request, Response
 
 from raytrace import Budget, trace_channel
-from service import channel as channel_ops
 from service import costs
 from service.admission import declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
+from service.operations import channel as channel_ops
 from service.schemas.channel import ChannelRequest, ChannelResponse
 
 router = APIRouter(prefix="/v1", tags=["channel"], route_class=ThreadedJsonRoute)

@@ -5,11 +5,11 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from raytrace.solver.budget import Budget
-from service import ranging as ops
 from service.admission import declare
 from service.bodies import ThreadedJsonRoute
 from service.deps import state
 from service.errors import error_responses
+from service.operations import ranging as ops
 from service.schemas.ranging import PdoaRequest, RangingResponse, RssRequest, ToaRequest
 
 router = APIRouter(prefix="/v1/ranging", tags=["ranging"], route_class=ThreadedJsonRoute)

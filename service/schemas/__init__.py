@@ -36,15 +36,13 @@ from pydantic import (
     model_validator,
 )
 
-from raytrace.body import gltf
-from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
-from service.settings import MAX_BAND_POINTS
+from service.limits import MAX_BAND_POINTS, capped
+from service.schemas.constants import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ, NAME_PATTERN
 
 #: dB value reported for a zero gain / power (instead of -inf) [dB].
 GAIN_DB_FLOOR = -400.0
 
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
-NAME_PATTERN = gltf.NAME_PATTERN.pattern  # organ and site names: the upload's own rule
 
 PhantomId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 ScenarioId = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
@@ -122,7 +120,8 @@ class Complex(Strict):
 class Band(Strict):
     start_hz: FrequencyHz = Field(description="First frequency [Hz].")
     stop_hz: FrequencyHz = Field(description="Last frequency [Hz] (> start_hz).")
-    points: Int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].")
+    points: Int = Field(ge=2, le=MAX_BAND_POINTS, description="Number of equally spaced frequencies [-].",
+                        json_schema_extra=capped("max_band_points"))
 
     @model_validator(mode="after")
     def _order(self) -> "Band":

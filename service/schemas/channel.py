@@ -3,13 +3,12 @@ band, outputs) and the response (profiles of paths, channel outputs, trace stati
 
 from __future__ import annotations
 
-from dataclasses import fields as dataclass_fields
 from typing import Literal
 
 from pydantic import ConfigDict, Field
 
 from estimators.channel_response import MIN_RATE_HZ
-from raytrace.spec import MAX_DYNAMIC_RANGE_DB, ChannelSpec
+from service.limits import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS, capped
 from service.schemas import (
     GAIN_DB_FLOOR,
     Band,
@@ -24,10 +23,9 @@ from service.schemas import (
     alternatives,
     int_range,
 )
-from service.settings import MAX_INTERACTIONS, MAX_RAYS, MAX_RECEIVERS
+from service.schemas.constants import MAX_DYNAMIC_RANGE_DB, SPEC_DEFAULTS
 
 #: The channel spec's defaults, quoted in the field descriptions (the spec applies them).
-SPEC_DEFAULTS = {f.name: f.default for f in dataclass_fields(ChannelSpec)}
 
 
 class HomogeneousMedium(Strict):
@@ -140,13 +138,15 @@ class ChannelRequest(Strict):
         min_length=1,
         max_length=MAX_RECEIVERS,
         description=f"Receivers (skin sensors), 1..{MAX_RECEIVERS}; required without a scenario.",
+        json_schema_extra=capped("max_receivers"),
     )
     max_interactions: int_range(1, MAX_INTERACTIONS) | None = Field(
         None, description=f"Max reflections + refractions per path [-] (default {SPEC_DEFAULTS['max_interactions']}, "
-        f"<= {MAX_INTERACTIONS}).",
+        f"<= {MAX_INTERACTIONS}).", json_schema_extra=capped("max_interactions"),
     )
     rays: int_range(1, MAX_RAYS) | None = Field(
         None, description=f"Rays launched from the transmitter [-] (default {SPEC_DEFAULTS['rays']}, <= {MAX_RAYS}).",
+        json_schema_extra=capped("max_rays"),
     )
     dynamic_range_db: float | None = Field(
         None, gt=0.0, le=MAX_DYNAMIC_RANGE_DB,

@@ -11,6 +11,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from service.limits import MAX_INTERACTIONS, MAX_RAYS, capped
 from service.schemas import Int, PhantomId, Strict, Vec3, int_range
 
 COVERAGE_EXAMPLE: dict[str, Any] = {
@@ -64,8 +65,9 @@ class CandidateOptions(Strict):
 
 
 class CoverageChannel(Strict):
-    rays: Int = Field(30_000, ge=1, le=1_000_000, description="Rays launched per capsule position.")
-    max_interactions: Int = Field(4, ge=1, le=10)
+    rays: Int = Field(30_000, ge=1, le=MAX_RAYS, description="Rays launched per capsule position.",
+                      json_schema_extra=capped("max_rays"))
+    max_interactions: Int = Field(4, ge=1, le=MAX_INTERACTIONS, json_schema_extra=capped("max_interactions"))
     dynamic_range_db: float = Field(40.0, gt=0.0, le=300.0)
     near_field: bool = True
     capsule_polarization: Vec3 = Field([0.0, 0.0, 1.0], description="The capsule antenna's axis.")
@@ -166,8 +168,8 @@ class Search(Strict):
 class Evaluate(Strict):
     trials: int_range(1, 1000) = Field(20, description="Monte Carlo trials per capsule position.")
     seed: int_range(0, 2**31 - 1) = 0
-    rays: int_range(1, 1_000_000) = 100_000
-    max_interactions: int_range(1, 10) = 6
+    rays: int_range(1, MAX_RAYS) = Field(100_000, json_schema_extra=capped("max_rays"))
+    max_interactions: int_range(1, MAX_INTERACTIONS) = Field(6, json_schema_extra=capped("max_interactions"))
 
 
 class LayoutRequest(Strict):
@@ -179,7 +181,14 @@ class LayoutRequest(Strict):
     criterion: Literal["p90", "mean"] = Field("p90", description="Statistic of the position bound along the tract.")
     model_error: Literal["none", "bias"] = Field("none", description="`none`: the position CRLB; `bias`: plus the "
                                                  "delay model's own error (grid, linearised bias of each link's "
-                                                 "traced-first-arrival minus eikonal mismatch).")
+                                                 "noiseless-ranging minus eikonal mismatch).")
+    ranging: Literal["toa", "rss"] = Field("toa", description="Whose position bound: `toa` (GCC, the travel-time "
+                                           "model) or `rss` (the CM2 path-loss model's, distance-based).")
+    rss_model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field("cm2_deep_tissue", description="The path-loss "
+                                                                      "model of ranging rss.")
+    max_model_error_s: float | None = Field(None, ge=0.0, le=1e-6, description="A link whose noiseless ranging delay "
+                                            "departs from the travel-time model by more is not usable [s]; null: "
+                                            "the travel-time grid's stated error n_max h / c.")
     snr_db: float | None = Field(None, ge=-50.0, le=200.0, description="Every link's SNR [dB]; null: the coverage's "
                                  "link budget per link.")
     min_snr_db: float | None = Field(None, ge=-300.0, le=200.0, description="Links below are not detected [dB].")
@@ -206,6 +215,8 @@ class LayoutResult(BaseModel):
     baseline_criterion_m: float | None = Field(description="The best same-size subset of the phantom's sensor sites, "
                                                "found the same way [m].")
     uncovered_positions: int
+    ranging: str = "toa"
+    model_tolerance_s: float | None = Field(None, description="The model-mismatch tolerance applied [s] (TOA).")
     baseline_uncovered_positions: int | None = None
     baseline_sensors: list[LayoutSensor] | None = None
     search: dict[str, Any]

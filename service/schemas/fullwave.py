@@ -8,11 +8,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
-from fullwave.model import FdtdOptions
 from service.schemas import Strict, int_range
 from service.schemas.channel import ChannelRequest
+from service.schemas.constants import FDTD_DEFAULTS
 
-_DEFAULTS = FdtdOptions()
 #: The channel request's fields a full-wave job takes (all but `outputs`: the report is per receiver).
 CHANNEL_FIELDS = tuple(name for name in ChannelRequest.model_fields if name != "outputs")
 _EXAMPLE = {"phantom": "half-space", "frequency_hz": 402e6,
@@ -37,13 +36,14 @@ FullwaveRequest = create_model(
     __doc__=_FullwaveBase.__doc__,
     **{name: (ChannelRequest.model_fields[name].annotation, copy.copy(ChannelRequest.model_fields[name]))
        for name in CHANNEL_FIELDS},
-    cell_m=(float, Field(_DEFAULTS.cell_m, ge=1e-4, le=0.02, description="FDTD cell edge [m] of the first run.")),
+    cell_m=(float, Field(FDTD_DEFAULTS["cell_m"], ge=1e-4, le=0.02,
+                         description="FDTD cell edge [m] of the first run.")),
     coarse_factor=(float | None, Field(
         1.5, ge=0.0, le=4.0, description="The second run's cells are this many times the first's, for the FDTD's "
         "discretisation estimate (below 1: finer); 0 or null: one run [-].")),
-    margin_m=(float, Field(_DEFAULTS.margin_m, ge=0.0, le=0.5,
+    margin_m=(float, Field(FDTD_DEFAULTS["margin_m"], ge=0.0, le=0.5,
                            description="Margin around the antennas' box [m] (tissue it cuts runs into the PML).")),
-    pml_cells=(int_range(4, 40), Field(_DEFAULTS.pml_cells, description="Absorbing layer thickness [cells].")),
+    pml_cells=(int_range(4, 40), Field(FDTD_DEFAULTS["pml_cells"], description="Absorbing layer thickness [cells].")),
     export_only=(bool, Field(False, description="Write the gprMax inputs (and a report without FDTD numbers) "
                              "at once, run nothing: works on a server without gprMax.")),
 )

@@ -7,9 +7,8 @@ from typing import Any, Literal
 
 from pydantic import ConfigDict, Field
 
-from raytrace.body import gltf
-from raytrace.physics.tissues import TISSUE_NAMES
 from service.schemas import Name, Out, Strict, Vec3
+from service.schemas import constants as gltf  # the upload manifest's rules (raytrace.body.gltf's)
 
 
 class TissueOut(Out):
@@ -75,7 +74,7 @@ class ScenariosResponse(Out):
 
 
 class ManifestTissue(Strict):
-    tissue: Literal[TISSUE_NAMES] = Field(  # type: ignore[valid-type]
+    tissue: Literal[gltf.TISSUE_NAMES] = Field(  # type: ignore[valid-type]
         description="Gabriel 1996 tissue (GET /v1/tissues)."
     )
 

@@ -8,10 +8,13 @@ from typing import Annotated, Literal
 from pydantic import ConfigDict, Field, StringConstraints, model_validator
 
 from estimators.link import MICS_EIRP_DBM
-from raytrace.physics.tissues import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
+from estimators.pdoa import METHODS as PDOA_METHODS
+from estimators.rss import CM2_MODELS
+from estimators.toa import METHODS as TOA_METHODS
+from service.limits import MAX_BAND_POINTS, MAX_PROFILE_PATHS, MAX_TRIALS, capped
 from service.schemas import Band, FrequencyHz, Int, Out, Strict, Vec3, alternatives
 from service.schemas.channel import CfrOut, CirOut, Interaction, Segment, TapsOut
-from service.settings import MAX_BAND_POINTS, MAX_PROFILE_PATHS, MAX_TRIALS
+from service.schemas.constants import FREQUENCY_MAX_HZ, FREQUENCY_MIN_HZ
 
 #: Bound on each component of an input path gain [-]: a passive channel has |a| <= 1 (caustics
 #: are capped at +20 dB); the margin keeps |a|^2 sums far from float overflow.
@@ -141,7 +144,7 @@ class RangingCommon(Strict):
     trials: Int = Field(
         100, ge=1, le=MAX_TRIALS,
         description=f"Monte Carlo noise realisations [-] (<= {MAX_TRIALS}; default 100, or this server's limit "
-        "if lower).",
+        "if lower).", json_schema_extra=capped("max_trials"),
     )
     seed: Int = Field(
         0, ge=0, le=2**53 - 1, description="Seed of the noise generator [-] (<= 2^53 - 1: exact as any JSON number)."
@@ -180,7 +183,7 @@ class ToaRequest(RangingCommon):
             ]
         },
     )
-    method: Literal["first_peak", "all_peaks", "gcc", "envelope", "all"] = Field(
+    method: Literal[(*TOA_METHODS, "all")] = Field(  # type: ignore[valid-type]  # estimators.toa's registry
         "gcc",
         description="TOA estimator: `first_peak` (Eq 4.18), `all_peaks` (Eq 4.19-4.21), `gcc` (Eq 4.22-4.24), "
         "`envelope` (cross-correlation envelope only, no carrier phase), `all`: the thesis' three.",
@@ -207,12 +210,13 @@ class PdoaRequest(RangingCommon):
             "allOf": [{"not": {"required": ["frequencies_hz", "band"]}}, {"not": {"required": ["snr_db", "link"]}}],
         },
     )
-    method: Literal["two_tone", "regression"] = Field("two_tone", description="PDOA estimator.")
+    method: Literal[PDOA_METHODS] = Field(  # type: ignore[valid-type]  # estimators.pdoa's methods
+        "two_tone", description="PDOA estimator.")
     frequencies_hz: list[FrequencyHz] = Field(
         None,
         min_length=2,
         max_length=MAX_BAND_POINTS,
-        json_schema_extra={"uniqueItems": True},
+        json_schema_extra=capped("max_band_points", uniqueItems=True),
         description="Distinct tone frequencies [Hz], in any order (two_tone uses the lowest and the highest; "
         "regression needs them equally spaced). At most one of frequencies_hz and band; neither: the profile's band.",
     )
@@ -248,7 +252,7 @@ class RssRequest(RangingCommon):
             ]),
         },
     )
-    model: Literal["cm2_deep_tissue", "cm2_near_surface"] = Field(
+    model: Literal[tuple(CM2_MODELS)] = Field(  # type: ignore[valid-type]  # estimators.rss's models
         "cm2_deep_tissue", description="IEEE 802.15.6 CM2 path-loss model (thesis Table 2.2)."
     )
     profile: ProfileIn = Field(

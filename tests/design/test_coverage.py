@@ -10,7 +10,11 @@ import raytrace as rt
 from design.candidates import CandidateSpec, outer_organs, skin_candidates
 from design.coverage import LIMITS, Limits, load, make_plan, normalise_spec
 from design.errors import DesignInputError
+from estimators.constants import velocity_m_per_s
 from estimators.link import LinkBudget
+from estimators.profile import PathProfile
+from estimators.toa import estimate_toa
+from estimators.waveforms import ToneBurst
 from raytrace.body.torso import default_torso
 from tests.design.conftest import TINY_COVERAGE
 
@@ -52,6 +56,11 @@ def test_every_row_is_what_a_single_channel_request_answers(tiny_coverage):
             assert row["paths"] == len(prof.paths)
             if prof.paths:
                 assert row["first_delay_s"] == prof.paths[0].delay_s
+                # the ranging column: what TOA (GCC) answers without noise on that channel, back to seconds
+                toa = estimate_toa(PathProfile.from_traced(prof.paths, 402e6), method="gcc",
+                                   waveform=ToneBurst(carrier_hz=402e6, duration_s=25e-9, sample_rate_hz=20e9),
+                                   snr_db=None, trials=1, return_estimates=True)[0]
+                assert row["ranging_delay_s"] == toa.estimates_m[0] / velocity_m_per_s(27.9)
                 assert row["path_gain_db"] == prof.path_gain_db
                 assert row["direct_path"] == any(all(i.kind == "refraction" for i in q.interactions)
                                                  for q in prof.paths)
@@ -60,7 +69,7 @@ def test_every_row_is_what_a_single_channel_request_answers(tiny_coverage):
                                                       - link.noise_power_dbm(10e9), abs=1e-9)
                 checked += 1
             else:
-                assert row["first_delay_s"] is None and row["snr_db"] is None
+                assert row["first_delay_s"] is None and row["snr_db"] is None and row["ranging_delay_s"] is None
     assert checked >= 4
 
 

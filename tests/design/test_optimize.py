@@ -136,3 +136,90 @@ def test_the_criterion_with_model_bias_against_the_exhaustive_optimum(seed):
     problem = Problem(info, usable, kind="p90", min_sensors=4, prior_m=prior, mismatch=mismatch)
     got = search(problem, Constraints(np.ones(len(cands), bool), cands), n, restarts=6, seed=seed, exact_limit=0)
     assert got.key[0] == best[0] and got.key[1] == pytest.approx(best[1], rel=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_links_the_model_cannot_explain_are_not_usable(seed):
+    """``max_model_error_s``: a link whose noiseless ranging delay departs from the eikonal delay by more
+    than the tolerance does not count (docs/design.md, "The criterion"). The arrays go through the
+    layout's own ``problem_of`` (the path from a coverage); the oracle applies the rule with its own loop
+    and enumerates every set. Every link at one SNR, so every sigma is the same and, with a negligible
+    prior (1 km against bounds of micrometres), the ranking of sets does not depend on its value."""
+    from design.coverage import normalise_spec
+    from design.layout import normalise_layout, problem_of
+
+    _, usable, cands, grad, _ = _case(40 + seed)
+    rng = np.random.default_rng(seed)
+    P, C = usable.shape
+    eikonal = rng.uniform(1e-9, 3e-9, (P, C))
+    far = rng.random((P, C)) < 0.2  # a fifth of the links are off by 200-400 ps, the rest within 100 ps
+    ranging = eikonal + rng.choice([1.0, -1.0], (P, C)) * np.where(far, rng.uniform(200e-12, 400e-12, (P, C)),
+                                                                    rng.uniform(0.0, 100e-12, (P, C)))
+    tol = 150e-12
+    arrays = {"paths": np.where(usable, 3.0, 0.0), "direct_path": usable.copy(), "snr_db": np.full((P, C), 5.0),
+              "ranging_delay_s": ranging, "eikonal_delay_s": eikonal, "first_delay_s": eikonal,
+              "gradient_s_per_m": grad}
+    layout = normalise_layout({"sensors": 5, "snr_db": 30, "max_model_error_s": tol, "min_sensors": 3,
+                               "evaluate": None})
+    problem = problem_of(layout, normalise_spec({}), None, arrays, 1e3, 124e-12)
+    ok = np.zeros((P, C), bool)
+    for p in range(P):
+        for c in range(C):
+            ok[p, c] = bool(usable[p, c]) and abs(ranging[p, c] - eikonal[p, c]) <= tol
+    assert 0 < ok.sum() < usable.sum()  # the rule bites on this case
+    (u, v), _ = _oracle(grad, np.full((P, C), 1e-12), ok, 5, "p90", 1e3, 3)
+    assert u < P  # some sets cover positions: the ranking is not all ties
+    # the rule is what is tested here, so the search's exact path (462 sets); its local search is a local
+    # search: on seed 0 greedy with swaps and 6 restarts ends 25 % above this optimum (docs/design.md)
+    got = search(problem, Constraints(np.ones(C, bool), cands), 5)
+    assert got.method == "exact"
+    mine = tuple(sorted(int(c) for c in got.subset))  # the oracle's own score of the search's set
+    (gu, gv), _ = _oracle(grad, np.full((P, C), 1e-12), ok, 5, "p90", 1e3, 3, lambda s: s == mine)
+    assert gu == u and gv == pytest.approx(v, rel=1e-9)
+    # null: the grid's stated error is the tolerance
+    grid = normalise_layout({"sensors": 5, "snr_db": 30, "min_sensors": 3, "evaluate": None})
+    assert np.array_equal(problem_of(grid, normalise_spec({}), None, arrays, 1e3, 124e-12).usable,
+                          usable & (np.abs(ranging - eikonal) <= 124e-12))
+
+
+def test_the_rss_criterion_against_the_closed_form_and_the_exhaustive_optimum():
+    """``ranging: rss``: the CM2 path-loss model's position bound (log-normal shadowing sigma_dB, exponent
+    eta): F = sum_c k^2 e_c e_c^T / d_c^2 with k = 10 eta / (ln 10 sigma_dB). Closed form: six sensors at
+    distance d on the +-axes around the capsule give F = 2 k^2 / d^2 I, so b = d sqrt(3 / 2) / k (the
+    prior of 1 km changes it by (b / 1 km)^2 relative, below 1e-9). Then 4 of 9 random candidates for 3
+    capsule positions against the exhaustive oracle with its own Fisher sums."""
+    from types import SimpleNamespace
+
+    from design.coverage import normalise_spec
+    from design.layout import normalise_layout, problem_of
+
+    eta, sigma_db = 4.26, 7.85  # cm2_deep_tissue (IEEE 802.15.6 CM2)
+    k = 10.0 * eta / (math.log(10.0) * sigma_db)
+    d = 0.12
+    axes = np.vstack([np.eye(3), -np.eye(3)]) * d
+    plan = SimpleNamespace(positions=SimpleNamespace(positions_m=np.zeros((1, 3))),
+                           candidates=SimpleNamespace(positions_m=axes))
+    ones = np.ones((1, 6))
+    arrays = {"paths": ones, "direct_path": ones.astype(bool), "snr_db": ones * 10.0}
+    layout = normalise_layout({"sensors": 6, "ranging": "rss", "evaluate": None})
+    problem = problem_of(layout, normalise_spec({}), plan, arrays, 1e3, 124e-12)
+    assert problem.bounds_m(range(6))[0] == pytest.approx(d * math.sqrt(1.5) / k, rel=1e-9)
+
+    rng = np.random.default_rng(7)
+    caps = rng.normal(0.0, 0.04, (3, 3))
+    cands = rng.normal(0.0, 1.0, (9, 3))
+    cands = 0.15 * cands / np.linalg.norm(cands, axis=1, keepdims=True)
+    usable = rng.random((3, 9)) > 0.2
+    plan = SimpleNamespace(positions=SimpleNamespace(positions_m=caps),
+                           candidates=SimpleNamespace(positions_m=cands))
+    arrays = {"paths": usable * 1.0, "direct_path": usable, "snr_db": np.full((3, 9), 10.0)}
+    problem = problem_of(normalise_layout({"sensors": 4, "ranging": "rss", "min_sensors": 3, "evaluate": None}),
+                         normalise_spec({}), plan, arrays, 0.5, 124e-12)
+    grad = np.zeros((3, 9, 3))
+    for p in range(3):
+        for c in range(9):
+            v = caps[p] - cands[c]
+            grad[p, c] = 10.0 * eta / math.log(10.0) * v / (v @ v)  # d(path loss)/dx per dB of shadowing
+    (u, v), _ = _oracle(grad, np.full((3, 9), sigma_db), usable, 4, "p90", 0.5, 3)
+    got = search(problem, Constraints(np.ones(9, bool), cands), 4, exact_limit=0, restarts=6)
+    assert got.key[0] == u and got.key[1] == pytest.approx(v, rel=1e-9)

@@ -281,3 +281,44 @@ def test_swagger_ui_renders_offline(page, live_url):
     summaries = page.locator(".opblock-summary-path").all_inner_texts()
     assert "/v1/channel" in [s.strip() for s in summaries] and any("/v1/plots/pdp" in s for s in summaries)
     assert errors == [] and external == [], (errors, external)
+
+
+def test_viewer_colours_the_skin_with_a_coverage(page, live_url):
+    """The design layer (docs/design.md): a coverage job made on the server, then shown in the viewer: one
+    disc per candidate (the count the map endpoint gives), drawn over the torso, its scale shown; clear
+    removes it."""
+    import time
+
+    page, errors, external = page
+    spec = {"positions": {"sites": ["stomach"]},
+            "candidates": {"spacing_m": 0.08, "region": {"min_m": [-1, -1, 0.0], "max_m": [1, 1, 0.15]}},
+            "channel": {"rays": 2000, "max_interactions": 2, "dynamic_range_db": 30}, "cell_size_m": 0.01}
+    r = httpx.post(f"{live_url}/v1/design/coverage", json=spec, timeout=HANG_GUARD_S)
+    assert r.status_code == 202, r.text
+    job = r.json()
+    deadline = time.monotonic() + HANG_GUARD_S  # a wait for the job, never a verdict on speed
+    while job["state"] in ("queued", "running") and time.monotonic() < deadline:
+        time.sleep(0.5)
+        job = httpx.get(f"{live_url}/v1/design/coverage/{job['id']}", timeout=HANG_GUARD_S).json()
+    assert job["state"] == "done", job
+    try:
+        m = httpx.get(f"{live_url}/v1/design/coverage/{job['id']}/map?metric=direct_path", timeout=HANG_GUARD_S)
+        candidates = len(m.json()["candidates_m"])
+        assert candidates > 12
+        page.goto(f"{live_url}/viewer")
+        wait_state(page, "window.viewerState.ready", errors, external)
+        assert not page.is_visible("#coverage-scale")
+        page.evaluate(COUNT_PIXELS, list(BACKGROUND))  # the frame before the layer
+        page.fill("#coverage-id", job["id"])
+        page.select_option("#coverage-metric", "direct_path")
+        page.click("#coverage-show")
+        state = wait_state(page, "window.viewerState.coverage > 0", errors, external)
+        assert state["coverage"] == candidates
+        assert page.is_visible("#coverage-scale") and page.inner_text("#coverage-max") == "1.00"
+        after = page.evaluate(COUNT_PIXELS, list(BACKGROUND))
+        assert after["changed"] > 200, after  # the discs were drawn over the skin
+        page.click("#coverage-clear")
+        assert not page.is_visible("#coverage-scale")
+        assert errors == [] and external == [], (errors, external)
+    finally:
+        httpx.delete(f"{live_url}/v1/design/coverage/{job['id']}", timeout=HANG_GUARD_S)

@@ -177,3 +177,125 @@ def test_return_lengths_are_made_once_per_receiver_pattern(torso):
     assert sbr.return_lengths(scene, media, zone, need, alpha) is first
     other = sbr.return_lengths(scene, media, zone, sbr._interactions_needed(media, np.array([-1])), alpha)
     assert other is not first
+
+
+def _corner_normals_numpy(vertices, faces, face_normals, crease_deg):
+    """The numpy expressions the compiled corner normals replaced (edge keys sorted, scipy's
+    connected components, sums by np.bincount): the oracle, bit for bit."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(faces, np.int64)
+    nf = len(faces)
+    fn = np.asarray(face_normals, float)
+    crease = np.broadcast_to(np.asarray(crease_deg, float), (nf,))
+    v = vertices[faces]
+    weights = np.empty((nf, 3, 3))
+    for i in range(3):
+        e1 = v[:, (i + 1) % 3] - v[:, i]
+        e2 = v[:, (i + 2) % 3] - v[:, i]
+        weights[:, i] = np.cross(e1, e2) / (np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2))[:, None]
+    hf = np.repeat(np.arange(nf), 3)
+    hc = np.tile(np.arange(3), nf)
+    a, b = faces[hf, hc], faces[hf, (hc + 1) % 3]
+    key = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    k = key[order]
+    same = np.all(k[1:] == k[:-1], axis=1)
+    starts = np.flatnonzero(np.concatenate([[True], ~same]))
+    counts = np.diff(np.concatenate([starts, [len(k)]]))
+    runs = np.repeat(counts, counts)
+    pair = same & (runs[:-1] == 2)
+    h1, h2 = order[:-1][pair], order[1:][pair]
+    f1, f2 = hf[h1], hf[h2]
+    limit = np.cos(np.radians(np.minimum(crease[f1], crease[f2])))
+    smooth = np.einsum("ij,ij->i", fn[f1], fn[f2]) >= limit
+    h1, h2, f1, f2 = h1[smooth], h2[smooth], f1[smooth], f2[smooth]
+    c1a, c1b = hc[h1], (hc[h1] + 1) % 3
+    va, vb = faces[f1, c1a], faces[f1, c1b]
+    c2a = np.argmax(faces[f2] == va[:, None], axis=1)
+    c2b = np.argmax(faces[f2] == vb[:, None], axis=1)
+    node1 = np.concatenate([3 * f1 + c1a, 3 * f1 + c1b])
+    node2 = np.concatenate([3 * f2 + c2a, 3 * f2 + c2b])
+    graph = coo_matrix((np.ones(len(node1), np.int8), (node1, node2)), shape=(3 * nf, 3 * nf))
+    _, label = connected_components(graph, directed=False)
+    acc = np.zeros((label.max() + 1, 3))
+    flat = weights.reshape(-1, 3)
+    for j in range(3):
+        acc[:, j] = np.bincount(label, weights=flat[:, j], minlength=len(acc))
+    norm = np.linalg.norm(acc, axis=1, keepdims=True)
+    out = (acc / np.where(norm > 0.0, norm, 1.0))[label].reshape(nf, 3, 3)
+    alone = np.bincount(label, minlength=len(acc))[label].reshape(nf, 3) == 1
+    degenerate = (norm[label, 0] <= 0.0).reshape(nf, 3)
+    return np.where((alone | degenerate)[..., None], fn[:, None, :], out)
+
+
+def _unit_normals(mesh):
+    fn = np.asarray(mesh.face_normals, float)
+    return fn / np.linalg.norm(fn, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("case", ["torso", "box", "cylinder", "per-face creases", "non-manifold"])
+def test_corner_normals_are_the_numpy_expressions_bit_for_bit(torso, case):
+    """The compiled corner normals against the numpy expressions they replaced, exactly, on the
+    torso (one crease angle per organ), a box (every edge a crease), a coarse cylinder (smooth
+    sides, creased rims), random crease angles per face (the smaller of two faces' applies) and a
+    mesh with an edge shared by three faces (joins nothing)."""
+    from raytrace.engine.scene import CREASE_ANGLE_DEG, corner_normals
+
+    rng = np.random.default_rng(3)
+    if case == "torso":
+        vertices, faces = np.asarray(torso.vertices, float), np.asarray(torso.faces, np.int64)
+        fn = np.asarray(torso.face_normals, float)
+        fn = fn / np.linalg.norm(fn, axis=1, keepdims=True)
+        crease = np.array([CREASE_ANGLE_DEG if o.crease_angle_deg is None else o.crease_angle_deg
+                           for o in torso.organs])[np.asarray(torso.face_organ, np.int64)]
+    else:
+        if case == "box":
+            mesh = trimesh.creation.box(extents=[0.3, 0.1, 0.05])
+        elif case == "non-manifold":
+            mesh = trimesh.util.concatenate([trimesh.creation.box(), trimesh.creation.box()])
+            mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True)  # merged: edges of 4 faces
+            extra = mesh.faces[:1][:, [1, 0, 2]].copy()
+            extra[0, 2] = len(mesh.vertices)
+            mesh = trimesh.Trimesh(np.vstack([mesh.vertices, [[0.3, 0.7, 0.1]]]), np.vstack([mesh.faces, extra]),
+                                   process=False)
+        else:
+            mesh = trimesh.creation.cylinder(radius=0.2, height=0.5, sections=24)
+        vertices, faces = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+        fn = _unit_normals(mesh)
+        crease = rng.uniform(10.0, 100.0, len(faces)) if case == "per-face creases" else CREASE_ANGLE_DEG
+    np.testing.assert_array_equal(corner_normals(vertices, faces, fn, crease),
+                                  _corner_normals_numpy(vertices, faces, fn, crease))
+    # exact zeros' signs too (assert_array_equal takes -0.0 == 0.0)
+    assert corner_normals(vertices, faces, fn, crease).tobytes() == \
+        _corner_normals_numpy(vertices, faces, fn, crease).tobytes()
+
+
+def test_a_pickled_embree_scene_is_built_again_where_it_is_loaded(tmp_path):
+    """An Embree scene pickled (a phantom's scene of every face travels with the phantom to a
+    sweep's worker or a bench's child) casts in the process that loads it: the same first hits
+    as the scene it was pickled from. Run in a fresh interpreter: a scene that pickled its
+    handle (a pointer into the first process) crashed there."""
+    import pickle
+    import subprocess
+    import sys
+
+    box = trimesh.creation.box(extents=[1.0, 2.0, 3.0])
+    faces = np.asarray(box.faces)
+    geometry = (np.array([0, 6]), np.array([6, 12]), np.array([1, 2], np.uint32))
+    from raytrace.engine.embree import Geometry
+
+    scene = EmbreeScene(np.asarray(box.vertices), faces, geometry=Geometry(*geometry))
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(200, 3))
+    d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    o = np.zeros((200, 3), np.float32)
+    expected = [np.asarray(a) for a in scene.intersect(o, d, 2)]
+    (tmp_path / "scene.pkl").write_bytes(pickle.dumps((scene, o, d, expected)))
+    code = ("import pickle, sys, numpy as np\n"
+            f"scene, o, d, expected = pickle.load(open({str(tmp_path / 'scene.pkl')!r}, 'rb'))\n"
+            "got = scene.intersect(o, d, 2)\n"
+            "assert all(np.array_equal(np.asarray(a), b) for a, b in zip(got, expected)), 'hits differ'\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]

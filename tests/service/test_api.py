@@ -332,7 +332,7 @@ def test_channel_deadline_gives_504(make_settings):
 
 def test_zero_gain_is_reported_at_the_documented_floor():
     from raytrace.results import ReceiverProfile
-    from service import channel as ops
+    from service.operations import channel as ops
     from service.schemas import GAIN_DB_FLOOR
 
     prof = ReceiverProfile("r", __import__("numpy").zeros(3), "air", 0.1, ())

@@ -14,7 +14,7 @@ import pytest
 
 from service.cli import build_parser, main
 from service.client import APIError, Client
-from service.routes.localize import LocalizeEvaluateResponse, LocalizeResponse
+from service.schemas.localize import LocalizeEvaluateResponse, LocalizeResponse
 
 TRUE = (0.012, -0.021, 0.034)
 LAYOUT = [(0.15, 0.02, 0.0), (-0.12, 0.05, 0.03), (0.01, -0.14, 0.06), (0.03, 0.11, -0.09),

@@ -11,7 +11,9 @@ from fastapi.testclient import TestClient
 from raytrace.errors import BudgetExceededError
 from raytrace.solver.budget import Budget
 from service.app import create_app
+from service.operations.tracking import run_track
 from service.routes import tracking as route
+from service.schemas.tracking import TrackRequest
 
 COV = [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 1e-4]]
 STEPS = 400
@@ -72,8 +74,8 @@ def test_a_particle_track_stops_when_its_client_leaves(make_settings):
     registry.load_builtins(True)
     budget = LeavesAt()
     budget.k = 31
-    req = route.TrackRequest.model_validate(_body())
+    req = TrackRequest.model_validate(_body())
     with pytest.raises(BudgetExceededError) as info:
-        route.run_track(req, registry, budget, make_settings())
+        run_track(req, registry, budget, make_settings())
     assert info.value.kind == "cancelled"
     assert budget.checks == 31  # the route's own check before the track, then 30 steps of 400

@@ -247,7 +247,7 @@ def test_motion_multipart_limits(client, colon_pair):
 
 def test_typed_client(client, colon_pair):
     from service.client import Client
-    from service.routes.vision import MotionResponse, RenderResponse
+    from service.schemas.vision import MotionResponse, RenderResponse
 
     a, b, geometry = colon_pair
     api = Client("http://testserver", transport=client._transport)

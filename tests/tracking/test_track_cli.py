@@ -34,7 +34,7 @@ def test_track_command_names_the_bad_field(tmp_path, capsys):
 def test_the_evaluate_schema_states_the_journeys_own_bounds():
     """The journey's numeric bounds live in tracking.journey; POST /v1/track/evaluate's schema must
     say the same ones (a drift is a schema-valid request refused: the fuzzer found dt_s 5e-324)."""
-    from service.routes.tracking import JourneyIn
+    from service.schemas.tracking import JourneyIn
     from tracking.journey import _BOUNDS
 
     props = JourneyIn.model_json_schema()["properties"]

@@ -9,7 +9,7 @@ import numpy as np
 
 from raytrace.solver.budget import Budget
 from service import costs
-from service.admission import admit
+from service.admission import admit, lower_or_refuse
 from service.errors import Unprocessable
 from service.schemas.ranging import PdoaRequest, ProfileIn, RangingCommon, RssRequest, ToaRequest
 from service.settings import Settings
@@ -64,11 +64,8 @@ def _link(req: RangingCommon) -> dict[str, Any] | None:
 def _check_trials(req: RangingCommon, settings: Settings) -> None:
     """A given ``trials`` over this server's limit is refused; the default is capped to it (the
     served schema says so: its default and maximum follow the setting)."""
-    if "trials" not in req.model_fields_set:
-        req.trials = min(req.trials, settings.max_trials)
-    if req.trials > settings.max_trials:
-        raise Unprocessable(f"{req.trials} exceeds this server's limit of {settings.max_trials}",
-                            loc=["body", "trials"])
+    given = req.trials if "trials" in req.model_fields_set else None
+    req.trials = lower_or_refuse(given, "max_trials", settings, ("trials",), default=req.trials)
 
 
 def _stop(budget: Budget | None):

@@ -17,7 +17,7 @@ import numpy as np
 
 from raytrace import ChannelResult, ChannelSpec, Phantom
 from service import costs
-from service.admission import admit
+from service.admission import admit, lower_or_refuse
 from service.errors import NotFound, Unprocessable
 from service.registry import Registry
 from service.schemas import GAIN_DB_FLOOR
@@ -42,20 +42,16 @@ def to_spec(req: ChannelRequest, registry: Registry, settings: Settings) -> tupl
         base = scenario.spec
     given = req.model_dump(exclude_none=True, exclude={"scenario", "outputs"})
     spec = ChannelSpec.from_dict(given, base)
-    lowered = {key: cap for key, cap in (("rays", settings.max_rays), ("max_interactions", settings.max_interactions))
-               if key not in given and getattr(spec, key) > cap}
-    if lowered:
-        spec = replace(spec, **lowered)
+    # rays and interactions the request leaves to the scenario or the spec's defaults are lowered to this
+    # server's limits; given ones, the receivers and the band's points above them are refused
+    knobs = {key: lower_or_refuse(given.get(key), setting, settings, (key,), default=getattr(spec, key))
+             for key, setting in (("rays", "max_rays"), ("max_interactions", "max_interactions"))}
+    if any(knobs[key] != getattr(spec, key) for key in knobs):
+        spec = replace(spec, **knobs)
     phantom = registry.get(spec.phantom, field_loc=["body", "phantom"])
-    checks = [
-        (["body", "rays"], spec.rays, settings.max_rays),
-        (["body", "max_interactions"], spec.max_interactions, settings.max_interactions),
-        (["body", "receivers"], len(spec.receivers), settings.max_receivers),
-        (["body", "band", "points"], spec.band.points if spec.band else None, settings.max_band_points),
-    ]
-    for loc, value, cap in checks:
-        if value is not None and value > cap:
-            raise Unprocessable(f"{value} exceeds this server's limit of {cap}", loc=loc)
+    lower_or_refuse(len(spec.receivers), "max_receivers", settings, ("receivers",), default=0)
+    if spec.band is not None:
+        lower_or_refuse(spec.band.points, "max_band_points", settings, ("band", "points"), default=0)
     check_footprint(spec, settings)
     _check_outputs(req.outputs, spec)
     return spec, phantom
