@@ -35,7 +35,8 @@ def _vision_render_seq(args: argparse.Namespace) -> int:
         sensor = SensorIn(salt_pepper=args.salt_pepper, read_noise=args.read_noise, seed=args.seed)
         seq = render_sequence(phantom, path, args.frames, args.advance_m, args.roll_deg,
                               FisheyeCamera(args.fov_deg, args.size_px), start_m=offset,
-                              start_roll_deg=args.start_roll_deg, texture=texture_for(organ, seed=args.seed),
+                              start_roll_deg=args.start_roll_deg,
+                              texture=texture_for(organ, seed=args.seed, phantom=phantom),
                               sensor=SensorModel(**sensor.model_dump()), organ=organ)
     except (VisionInputError, CapsuleRTError, ServiceError) as exc:  # a refusal, as the API's error JSON
         print(json.dumps(error_json(exc), indent=2), file=sys.stderr)
@@ -110,7 +111,8 @@ def _vision_motion_seq(args: argparse.Namespace) -> int:
         if ta and tb:
             pose = Pose(ta["position_m"], ta["direction"], 0.0, ta["up"])
             frame = render_frame(phantom, pose, FisheyeCamera(**truth["camera"]), organ=truth["organ"],
-                                 texture=texture_for(truth["organ"], seed=truth["seed"]), exposure=truth["exposure"])
+                                 texture=texture_for(truth["organ"], seed=truth["seed"], phantom=phantom),
+                                 exposure=truth["exposure"])
             row["advance_m"], note = advance_of(frame, est.scale)
             row.update(true_roll_deg=tb["roll_deg"] - ta["roll_deg"], true_advance_m=tb["s_m"] - ta["s_m"])
             row["roll_error_deg"] = est.rotation_deg - row["true_roll_deg"]

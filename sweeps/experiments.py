@@ -11,6 +11,8 @@ experiment             specs                                                    
 ``thesis-ch4-toa``     thesis-ch4-toa-homogeneous, thesis-ch4-toa-heterogeneous    Ch. 4, Figs 4.3-4.5
 ``thesis-ch5-pdoa``    thesis-ch5-pdoa, torso-pdoa-bands                           Sec 5.4, Table 5.2
 ``torso-path-loss``    torso-path-loss-402mhz                                      Table 2.2 (IEEE CM2)
+``abdomen-ct-path-     abdomen-ct-path-loss-402mhz (the CT abdomen, every 50 mm)   Table 2.2 (IEEE CM2)
+loss``
 =====================  ==========================================================  =======================
 """
 
@@ -106,10 +108,32 @@ def _pdoa_report(tables: dict[str, pa.Table]) -> tuple[str, dict]:
     return text, {"slab": rows, "torso": torso}
 
 
-def _path_loss_report(tables: dict[str, pa.Table]) -> tuple[str, dict]:
-    table = tables["torso-path-loss-402mhz"]
-    model, links = fit_table(table, frequency_hz=402e6, name="torso_402mhz_fit")
-    rows = [{"model": "fitted to the torso (402 MHz)", "pl0": model.path_loss_d0_db, "n": model.exponent,
+#: Distance bins of the path-loss reports' medians [m].
+PATH_LOSS_BINS_M = ((0.07, 0.10), (0.10, 0.13), (0.13, 0.16), (0.16, 0.20), (0.20, 0.25), (0.25, 0.31), (0.31, 0.40))
+
+
+def _median_path_loss(table: pa.Table) -> list[dict]:
+    """Median path loss (-path_gain_db) of the links with a path, per distance bin."""
+    cols = table.to_pydict()
+    d = [x for x, g in zip(cols["distance_m"], cols["path_gain_db"]) if g is not None]
+    loss = [-g for g in cols["path_gain_db"] if g is not None]
+    out = []
+    for lo, hi in PATH_LOSS_BINS_M:
+        inside = sorted(v for x, v in zip(d, loss) if lo <= x < hi)
+        if inside:
+            mid = len(inside) // 2
+            median = inside[mid] if len(inside) % 2 else 0.5 * (inside[mid - 1] + inside[mid])
+            out.append({"bin": f"{lo * 1e3:.0f}-{hi * 1e3:.0f}", "links": len(inside), "median_db": median,
+                        "cm2_db": float(CM2.path_loss_db(0.5 * (lo + hi)))})
+    return out
+
+
+def _path_loss_report(tables: dict[str, pa.Table], spec: str = "torso-path-loss-402mhz",
+                      what: str = "the torso") -> tuple[str, dict]:
+    table = tables[spec]
+    model, links = fit_table(table, frequency_hz=402e6, name=spec.replace("-path-loss-", "_").replace("-", "_")
+                             + "_fit")
+    rows = [{"model": f"fitted to {what} (402 MHz)", "pl0": model.path_loss_d0_db, "n": model.exponent,
              "sigma": model.shadowing_db, "links": links},
             {"model": "IEEE 802.15.6 CM2 deep tissue", "pl0": CM2.path_loss_d0_db, "n": CM2.exponent,
              "sigma": CM2.shadowing_db, "links": None}]
@@ -117,11 +141,16 @@ def _path_loss_report(tables: dict[str, pa.Table]) -> tuple[str, dict]:
     cols = [("model", "model", "{}"), ("pl0", "PL(d0) [dB]", "{:.2f}"), ("n", "exponent n", "{:.2f}"),
             ("sigma", "sigma [dB]", "{:.2f}"), ("links", "links", "{}")]
     rss = method_summary(table, ["rss"])
+    medians = _median_path_loss(table)
+    bins = [("bin", "distance [mm]", "{}"), ("links", "links", "{}"), ("median_db", "median path loss [dB]", "{:.1f}"),
+            ("cm2_db", "CM2 at the bin's centre [dB]", "{:.1f}")]
     text = "\n".join(["d0 = 50 mm; links with a path, distances "
                       f"{min(d) * 1e3:.0f}-{max(d) * 1e3:.0f} mm", "", "```", format_table(rows, cols), "```", "",
+                      "Median path loss by distance:", "", "```", format_table(medians, bins), "```", "",
                       "RSS ranging with CM2 deep tissue on the same links:", "", "```",
                       format_table(rss, SUMMARY_COLUMNS), "```", ""])
-    return text, {"fitted": model_dict(model), "links": links, "cm2_deep_tissue": model_dict(CM2), "rss": rss}
+    return text, {"fitted": model_dict(model), "links": links, "cm2_deep_tissue": model_dict(CM2), "rss": rss,
+                  "median_by_distance": medians}
 
 
 EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
@@ -131,6 +160,9 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
                "multi-tone PDOA at 400-420 MHz vs 2440-2460 MHz"),
     Experiment("torso-path-loss", ("torso-path-loss-402mhz",), _path_loss_report,
                "a path-loss model fitted to the torso beside IEEE 802.15.6 CM2"),
+    Experiment("abdomen-ct-path-loss", ("abdomen-ct-path-loss-402mhz",),
+               lambda tables: _path_loss_report(tables, "abdomen-ct-path-loss-402mhz", "the CT abdomen"),
+               "a path-loss model fitted to the CT abdomen beside IEEE 802.15.6 CM2"),
 )}
 
 

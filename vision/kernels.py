@@ -358,9 +358,11 @@ def _smoothstep(e0, e1, x):
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent):
+def mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent, path_s_mm, path_t):
     """Per point: reflectance (N, 3) into ``albedo`` and bent unit normal into ``bent``
-    (``normals`` face the lumen). ``params``: see vision.mucosa.MucosaTexture._params."""
+    (``normals`` face the lumen). ``params``: see vision.mucosa.MucosaTexture._params; with folds
+    along a path (its fourth entry 2) each point's arc length ``path_s_mm`` (N,) and the path's unit
+    tangent there ``path_t`` (N, 3) take the place of the fixed axis (vision.mucosa.FoldPath)."""
     (axis_x, axis_y, axis_z, has_axis, spacing, depth, sharp, warp_amp, warp_scale, bump_mm, bump_scale,
      colour_var, colour_scale, vessel_scale, vessel_width, vessel_strength, valley) = params
     for i in range(points_mm.shape[0]):
@@ -368,10 +370,15 @@ def mucosa(perm, g, points_mm, normals, params, base, vessel_rgb, albedo, bent):
         # --- folds: height (mm) and its gradient (mm / mm)
         nw, wx, wy, wz = noise_grad(perm, g, x / warp_scale + 17.3, y / warp_scale + 5.1, z / warp_scale + 9.7)
         if has_axis > 0.5:
-            s = (x * axis_x + y * axis_y + z * axis_z) / spacing + warp_amp * nw
-            sx = axis_x / spacing + warp_amp * wx / warp_scale
-            sy = axis_y / spacing + warp_amp * wy / warp_scale
-            sz = axis_z / spacing + warp_amp * wz / warp_scale
+            if has_axis > 1.5:  # along a path: its arc length, its tangent as the local axis
+                ax, ay, az = path_t[i, 0], path_t[i, 1], path_t[i, 2]
+                s = path_s_mm[i] / spacing + warp_amp * nw
+            else:
+                ax, ay, az = axis_x, axis_y, axis_z
+                s = (x * axis_x + y * axis_y + z * axis_z) / spacing + warp_amp * nw
+            sx = ax / spacing + warp_amp * wx / warp_scale
+            sy = ay / spacing + warp_amp * wy / warp_scale
+            sz = az / spacing + warp_amp * wz / warp_scale
             c = 0.5 + 0.5 * math.cos(2.0 * math.pi * s)
             fold = c**sharp
             dfold = sharp * c ** (sharp - 1.0) * (-math.pi * math.sin(2.0 * math.pi * s)) if c > 0.0 else 0.0

@@ -112,7 +112,7 @@ def pair_estimates(phantom, s_m: Sequence[float], roll_deg: Sequence[float],
             local = min(max(float(s[k] - starts[i]), 0.0), paths[i].length_m)
             organ = line.pieces[i].organ
             frames[k] = render_frame(phantom, path_pose(paths[i], ups[i], local, float(roll[k])), camera,
-                                     texture=texture_for(organ), organ=organ, frame_index=k)
+                                     texture=texture_for(organ, phantom=phantom), organ=organ, frame_index=k)
             frames.pop(k - 2, None)
         return frames[k]
 

@@ -105,9 +105,11 @@ class Centreline:
         # the next piece's start (right-continuity), and the end is a different point
         last = np.append(self._piece[1:] != self._piece[:-1], False)
         self._t_max = np.where(last, self._len - 1e-12 * max(self.length_m, 1.0), self._len)
-        ends_s = np.cumsum([np.sum(self._len[self._piece == k]) for k in range(len(self.pieces))])
+        # the start of each later piece's first segment, as _segment finds it (the same cumulative sum: a sum
+        # per piece would differ in the last bit and put the junction in the previous piece's last segment)
+        first = np.flatnonzero(np.diff(self._piece)) + 1
         #: Arc lengths where one piece ends and the next begins (the position jumps there).
-        self.junctions_s_m: tuple[float, ...] = tuple(float(x) for x in ends_s[:-1])
+        self.junctions_s_m: tuple[float, ...] = tuple(float(x) for x in self._s0[first])
 
     # ------------------------------------------------------------ queries
     def _segment(self, s: Any) -> tuple[np.ndarray, np.ndarray, tuple]:

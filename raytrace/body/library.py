@@ -1,4 +1,4 @@
-"""The built-in phantoms: the default torso and the planar and spherical test bodies.
+"""The built-in phantoms: the default torso, the CT abdomen and the planar and spherical test bodies.
 
 ``builtin_phantoms()`` maps a phantom id to a cached factory; ``get_phantom(id)``
 builds (once per process) and returns one. The service lists and serves them
@@ -168,8 +168,19 @@ def layered_slab() -> Phantom:
     )
 
 
+def abdomen_ct() -> Phantom:
+    """One real abdomen from CT through the anatomy pipeline, cached on disk (raytrace/body/abdomen.py).
+
+    Imported when first asked for: ``python -m raytrace.body.abdomen`` (the install-time build) must be able
+    to run that module as ``__main__`` without the package having imported it first."""
+    from raytrace.body.abdomen import abdomen_ct as build
+
+    return build()
+
+
 _PHANTOMS: dict[str, Callable[[], Phantom]] = {
     TORSO_NAME: default_torso,
+    "abdomen-ct": abdomen_ct,
     "thesis-fig-5-6": thesis_slab,
     "homogeneous-sphere": homogeneous_sphere,
     "half-space": half_space,

@@ -64,7 +64,7 @@ def render_request(phantom, req: RenderRequest) -> tuple[Frame, str, float | Non
     """Render a request's frame (the CLI and the route share it)."""
     pose, organ, s_m = resolve_pose(phantom, req.pose, req.roll_deg)
     camera = FisheyeCamera(req.camera.fov_deg, req.camera.size_px)
-    texture = texture_for(organ, req.texture.preset, req.texture.fold_axis, req.texture.seed)
+    texture = texture_for(organ, req.texture.preset, req.texture.fold_axis, req.texture.seed, phantom=phantom)
     sensor = SensorModel(**req.sensor.model_dump())
     frame = render_frame(phantom, pose, camera, texture=texture, sensor=sensor, exposure=req.exposure, organ=organ)
     return frame, organ, s_m

@@ -158,9 +158,12 @@ def test_export_round_trip(phantom_id: str) -> None:
         {n: (s.kind, s.medium) for n, s in phantom.sites.items()}
     for n, s in phantom.sites.items():
         np.testing.assert_array_equal(again.sites[n].position_m, s.position_m)
-    # float32 positions in the file: relative error <= 2^-24 of the scene scale.
+    # float32 positions in the file: relative error <= 2^-24 of the scene scale, compared triangle corner by
+    # triangle corner (the reader merges identical positions, so two vertices of a surface at one point, where
+    # a clipped organ pinches, come back as one: the same triangles, one vertex fewer).
     scale = np.abs(phantom.vertices).max()
-    assert np.abs(again.vertices - phantom.vertices).max() <= scale * 2.0**-23
+    for o, r in zip(phantom.organs, again.organs):
+        assert np.abs(r.mesh.vertices[r.mesh.faces] - o.mesh.vertices[o.mesh.faces]).max() <= scale * 2.0**-23
     # An independent reader sees one organ-named node per organ.
     scene = trimesh.load(io.BytesIO(glb), file_type="glb", force="scene")
     assert sorted(scene.graph.nodes_geometry) == sorted(o.name for o in phantom.organs)

@@ -41,6 +41,7 @@ from raytrace.body.anatomy.sensors import belt_positions
 from raytrace.body.anatomy.tracts import build_tract, read_points
 from raytrace.body.anatomy.volume import LabelVolume, label_surface, open_volume
 from raytrace.body.anatomy.wall import generate_wall
+from raytrace.body.centreline import GI_TRACT, Centreline
 from raytrace.body.phantom import AIR_INDEX, Organ, Phantom, Site, Surfaces
 from raytrace.body.topology import ClosedEdges
 from raytrace.errors import Field, InvalidGeometryError, PhantomValidationError
@@ -151,12 +152,14 @@ def _to_metres(m: BuildManifest) -> tuple[Callable[[np.ndarray], np.ndarray], bo
 
 
 def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None, where: Field, budget: int,
-             triangles_left: list[int]) -> tuple[trimesh.Trimesh, list[str], str]:
-    """One organ's (or the body's) closed surface in metres, its repairs and its source."""
+             triangles_left: list[int]) -> tuple[trimesh.Trimesh, list[str], str, list[trimesh.Trimesh]]:
+    """One organ's (or the body's) closed surface in metres, its repairs, its source and its files' closed
+    surfaces (:attr:`raytrace.body.anatomy.repair.Repaired.pieces`)."""
     m = ctx.manifest
     to_m, mirrors = _to_metres(m)
     options = m.options
     notes: list[str] = []
+    counts: list[int] | None = None
     if label is not None:
         assert ctx.volume is not None
         mesh, notes = label_surface(ctx.volume, label, where, name, options)
@@ -173,11 +176,12 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
             all_f.append(t + base)
             base += len(v)
         vertices, faces = to_m(np.concatenate(all_v)), np.concatenate(all_f)
+        counts = [len(t) for t in all_f]
         source = ", ".join(files)
     if mirrors:
         faces = faces[:, ::-1]
     repaired = repair_surface(vertices, faces, where, f"{name} ({source})", options, budget=budget,
-                              max_cells=ctx.limits.max_grid_cells, check_crossings=False)
+                              max_cells=ctx.limits.max_grid_cells, check_crossings=False, pieces=counts)
     mesh = repaired.mesh
     notes += repaired.repairs
     if repaired.edges is not None:
@@ -191,7 +195,7 @@ def _surface(ctx: _Context, name: str, files: tuple[str, ...], label: int | None
         else:
             notes.append(f"kept {before} triangles, over the budget of {budget}: no decimation within "
                          f"decimation_error_m kept the surface closed and two-manifold")
-    return mesh, notes, source
+    return mesh, notes, source, repaired.pieces
 
 
 def _material(ctx: _Context, name: str, material: Material | None, label: int | None) -> tuple[Material, str | None]:
@@ -221,6 +225,7 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     organ_meshes: dict[str, trimesh.Trimesh] = {}
     organ_notes: dict[str, list[str]] = {}
     organ_source: dict[str, str] = {}
+    organ_pieces: dict[str, list[trimesh.Trimesh]] = {}
     fields: dict[str, Field] = {}
     materials: dict[str, Material] = {}
     n_steps = len(m.organs) + (1 if m.body else 0) + 3
@@ -228,7 +233,7 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     body_mesh = body_notes = None
     if m.body is not None:
         ctx.progress(step / n_steps, "reading the body surface")
-        body_mesh, body_notes, body_source = _surface(ctx, m.body.name, m.body.files, m.body.label,
+        body_mesh, body_notes, body_source, _ = _surface(ctx, m.body.name, m.body.files, m.body.label,
                                                       ("manifest", "body", "surface"), options.max_triangles_per_surface
                                                       * 4, triangles_left)
         step += 1
@@ -236,11 +241,12 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
         ctx.progress(step / n_steps, f"reading organ {name}")
         where = ("manifest", "organs", name, "files" if spec.files else "label")
         budget = spec.max_triangles or options.max_triangles_per_surface
-        mesh, notes, source = _surface(ctx, name, spec.files, spec.label, where, budget, triangles_left)
+        mesh, notes, source, pieces = _surface(ctx, name, spec.files, spec.label, where, budget, triangles_left)
         material, note = _material(ctx, name, spec.material, spec.label)
         if note:
             notes.insert(0, note)
         organ_meshes[name], organ_notes[name], organ_source[name] = mesh, notes, source
+        organ_pieces[name] = pieces
         materials[name] = material
         fields[name] = ("manifest", "organs", name)
         step += 1
@@ -264,7 +270,7 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
         label = labels[i]
         surface_field: Field = fields.get(label, ("manifest", "body", "surface"))
         mesh, note = union_of(everything[i], surface_field, label, options, budget=options.max_triangles_per_surface,
-                              max_cells=limits.max_grid_cells)
+                              max_cells=limits.max_grid_cells, pieces=organ_pieces.get(label))
         if i >= offset:
             organ_meshes[label] = mesh
             organ_notes[label].append(note)
@@ -340,11 +346,13 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
     ctx.timings["phantom_build_s"] = time.perf_counter() - t0
     sensor_report = _check_sensors(phantom, sensors, m)
     tracts_report = []
+    built_tracts = {}
     for tract_spec in m.tracts.values():
         points = read_points(_resolve(ctx, tract_spec.file, ("manifest", "tracts", tract_spec.name, "file")),
                              ("manifest", "tracts", tract_spec.name, "file"))
-        tract = build_tract(tract_spec, points, _to_metres(m)[0], phantom)
+        tract = build_tract(tract_spec, points, _to_metres(m)[0], phantom, options.tract_clearance_m)
         phantom.centrelines[tract_spec.name] = tract.centreline
+        built_tracts[tract_spec.name] = tract
         for mark, point in tract.landmark_points_m.items():
             site = f"{tract_spec.name}_{mark}"
             try:
@@ -362,11 +370,37 @@ def build_phantom(manifest: Any, root: Path, *, limits: Limits = Limits(), confi
                               "landmarks_s_mm": {k: v * 1e3 for k, v in tract.landmarks_s_m.items()},
                               "notes": tract.notes})
     phantom.metadata.update({"source": "anatomy", "tracts": {t["name"]: t["landmarks_s_mm"] for t in tracts_report}})
+    journey_report = _journey(m, phantom, built_tracts)
     ctx.timings["total_s"] = time.perf_counter() - clock
     report = _report(m, phantom, organ_notes, organ_source, body_notes, layers_report, tracts_report, sensor_report,
                      plan, ctx.timings)
+    report["journey"] = journey_report
     ctx.progress(1.0, "built")
     return BuildResult(phantom, report)
+
+
+def _journey(m: BuildManifest, phantom: Phantom, tracts: dict) -> dict | None:
+    """The tracts of ``m.journey`` joined in order into the ``gi_tract`` centreline (the capsule's way: the
+    position jumps where one tract ends and the next begins, the arc length runs on), which replaces their own
+    centrelines, with every landmark's site and arc length along it (``phantom.metadata["journey"]``)."""
+    if not m.journey:
+        return None
+    pieces, parts, sites = [], [], {}
+    start = 0.0
+    for name in m.journey:
+        tract = tracts[name]
+        pieces += [(p.organ, p.points_m) for p in tract.centreline.pieces]
+        parts.append({"tract": name, "organ": tract.organ, "start_m": start, "length_m": tract.centreline.length_m})
+        for mark, s in tract.landmarks_s_m.items():
+            sites[f"{name}_{mark}"] = start + s
+        start += tract.centreline.length_m
+    line = Centreline(pieces, field="manifest.journey")
+    for name in m.journey:  # their points are the journey's pieces now: not kept twice
+        phantom.centrelines.pop(name, None)
+    phantom.centrelines[GI_TRACT] = line
+    journey = {"centreline": GI_TRACT, "length_m": line.length_m, "parts": parts, "sites_s_m": sites}
+    phantom.metadata["journey"] = journey
+    return journey
 
 
 def _manifest_field(field_: Field | None, fields: dict[str, Field], m: BuildManifest) -> Field:
@@ -503,6 +537,11 @@ def markdown_report(report: dict) -> str:
             lines.append(f"- **{t['name']}** in {t['organ']}: {t['length_mm']:.0f} mm, {t['points']} points"
                          f"{' (reversed)' if t['reverse'] else ''}; landmarks: {marks or 'none'}"
                          + (f"; {'; '.join(t['notes'])}" if t["notes"] else ""))
+    if report.get("journey"):
+        j = report["journey"]
+        lines += ["", f"Journey (centreline `{j['centreline']}`): {j['length_m'] * 1e3:.0f} mm through "
+                  + ", ".join(f"{p['tract']} from {p['start_m'] * 1e3:.0f} mm" for p in j["parts"]) + "; sites: "
+                  + (", ".join(f"{k} {v * 1e3:.0f} mm" for k, v in j["sites_s_m"].items()) or "none")]
     if report["sensors"]:
         media = sorted({s["medium"] for s in report["sensors"]})
         lines += ["", f"Sensors: {len(report['sensors'])} (media: {', '.join(media)}).", ""]

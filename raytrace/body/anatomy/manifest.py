@@ -43,12 +43,12 @@ MAX_MANIFEST_BYTES = 256 * 1024
 #: The keys allowed at each place (manifest.schema.json lists the same; a test keeps them equal).
 KEYS = {
     "manifest": {"name", "description", "units", "scale", "transform", "body", "volume", "labels", "organs",
-                 "tracts", "sensors", "options"},
+                 "tracts", "journey", "sensors", "options"},
     "transform": {"axes", "origin"},
     "body": {"surface", "label", "layers", "fill", "name", "fill_name"},
     "layer": {"tissue", "relative_permittivity", "conductivity_s_per_m", "thickness_m", "name"},
     "organ": {"file", "files", "label", "tissue", "relative_permittivity", "conductivity_s_per_m", "max_triangles"},
-    "tract": {"file", "organ", "reverse", "landmarks"},
+    "tract": {"file", "organ", "reverse", "range", "landmarks"},
     "sensors": {"belts", "points"},
     "belt": {"height_m", "count", "name", "start_deg"},
 }
@@ -91,6 +91,9 @@ class Options:
     max_triangles_per_surface: int = 60_000
     #: Gaussian smoothing of a labelled volume's masks before marching cubes, in voxels.
     smoothing_voxels: float = 1.0
+    #: Tract points closer than this to their organ's surface, or outside it by at most this, are moved to this
+    #: depth inside it (a mid-line grazing a collapsed lumen's wall); farther outside is refused.
+    tract_clearance_m: float = 0.0005
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,8 @@ class TractSpec:
     organ: str
     reverse: bool
     landmarks: dict[str, int]
+    #: The file's points used, first and last index (inclusive), before any reversal; None: all of them.
+    range: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -149,6 +154,8 @@ class BuildManifest:
     label_names: dict[int, str]
     organs: dict[str, OrganSpec]
     tracts: dict[str, TractSpec]
+    #: Tracts joined in this order into the ``gi_tract`` centreline (the capsule's journey); empty: none.
+    journey: tuple[str, ...]
     belts: tuple[SensorBelt, ...]
     sensors: dict[str, tuple[float, float, float]]
     options: Options
@@ -234,10 +241,12 @@ def load_manifest(data: Any) -> BuildManifest:
         raise _fail(f"organ name {clash[0]!r} is taken by the body or one of its layers", ("manifest", "organs",
                                                                                              clash[0]))
     tracts = _tracts(data.get("tracts", {}), organs)
+    journey = _journey(data.get("journey", []), tracts)
     belts, sensors = _sensors(data.get("sensors", {}), body)
     return BuildManifest(name=name, description=description, scale=scale, units=units, axes=axes,
                          origin=origin, body=body, volume=volume, label_names=label_names, organs=organs,
-                         tracts=tracts, belts=belts, sensors=sensors, options=options, raw=dict(data))
+                         tracts=tracts, journey=journey, belts=belts, sensors=sensors, options=options,
+                         raw=dict(data))
 
 
 # ------------------------------------------------------------------ pieces
@@ -388,7 +397,8 @@ def _options(spec: Any) -> Options:
             values[key] = _positive(value, (*where, key))
     opts = Options(**values)
     limits = {"voxel_m": (1e-4, 0.02), "wall_grid_m": (2e-4, 0.02), "max_hole_m": (0.0, 0.2),
-              "overlap_tolerance_m": (0.0, 0.05), "planar_fraction": (0.0, 0.5), "smoothing_voxels": (0.0, 4.0)}
+              "overlap_tolerance_m": (0.0, 0.05), "planar_fraction": (0.0, 0.5), "smoothing_voxels": (0.0, 4.0),
+              "tract_clearance_m": (0.0, 0.01)}
     for key, (lo, hi) in limits.items():
         v = getattr(opts, key)
         if not lo < v <= hi:
@@ -525,12 +535,45 @@ def _tracts(spec: Any, organs: dict[str, OrganSpec]) -> dict[str, TractSpec]:
         marks = tract.get("landmarks", {})
         if not isinstance(marks, Mapping) or len(marks) > MAX_LANDMARKS:
             raise _fail(f"must map at most {MAX_LANDMARKS} landmark names to point indices", (*tw, "landmarks"))
+        span = None
+        if "range" in tract:
+            raw = tract["range"]
+            if not isinstance(raw, list) or len(raw) != 2:
+                raise _fail(f"must be [first, last]: the indices of the file's first and last points used, got "
+                            f"{_brief(raw)}", (*tw, "range"))
+            first, last = (_int(v, (*tw, "range", k), 0, 10**7) for k, v in enumerate(raw))
+            if last <= first:
+                raise _fail(f"the last point ({last}) must come after the first ({first})", (*tw, "range"))
+            span = (first, last)
         landmarks = {}
         for mark, index in marks.items():
             _name(mark, (*tw, "landmarks", str(mark)))
             landmarks[mark] = _int(index, (*tw, "landmarks", mark), 0, 10**7)
-        out[name] = TractSpec(name, _path(tract["file"], (*tw, "file")), organ, reverse, landmarks)
+            if span is not None and not span[0] <= landmarks[mark] <= span[1]:
+                raise _fail(f"landmark {mark!r} is point {landmarks[mark]}, outside the tract's range "
+                            f"[{span[0]}, {span[1]}]", (*tw, "landmarks", mark))
+        out[name] = TractSpec(name, _path(tract["file"], (*tw, "file")), organ, reverse, landmarks, span)
     return out
+
+
+def _journey(spec: Any, tracts: dict[str, TractSpec]) -> tuple[str, ...]:
+    """Tract names, each once, joined in this order into the ``gi_tract`` centreline."""
+    from raytrace.body.centreline import GI_TRACT
+
+    where = ("manifest", "journey")
+    if not isinstance(spec, list) or len(spec) > MAX_TRACTS:
+        raise _fail(f"must be a list of at most {MAX_TRACTS} tract names, in the order the capsule passes them",
+                    where)
+    for i, name in enumerate(spec):
+        if name not in tracts:
+            raise _fail(f"must name one of the tracts ({', '.join(tracts) or 'none'}), got {_brief(name)}",
+                        (*where, i))
+    if len(set(spec)) != len(spec):
+        raise _fail("each tract may appear once", where)
+    if spec and GI_TRACT in tracts:
+        raise _fail(f"a journey is the {GI_TRACT!r} centreline: no tract may have that name then",
+                    ("manifest", "tracts", GI_TRACT))
+    return tuple(spec)
 
 
 def _sensors(spec: Any, body: BodySpec | None) -> tuple[tuple[SensorBelt, ...], dict]:

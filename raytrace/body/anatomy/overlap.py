@@ -121,6 +121,18 @@ def _mm(x: float) -> str:
     return f"{x * 1e3:.3g} mm"
 
 
+def _give_way(meshes: dict[str, trimesh.Trimesh], notes: dict[str, list[str]], first: str, second: str,
+              clearance_m: float) -> None:
+    """``second`` (listed later) minus ``first`` grown by ``clearance_m``, for two organs that touch without
+    sharing volume (module doc); left as it is when nothing of it would be left."""
+    a, b = meshes[first], meshes[second]
+    moved = _drop_specks(subtract(b, _offset(a, clearance_m)), 1e-9)
+    if len(moved.faces):
+        removed = float(b.volume - moved.volume)
+        meshes[second] = moved
+        notes[second].append(f"touched {first!r}: gave way by {_mm(clearance_m)} ({removed * 1e6:.3g} mL removed)")
+
+
 def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field], tolerance_m: float,
                      clearance_m: float, crossing: set[tuple[int, int]] | None = None,
                      ) -> tuple[dict[str, trimesh.Trimesh], dict[str, list[str]]]:
@@ -138,17 +150,17 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
             a, b = meshes[first], meshes[second]
             if (i, j) not in crossing:
                 if gaps.touching(a, b, clearance_m):  # closer than the clearance, e.g. shared caps of cut pieces
-                    moved = _drop_specks(subtract(b, _offset(a, clearance_m)), 1e-9)
-                    if len(moved.faces):
-                        removed = float(b.volume - moved.volume)
-                        meshes[second] = moved
-                        notes[second].append(f"touched {first!r}: gave way by {_mm(clearance_m)} "
-                                             f"({removed * 1e6:.3g} mL removed)")
+                    _give_way(meshes, notes, first, second, clearance_m)
                 continue
             shared = intersect(a, b)
             volume = float(shared.volume) if len(shared.faces) else 0.0
-            if volume <= 0.0 or volume >= (1.0 - 1e-6) * min(a.volume, b.volume):
-                continue  # disjoint, or one nested in the other: no surface crosses (the phantom checks touching)
+            if volume <= 0.0:
+                # flagged as crossing yet sharing no volume: the surfaces touch (e.g. the caps of two cut pieces
+                # meeting exactly), which the phantom would refuse as a crossing once stored in float32
+                _give_way(meshes, notes, first, second, clearance_m)
+                continue
+            if volume >= (1.0 - 1e-6) * min(a.volume, b.volume):
+                continue  # one nested in the other: no surface crosses (the phantom checks touching)
             da, db = SurfaceDistance(a.vertices, a.faces, clearance_m * 4 + 1e-4), \
                 SurfaceDistance(b.vertices, b.faces, clearance_m * 4 + 1e-4)
             depth = max(_depth(a, b, db), _depth(b, a, da))

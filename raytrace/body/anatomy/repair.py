@@ -18,11 +18,14 @@ only when it changed something:
    and where it is;
 4. **winding**: every shell is wound consistently and outward (trimesh ``fix_normals``);
 5. **pieces**: when the surface still has edges shared by more than two triangles, or crosses
-   itself (pieces that overlap or touch, caps that cut through each other), the union of its
-   closed shells is **remeshed on a voxel grid** of ``voxel_m``: the cells inside any shell
-   (ray parity, :func:`raytrace.body.anatomy.grid.inside_mask`), smoothed by a Gaussian of
-   ``smoothing_voxels`` cells and meshed by marching cubes at the half level, then decimated to
-   the organ's triangle budget (:mod:`raytrace.body.anatomy.decimate`).
+   itself (pieces that overlap or touch, caps that cut through each other), it is made the union of
+   its closed pieces (the organ's files when each is closed on its own, e.g. segments cut at landmarks
+   whose shared caps are triangulated differently, else the surface's closed shells): first **exactly**,
+   by manifold3d's boolean union of the pieces' own triangles (:func:`exact_union`), kept when it is
+   closed, consistently wound and does not cross itself; otherwise **remeshed on a voxel grid** of
+   ``voxel_m``: the cells inside any shell (ray parity, :func:`raytrace.body.anatomy.grid.inside_mask`),
+   smoothed by a Gaussian of ``smoothing_voxels`` cells and meshed by marching cubes at the half level,
+   then decimated to the organ's triangle budget (:mod:`raytrace.body.anatomy.decimate`).
 """
 
 from __future__ import annotations
@@ -38,13 +41,20 @@ from raytrace.body.selfintersect import cross_rows
 from raytrace.body.topology import ClosedEdges, closed_edges
 from raytrace.errors import Field, PhantomValidationError
 
-__all__ = ["Repaired", "boundary_loops", "repair_surface", "voxel_union"]
+__all__ = ["Repaired", "boundary_loops", "exact_union", "repair_surface", "voxel_union"]
+
+
+#: Pieces of an exact union smaller than this are float32 slivers, dropped [m^3] (one cubic millimetre).
+MIN_PIECE_M3 = 1e-9
 
 
 @dataclass
 class Repaired:
     mesh: trimesh.Trimesh
     repairs: list[str] = field(default_factory=list)
+    #: The organ's files as closed surfaces, when there are several and each is closed on its own (for the
+    #: union of step 5, also when the build later finds the joined surface crossing itself).
+    pieces: list[trimesh.Trimesh] = field(default_factory=list)
     #: remeshed on a voxel grid and decimated there (its error measured from the marching-cubes surface): a
     #: second decimation would add its error to the first one's
     remeshed: bool = False
@@ -209,11 +219,15 @@ def _planarity(points: np.ndarray) -> tuple[float, float]:
 
 
 def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label: str, options: Options,
-                   *, budget: int, max_cells: int, check_crossings: bool = True) -> Repaired:
+                   *, budget: int, max_cells: int, check_crossings: bool = True,
+                   pieces: "list[int] | None" = None) -> Repaired:
     """One closed outward surface from the triangles of an organ's files (module docstring).
     ``check_crossings=False`` leaves the self-crossing test of step 5 to the caller (the build tests every
-    organ at once, :func:`raytrace.body.anatomy.overlap.crossing_pairs`, and calls :func:`union_of` then)."""
+    organ at once, :func:`raytrace.body.anatomy.overlap.crossing_pairs`, and calls :func:`union_of` then).
+    ``pieces``: the number of triangles each file gave, in the order of ``faces`` (the files' own closed
+    surfaces are the pieces of step 5's union when each is closed)."""
     repairs: list[str] = []
+    closed = _closed_files(np.asarray(vertices, float), np.asarray(faces, np.int64), pieces)
     vertices, faces, merged = weld(np.asarray(vertices, float), np.asarray(faces, np.int64), options.weld_m)
     if merged:
         repairs.append(f"welded {merged} vertices closer than {_mm(options.weld_m)}")
@@ -272,11 +286,81 @@ def repair_surface(vertices: np.ndarray, faces: np.ndarray, where: Field, label:
     mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
     if not needs_union and check_crossings:
         needs_union = crosses_itself(mesh)
+    remeshed = False
     if needs_union:
-        shells = _closed_shells(mesh)
-        mesh, note = voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells)
+        mesh, note, remeshed = _union(closed or _closed_shells(mesh), where, label, options, budget=budget,
+                                      max_cells=max_cells, files=bool(closed))
         repairs.append(note)
-    return Repaired(mesh, repairs, remeshed=needs_union, edges=None if needs_union else edges)
+    return Repaired(mesh, repairs, closed, remeshed=remeshed, edges=None if needs_union else edges)
+
+
+def _closed_files(vertices: np.ndarray, faces: np.ndarray, pieces: "list[int] | None") -> list[trimesh.Trimesh]:
+    """Each file's triangles as a surface, oriented outward, when there are several and every one is closed
+    and consistently wound on its own; else none."""
+    if not pieces or len(pieces) < 2 or sum(pieces) != len(faces):
+        return []
+    out = []
+    for part in np.split(faces, np.cumsum(pieces)[:-1]):
+        mesh = trimesh.Trimesh(vertices, part, process=False, validate=False)
+        mesh.remove_unreferenced_vertices()
+        if len(mesh.faces) < 4 or not (mesh.is_watertight and mesh.is_winding_consistent):
+            return []
+        if mesh.volume < 0:
+            mesh.invert()
+        out.append(mesh)
+    return out
+
+
+def exact_union(shells: list[trimesh.Trimesh]) -> trimesh.Trimesh | None:
+    """The boolean union of closed shells by manifold3d (exact arithmetic on the shells' own triangles:
+    walls they share, such as the caps of segments cut at one plane, vanish whatever their triangulation),
+    or None unless that union is one or more closed, consistently wound surfaces that do not cross
+    themselves (the voxel remeshing is the fallback, module docstring step 5)."""
+    import manifold3d
+
+    origin = np.mean([s.bounds.mean(axis=0) for s in shells], axis=0)
+    try:
+        union = None
+        for shell in shells:
+            m = manifold3d.Manifold(manifold3d.Mesh(
+                vert_properties=np.asarray(shell.vertices - origin, np.float32),
+                tri_verts=np.asarray(shell.faces, np.uint32)))
+            if m.status() != manifold3d.Error.NoError:
+                return None
+            union = m if union is None else union + m
+        if union is None:  # no shells
+            return None
+        out = union.to_mesh()
+    except Exception:  # manifold3d refuses what it cannot treat as a closed manifold: fall back
+        return None
+    mesh = trimesh.Trimesh(np.asarray(out.vert_properties, float)[:, :3] + origin,
+                           np.asarray(out.tri_verts, np.int64), process=True, validate=False)
+    # float32 coordinates leave slivers where the pieces' seams do not meet exactly: zero-area triangles and
+    # specks of no volume, split off and dropped (below a cubic millimetre, far under any organ's features)
+    mesh.update_faces(mesh.nondegenerate_faces(height=1e-12))
+    mesh.remove_unreferenced_vertices()
+    parts = mesh.split(only_watertight=False)
+    if len(parts) > 1:
+        keep = [p for p in parts if abs(p.volume) >= MIN_PIECE_M3]
+        mesh = trimesh.util.concatenate(keep) if keep else mesh
+    if not len(mesh.faces) or not (mesh.is_watertight and mesh.is_winding_consistent) or mesh.volume <= 0:
+        return None
+    if _non_manifold(np.asarray(mesh.faces)) or crosses_itself(mesh):
+        return None
+    return mesh
+
+
+def _union(shells: list[trimesh.Trimesh], where: Field, label: str, options: Options, *, budget: int,
+           max_cells: int, files: bool) -> tuple[trimesh.Trimesh, str, bool]:
+    """Step 5: the exact union of the shells when it is clean, else the voxel remeshing; and whether it was
+    remeshed (then already decimated from its voxels: Repaired.remeshed)."""
+    if len(shells) >= 2:
+        joined = exact_union(shells)
+        if joined is not None:
+            what = "files, each closed," if files else "closed pieces"
+            return joined, (f"joined its {len(shells)} {what} by an exact boolean union (manifold3d): "
+                            f"{len(joined.faces)} triangles, {joined.volume * 1e6:.4g} mL"), False
+    return (*voxel_union(shells, where, label, options, budget=budget, max_cells=max_cells), True)
 
 
 def _drop_unused(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -320,9 +404,17 @@ def crosses_itself(mesh: trimesh.Trimesh) -> bool:
 
 
 def union_of(mesh: trimesh.Trimesh, where: Field, label: str, options: Options, *, budget: int,
-             max_cells: int) -> tuple[trimesh.Trimesh, str]:
-    """Step 5 for a surface found crossing itself after the repairs."""
-    return voxel_union(_closed_shells(mesh), where, label, options, budget=budget, max_cells=max_cells)
+             max_cells: int, pieces: "list[trimesh.Trimesh] | None" = None) -> tuple[trimesh.Trimesh, str]:
+    """Step 5 for a surface found crossing itself after the repairs (``pieces``: :attr:`Repaired.pieces`),
+    decimated to ``budget`` like every remeshed surface."""
+    from raytrace.body.anatomy.decimate import decimate
+
+    out, note, _ = _union(pieces or _closed_shells(mesh), where, label, options, budget=budget, max_cells=max_cells,
+                          files=bool(pieces))
+    if len(out.faces) > budget:  # an exact union keeps the pieces' triangles (the voxel union decimated already)
+        out, error = decimate(out, budget, options.decimation_error_m)
+        note += f", decimated to {len(out.faces)} triangles within {_mm(error)}"
+    return out, note
 
 
 def _non_manifold(faces: np.ndarray) -> bool:

@@ -1,14 +1,18 @@
 """Tracts: centreline files (JSON ``{"points": [...]}`` or CSV ``x,y,z``) -> centrelines with landmarks
 (docs/phantoms.md, "Tracts").
 
-A tract's points are read in the file's units and frame, mapped like every surface, optionally reversed
-(``reverse: true``: the capsule travels from the file's last point to its first), and checked to lie in
-the organ the tract names: every vertex, and points every millimetre between them. Vertices at either end
-that lie outside the organ (a mid-line running past an organ the build clipped, e.g. where the oesophagus
-leaves the scan) are trimmed and the report says how many; a point outside the organ *between* points
-inside it is refused, naming the tract, the point's index in the file and where it is. Landmarks are
-indices of the file's points; each becomes a capsule site ``<tract>_<landmark>`` and an arc length along
-the tract; a landmark in a trimmed end gets neither, and the report says so.
+A tract's points are read in the file's units and frame, cut to ``range`` (the file's first and last
+points used) when given, mapped like every surface, optionally reversed (``reverse: true``: the capsule
+travels from the file's last point to its first), and checked to lie in the organ the tract names: every
+vertex, and points every millimetre between them. A vertex closer than ``options.tract_clearance_m`` to the
+organ's surface, or outside it by at most that, is first moved to that depth inside it, along the normal of
+the surface's nearest point (a mid-line grazing the wall of a collapsed lumen: the shared CT's small bowel
+comes within 0.01 mm of its mid-line); the report says how many moved and how far. Vertices at either end
+that lie outside the organ (a mid-line running on into the next organ, or past an organ the build clipped,
+e.g. where the oesophagus leaves the scan) are trimmed and the report says how many; a point outside the
+organ *between* points inside it is refused, naming the tract, the point's index in the file and where it
+is. Landmarks are indices of the file's points; each becomes a capsule site ``<tract>_<landmark>`` and an
+arc length along the tract; a landmark in a trimmed end gets neither, and the report says so.
 """
 
 from __future__ import annotations
@@ -83,19 +87,62 @@ def read_points(path: Path, where) -> np.ndarray:
     return points
 
 
+def _media(phantom: Phantom, points: np.ndarray, where) -> np.ndarray:
+    try:
+        return phantom.medium_index(points, field=where)
+    except InputError:  # a vertex exactly on a surface: judge by a tiny nudge
+        return phantom.medium_index(points + 1e-6 * np.array([0.3, 0.5, 0.8]), field=where)
+
+
+def _clear_of_wall(points: np.ndarray, mesh, clearance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """``points`` with those closer than ``clearance_m`` to ``mesh`` (inside it) or outside it by at most that
+    moved to ``clearance_m`` inside, along the outward normal of their nearest surface point (module docstring);
+    and how far each moved [m] (0 for the others)."""
+    from trimesh.proximity import closest_point
+
+    from raytrace.body.anatomy.grid import SurfaceDistance
+
+    distance = SurfaceDistance(mesh.vertices, mesh.faces, clearance_m)(points, upper_m=4 * clearance_m)
+    near = distance <= clearance_m
+    moved = np.zeros(len(points))
+    if not near.any():
+        return points, moved
+    q, _, tri = closest_point(mesh, points[near])
+    out = points.copy()
+    out[near] = q - clearance_m * np.asarray(mesh.face_normals)[tri]
+    moved[near] = np.linalg.norm(out[near] - points[near], axis=1)
+    return out, moved
+
+
 def build_tract(spec: TractSpec, points_file: np.ndarray, to_m: Callable[[np.ndarray], np.ndarray],
-                phantom: Phantom) -> Tract:
-    """The tract's centreline in ``phantom`` (module docstring)."""
+                phantom: Phantom, clearance_m: float = 0.0) -> Tract:
+    """The tract's centreline in ``phantom`` (module docstring); ``clearance_m``: the manifest's
+    ``options.tract_clearance_m`` (0: no point is moved)."""
     where = ("manifest", "tracts", spec.name)
-    points = to_m(points_file)
-    index = np.arange(len(points))
+    index = np.arange(len(points_file))
+    if spec.range is not None:
+        first, last = spec.range
+        if last >= len(points_file):
+            raise PhantomValidationError(f"range [{first}, {last}] runs past the file's {len(points_file)} points",
+                                         field=(*where, "range"))
+        index = index[first:last + 1]
+    points = to_m(points_file[index])
     if spec.reverse:
         points, index = points[::-1], index[::-1]
     organ = phantom.organ_index(spec.organ)
-    try:
-        media = phantom.medium_index(points, field=where)
-    except InputError:  # a vertex exactly on a surface: judge by a tiny nudge
-        media = phantom.medium_index(points + 1e-6 * np.array([0.3, 0.5, 0.8]), field=where)
+    media = _media(phantom, points, where)
+    notes = []
+    if clearance_m > 0:
+        moved_points, moved = _clear_of_wall(points, phantom.organs[organ].mesh, clearance_m)
+        if moved.any():
+            changed = moved > 0
+            new_media = _media(phantom, moved_points[changed], where)
+            keep = new_media == organ  # a lumen thinner than twice the clearance: leave the point as it was
+            rows = np.flatnonzero(changed)[keep]
+            points[rows], media[rows] = moved_points[rows], organ
+            if len(rows):
+                notes.append(f"moved {len(rows)} point(s) by up to {moved[rows].max() * 1e3:.2f} mm to lie "
+                             f"{clearance_m * 1e3:g} mm inside {spec.organ!r} (the mid-line grazes its wall)")
     inside = media == organ
     if not inside.any():
         raise PhantomValidationError(f"no point of tract {spec.name!r} lies inside organ {spec.organ!r}", field=where)
@@ -106,7 +153,6 @@ def build_tract(spec: TractSpec, points_file: np.ndarray, to_m: Callable[[np.nda
         raise PhantomValidationError(
             f"point {int(index[k])} of tract {spec.name!r} ({np.round(points[k] * 1e3, 1).tolist()} mm) lies in "
             f"{phantom.medium_name(int(media[k]))!r}, not in {spec.organ!r}, between points inside it", field=where)
-    notes = []
     trimmed = first + (len(points) - 1 - last)
     if trimmed:
         notes.append(f"trimmed {trimmed} end point(s) outside {spec.organ!r}")
