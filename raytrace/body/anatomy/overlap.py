@@ -108,8 +108,15 @@ class _Gaps:
 
 def _drop_specks(mesh: trimesh.Trimesh, min_volume: float) -> trimesh.Trimesh:
     parts = mesh.split(only_watertight=False)
-    keep = [p for p in parts if abs(p.volume) >= min_volume]
+    keep = [p for p in parts if abs(_volume(p)) >= min_volume]
     return trimesh.util.concatenate(keep) if len(keep) != len(parts) and keep else mesh
+
+
+def _volume(mesh: trimesh.Trimesh) -> float:
+    """The mesh's enclosed volume [m^3]; a flat one (touching caps' intersection) is 0 whatever numpy's error
+    setting (trimesh divides by the volume for the centre of mass; gprMax, once imported, makes that raise)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(mesh.volume)
 
 
 def _depth(a: trimesh.Trimesh, b: trimesh.Trimesh, b_distance: SurfaceDistance) -> float:
@@ -153,7 +160,7 @@ def resolve_overlaps(organs: dict[str, trimesh.Trimesh], fields: dict[str, Field
                     _give_way(meshes, notes, first, second, clearance_m)
                 continue
             shared = intersect(a, b)
-            volume = float(shared.volume) if len(shared.faces) else 0.0
+            volume = _volume(shared) if len(shared.faces) else 0.0
             if volume <= 0.0:
                 # flagged as crossing yet sharing no volume: the surfaces touch (e.g. the caps of two cut pieces
                 # meeting exactly), which the phantom would refuse as a crossing once stored in float32

@@ -25,10 +25,11 @@ def test_crossing_flagged_pair_sharing_no_volume_gives_way_by_the_clearance():
     organs = _touching_boxes()
     a, b = organs["first"], organs["second"]
     shared = intersect(a, b)
-    assert not len(shared.faces) or abs(float(shared.volume)) < 1e-15  # the premise: no shared volume
-
-    meshes, notes = resolve_overlaps(organs, {"first": "first", "second": "second"}, tolerance_m=1e-3,
-                                     clearance_m=CLEARANCE_M, crossing={(0, 1)})
+    with np.errstate(divide="raise", invalid="raise"):  # as after gprMax's import in the same worker
+        meshes, notes = resolve_overlaps(organs, {"first": "first", "second": "second"}, tolerance_m=1e-3,
+                                         clearance_m=CLEARANCE_M, crossing={(0, 1)})
+    with np.errstate(divide="ignore", invalid="ignore"):  # trimesh divides by a flat mesh's zero volume
+        assert not len(shared.faces) or abs(float(shared.volume)) < 1e-15  # the premise: no shared volume
 
     assert meshes["first"] is a  # the organ listed first is kept
     assert notes["first"] == []
