@@ -30,9 +30,11 @@ def _error(exc: Exception) -> int:
 
 
 def _read(path: str) -> dict:
-    import yaml
+    """A spec file: JSON by its suffix, else YAML read as the sweeps' specs are (``1e-6`` a number, not the
+    string YAML 1.1 makes of it)."""
+    from sweeps.spec import parse_text
 
-    return yaml.safe_load(Path(path).read_text())
+    return parse_text(Path(path).read_text(), Path(path).suffix.lower())
 
 
 def _coverage(args: argparse.Namespace) -> int:

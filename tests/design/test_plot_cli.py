@@ -44,3 +44,13 @@ def test_design_writes_need_the_api_key_when_the_server_has_keys(make_settings, 
         body = {"sensors": 4, "coverage": "cv-0000000000000000"} if path.endswith("layout") else {}
         r = c.post(path, json=body)
         assert r.status_code == 401 and r.json()["detail"][0]["loc"] == ["header", "x-api-key"]
+
+
+def test_spec_files_read_exponents_as_numbers(tmp_path):
+    """YAML 1.1's safe loader reads ``1e-6`` (no dot) as a string, and a layout spec with it was refused."""
+    from service.design_cli import _read
+
+    (tmp_path / "a.json").write_text('{"max_model_error_s": 1e-6}')
+    (tmp_path / "a.yaml").write_text("max_model_error_s: 1e-6\n")
+    assert _read(str(tmp_path / "a.json")) == {"max_model_error_s": 1e-6}
+    assert _read(str(tmp_path / "a.yaml")) == {"max_model_error_s": 1e-6}
