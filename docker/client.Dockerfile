@@ -54,6 +54,7 @@ COPY sweeps ./sweeps
 COPY vision ./vision
 COPY fullwave ./fullwave
 COPY tracking ./tracking
+COPY design ./design
 # The local project with its test extra, in a virtual environment; versions are constrained in
 # pyproject.toml.
 # hadolint ignore=DL3013

@@ -60,6 +60,7 @@ COPY sweeps ./sweeps
 COPY vision ./vision
 COPY fullwave ./fullwave
 COPY tracking ./tracking
+COPY design ./design
 # The warm-up compiles the tracer's numba kernels into the image, so a container's start does
 # not pay the ~17 s compile. It imports the installed package (-P: not /app, the working directory), the
 # one `capsule-rt serve` imports (numba's cache is keyed on the source file). numba only uses a

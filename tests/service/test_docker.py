@@ -111,6 +111,15 @@ def test_dockerfiles_have_the_required_structure():
         assert "tomllib.load(open('pyproject.toml', 'rb'))" in text
         assert "pip install --no-cache-dir --find-links /wheels -r /tmp/requirements.txt" in text
         assert "pip install --no-cache-dir --no-deps ." in text
+    # every package pyproject.toml installs is copied in (design's was missing: its server could not import
+    # the design routes)
+    import tomllib
+
+    include = tomllib.loads((DOCKER.parent / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"][
+        "find"]["include"]
+    for package in (p.rstrip("*") for p in include):
+        for text in (server, client):
+            assert f"COPY {package} ./{package}\n" in text, package
     assert "HEALTHCHECK" in server and "/readyz" in server
     assert 'CMD ["capsule-rt", "serve"]' in server
     assert "ARG FULLWAVE=0" in server and 'LABEL io.capsule-rt.fullwave="${FULLWAVE}"' in server
