@@ -69,28 +69,16 @@ def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[st
     fields = {name: sensor_fields(phantom, union[members[name]], f, coverage["cell_size_m"], delay_kind="phase")  # GCC
               for name in names}
     v = velocity_m_per_s(DEFAULT_RELATIVE_PERMITTIVITY)
-    P = len(positions_m)
-    out = {name: {"rmse_m": np.full(P, np.nan), "bound_m": np.full(P, np.inf), "usable": np.zeros(P, int),
-                  "errors_m": np.full((P, trials), np.nan)} for name in names}
-    pol = coverage["channel"]["capsule_polarization"]
+    out = _empty_results(names, len(positions_m), trials)
     for p, x in enumerate(np.asarray(positions_m, float)):
         if check is not None:
             check(p)
-        spec = ChannelSpec(Antenna(position_m=x, polarization=pol),
-                           tuple(Antenna(position_m=s, name=f"s{k}") for k, s in enumerate(union)),
-                           phantom=phantom.name, frequency_hz=f, rays=rays, max_interactions=max_interactions,
-                           near_field=coverage["channel"]["near_field"])
-        result = trace_channel(spec, phantom)
+        result = _trace_at(phantom, x, union, coverage, rays, max_interactions)
         ranges: dict[int, tuple[np.ndarray, float]] = {}
         for k, prof in enumerate(result.profiles):
-            if not prof.paths:
-                continue
-            if require_direct_path and not any(all(i.kind == "refraction" for i in q.interactions)
-                                               for q in prof.paths):
+            if not _usable(prof, require_direct_path, snr_db, min_snr_db, link, noise_dbm):
                 continue
             snr = snr_db if snr_db is not None else link.transmit_power_dbm + prof.path_gain_db - noise_dbm
-            if (min_snr_db is not None and snr < min_snr_db) or snr < SNR_FLOOR_DB:
-                continue
             profile = PathProfile.from_traced(prof.paths, f)
             rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(p, k)))
             r = estimate_toa(profile, method="gcc", waveform=waveform, snr_db=snr, trials=trials, seed=rng,
@@ -115,10 +103,31 @@ def evaluate_layouts(phantom: Phantom, positions_m: np.ndarray, layouts: dict[st
                 except EstimatorInputError:
                     continue
                 out[name]["errors_m"][p, t] = float(np.linalg.norm(fix.position_m - x))
-            e = out[name]["errors_m"][p]
-            if np.isfinite(e).any():
-                out[name]["rmse_m"][p] = float(np.sqrt(np.nanmean(e**2)))
+            _rmse(out[name], p)
     return out
+
+
+def _empty_results(names: list[str], positions: int, trials: int) -> dict[str, dict]:
+    """Per layout: RMSE and bound per position (NaN / inf until known), usable sensors, each trial's error."""
+    return {name: {"rmse_m": np.full(positions, np.nan), "bound_m": np.full(positions, np.inf),
+                   "usable": np.zeros(positions, int), "errors_m": np.full((positions, trials), np.nan)}
+            for name in names}
+
+
+def _trace_at(phantom: Phantom, x: np.ndarray, union: np.ndarray, coverage: dict, rays: int, max_interactions: int):
+    """One trace from the capsule at ``x`` to every sensor of every layout (the coverage's channel knobs)."""
+    spec = ChannelSpec(Antenna(position_m=x, polarization=coverage["channel"]["capsule_polarization"]),
+                       tuple(Antenna(position_m=s, name=f"s{k}") for k, s in enumerate(union)),
+                       phantom=phantom.name, frequency_hz=coverage["frequency_hz"], rays=rays,
+                       max_interactions=max_interactions, near_field=coverage["channel"]["near_field"])
+    return trace_channel(spec, phantom)
+
+
+def _rmse(result: dict, p: int) -> None:
+    """Position ``p``'s RMSE over the trials that gave a fix (NaN when none did)."""
+    e = result["errors_m"][p]
+    if np.isfinite(e).any():
+        result["rmse_m"][p] = float(np.sqrt(np.nanmean(e**2)))
 
 
 def _usable(prof, require_direct_path: bool, snr_db, min_snr_db, link: LinkBudget, noise_dbm: float) -> bool:
@@ -139,18 +148,11 @@ def _evaluate_rss(phantom: Phantom, positions_m, union: np.ndarray, members: dic
 
     link = LinkBudget(**coverage["link"])
     noise_dbm = link.noise_power_dbm(noise_bandwidth_hz(coverage))
-    P = len(positions_m)
-    out = {name: {"rmse_m": np.full(P, np.nan), "bound_m": np.full(P, np.inf), "usable": np.zeros(P, int),
-                  "errors_m": np.full((P, trials), np.nan)} for name in members}
-    pol = coverage["channel"]["capsule_polarization"]
+    out = _empty_results(list(members), len(positions_m), trials)
     for p, x in enumerate(np.asarray(positions_m, float)):
         if check is not None:
             check(p)
-        spec = ChannelSpec(Antenna(position_m=x, polarization=pol),
-                           tuple(Antenna(position_m=s, name=f"s{k}") for k, s in enumerate(union)),
-                           phantom=phantom.name, frequency_hz=coverage["frequency_hz"], rays=rays,
-                           max_interactions=max_interactions, near_field=coverage["channel"]["near_field"])
-        result = trace_channel(spec, phantom)
+        result = _trace_at(phantom, x, union, coverage, rays, max_interactions)
         losses: dict[int, np.ndarray] = {}
         for k, prof in enumerate(result.profiles):
             if _usable(prof, require_direct_path, snr_db, min_snr_db, link, noise_dbm):
@@ -169,7 +171,5 @@ def _evaluate_rss(phantom: Phantom, positions_m, union: np.ndarray, members: dic
                 except EstimatorInputError:
                     continue
                 out[name]["errors_m"][p, t] = float(np.linalg.norm(fix.position_m - x))
-            e = out[name]["errors_m"][p]
-            if np.isfinite(e).any():
-                out[name]["rmse_m"][p] = float(np.sqrt(np.nanmean(e**2)))
+            _rmse(out[name], p)
     return out
